@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# Installs what GesTHOR-RS needs on a fresh Debian/Ubuntu machine; safe to run again.
+#   - Mesa lavapipe + Vulkan loader: wgpu renders headless on the CPU
+#   - libtorch 2.11.0 (from the PyPI wheel, no Python needed at run time) for tch 0.24
+#   - numpy + iceoryx2 0.10.0 for the Python frame reader in tests/python
+# Prints the environment to source as its last lines; `source scripts/env.sh` does that for you.
+set -euo pipefail
+
+DEPS="${GESTHOR_DEPS:-$HOME/.cache/gesthor}"
+TORCH_VERSION=2.11.0
+mkdir -p "$DEPS"
+
+log() { printf '[setup] %s\n' "$*" >&2; }
+
+need_apt=()
+for pkg in mesa-vulkan-drivers libvulkan1 python3-pip; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
+done
+if ((${#need_apt[@]})); then
+  log "apt-get install ${need_apt[*]}"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${need_apt[@]}" >/dev/null
+fi
+
+PY=python3
+# Older pips match a wheel's platform tag exactly, so name every manylinux level the wheels use.
+PLATFORMS=""
+for n in 17 24 25 26 27 28; do PLATFORMS+=" --platform manylinux_2_${n}_x86_64"; done
+PLATFORMS+=" --platform manylinux2014_x86_64"
+TORCH_DIR="$DEPS/torch-$TORCH_VERSION"
+if [ ! -f "$TORCH_DIR/.complete" ]; then
+  log "downloading libtorch $TORCH_VERSION (PyPI wheel, about 1.2 GB) into $TORCH_DIR"
+  rm -rf "$TORCH_DIR.partial"
+  $PY -m pip install -q --disable-pip-version-check --no-deps --only-binary=:all: \
+    --python-version 3.12 --implementation cp $PLATFORMS \
+    --target "$TORCH_DIR.partial" \
+    "torch==$TORCH_VERSION" nvidia-cuda-runtime==13.0.96 nvidia-cuda-cupti==13.0.85
+  rm -rf "$TORCH_DIR"
+  mv "$TORCH_DIR.partial" "$TORCH_DIR"
+  touch "$TORCH_DIR/.complete"
+fi
+
+PYDIR="$DEPS/python"
+if [ ! -f "$PYDIR/.complete" ]; then
+  log "installing numpy + iceoryx2 0.10.0 (Python) into $PYDIR"
+  rm -rf "$PYDIR"
+  $PY -m pip install -q --disable-pip-version-check --only-binary=:all: --target "$PYDIR" \
+    numpy iceoryx2==0.10.0
+  touch "$PYDIR/.complete"
+fi
+
+cat > "$DEPS/env.sh" <<ENV
+export LIBTORCH="$TORCH_DIR/torch"
+export LIBTORCH_BYPASS_VERSION_CHECK=0
+export LD_LIBRARY_PATH="$TORCH_DIR/torch/lib\${LD_LIBRARY_PATH:+:\$LD_LIBRARY_PATH}"
+export PYTHONPATH="$PYDIR\${PYTHONPATH:+:\$PYTHONPATH}"
+ENV
+log "ready; environment in $DEPS/env.sh"

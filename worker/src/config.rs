@@ -1,0 +1,438 @@
+//! The run configuration: one TOML file read by the orchestrator, the learner and every worker.
+//!
+//! Every section has defaults from the dissertation (T4.1, §4.2, §4.3.3) so that a config names
+//! only what it changes; unknown keys are errors that name the key's path and the file.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::scene::Split;
+
+/// The six methods of T4.2.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// Uniformly random actions; nothing is learned.
+    Random,
+    /// RGB and depth only, target-agnostic.
+    VisionOnly,
+    /// Vision + target category.
+    VisSem,
+    /// VisSem + the referencing gesture all episode.
+    Referencing,
+    /// VisSem + an intervention gesture while the robot faces more than 90° away from the target.
+    Intervention,
+    /// VisSem + intervention when facing away, referencing otherwise.
+    Both,
+}
+
+impl Method {
+    pub const ALL: [Method; 6] =
+        [Method::Random, Method::VisionOnly, Method::VisSem, Method::Referencing, Method::Intervention, Method::Both];
+
+    /// What the worker shows the robot.
+    pub fn schedule(self) -> GestureSchedule {
+        match self {
+            Method::Random | Method::Referencing => GestureSchedule::Referencing,
+            Method::VisionOnly | Method::VisSem => GestureSchedule::None,
+            Method::Intervention => GestureSchedule::Intervention,
+            Method::Both => GestureSchedule::Both,
+        }
+    }
+
+    /// Whether the policy sees the target category.
+    pub fn semantic(self) -> bool {
+        !matches!(self, Method::VisionOnly)
+    }
+
+    /// Whether the policy sees the gesture.
+    pub fn gesture(self) -> bool {
+        matches!(self, Method::Random | Method::Referencing | Method::Intervention | Method::Both)
+    }
+
+    pub fn label(self) -> &'static str {
+        match self {
+            Method::Random => "Random",
+            Method::VisionOnly => "Vision Only",
+            Method::VisSem => "VisSem",
+            Method::Referencing => "+Referencing",
+            Method::Intervention => "+Intervention",
+            Method::Both => "+Both",
+        }
+    }
+}
+
+/// Which gesture the robot perceives at each step (§4.4.1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GestureSchedule {
+    None,
+    Referencing,
+    Intervention,
+    Both,
+}
+
+/// `[run]`: what to train or evaluate on.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunSection {
+    /// Every random stream of the run derives from this.
+    #[serde(default = "d_seed")]
+    pub seed: u64,
+    pub method: Method,
+    /// Folder of a dataset made by `orchestrator dataset build`.
+    #[serde(default = "d_dataset")]
+    pub dataset: PathBuf,
+    /// Fold the workers draw episodes from.
+    #[serde(default = "d_split")]
+    pub split: Split,
+    /// Restrict episodes to these rooms ("FloorPlan1", ...); all rooms of the split when empty.
+    #[serde(default)]
+    pub scenes: Vec<String>,
+    /// Use at most this many programs of the split (the first ones of each room, in order).
+    #[serde(default)]
+    pub max_programs: Option<usize>,
+    /// Environment frames to train for (the dissertation trains 5 million).
+    #[serde(default = "d_total_frames")]
+    pub total_frames: u64,
+}
+
+/// `[env]`: the robot and its camera (§3.2.2, §4.2).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnvConfig {
+    /// Environments stepped by one worker process.
+    pub envs_per_worker: usize,
+    /// Frame width and height in pixels.
+    pub width: u32,
+    pub height: u32,
+    /// Horizontal = vertical field of view, degrees.
+    pub fov_deg: f32,
+    pub camera_height: f32,
+    pub robot_radius: f32,
+    pub robot_height: f32,
+    /// MoveAhead distance, metres.
+    pub move_step: f32,
+    /// RotateLeft / RotateRight angle, degrees.
+    pub turn_deg: f32,
+}
+
+impl Default for EnvConfig {
+    fn default() -> Self {
+        EnvConfig {
+            envs_per_worker: 4,
+            width: 224,
+            height: 224,
+            fov_deg: 90.0,
+            camera_height: 1.5,
+            robot_radius: 0.3,
+            robot_height: 1.5,
+            move_step: 0.25,
+            turn_deg: 15.0,
+        }
+    }
+}
+
+/// `[task]`: success and reward (§4.2, §4.3.2).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TaskConfig {
+    /// Success needs the robot within this 2D distance of the target centre (metres).
+    pub success_distance: f32,
+    /// ... and at least this many pixels of the target in view.
+    pub min_visible_pixels: u32,
+    /// Episode length limit (steps).
+    pub max_steps: u32,
+    /// Stops allowed before the episode ends; 0 = unlimited (training, ∞ in T4.4).
+    pub max_stops: u32,
+    pub reward_success: f32,
+    /// Subtracted every step.
+    pub step_penalty: f32,
+    /// Subtracted for a blocked move.
+    pub collision_penalty: f32,
+    /// Subtracted for a stop that does not succeed.
+    pub wrong_stop_penalty: f32,
+    /// Intervention gestures show while heading and target bearing differ by more than this.
+    pub intervention_angle_deg: f32,
+    /// Distance-to-success threshold of DTS (the dissertation writes 1.5 m).
+    pub dts_threshold: f32,
+}
+
+impl Default for TaskConfig {
+    fn default() -> Self {
+        TaskConfig {
+            success_distance: 1.0,
+            min_visible_pixels: 1,
+            max_steps: 100,
+            max_stops: 0,
+            reward_success: 1.0,
+            step_penalty: 0.001,
+            collision_penalty: 0.005,
+            wrong_stop_penalty: 0.01,
+            intervention_angle_deg: 90.0,
+            dts_threshold: 1.5,
+        }
+    }
+}
+
+/// Visual encoder of the policy.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Encoder {
+    /// Frozen ResNet-18 conv5 → 1×1 convs → FC 512 (§4.3.3).
+    Resnet18,
+    /// A small trained CNN for CPU runs.
+    SmallCnn,
+}
+
+/// `[model]`: the network (§4.3.3).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelConfig {
+    pub encoder: Encoder,
+    /// torchvision ResNet-18 checkpoint (ImageNet weights); without it the encoder is trained.
+    pub resnet_weights: Option<PathBuf>,
+    /// Inputs; the method decides semantic and gesture, these switch the visual ones (T4.7).
+    pub rgb: bool,
+    pub depth: bool,
+    /// Feed the person's pose relative to the robot (the released code did; the text does not).
+    pub person_pose: bool,
+    /// Width of every feature and hidden layer.
+    pub hidden: i64,
+    /// GRU layers (the dissertation: 2; the released code: 1).
+    pub gru_layers: i64,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        ModelConfig {
+            encoder: Encoder::Resnet18,
+            resnet_weights: None,
+            rgb: true,
+            depth: true,
+            person_pose: false,
+            hidden: 512,
+            gru_layers: 2,
+        }
+    }
+}
+
+/// `[ppo]`: T4.1 and §4.3.2.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PpoConfig {
+    /// Steps per environment per rollout (T4.1: 128).
+    pub rollout: usize,
+    /// Passes over each rollout (T4.1: 4).
+    pub epochs: usize,
+    /// Minibatches per epoch (whole environments per minibatch, so the GRU sees full sequences).
+    pub minibatches: usize,
+    /// Adam learning rate, decayed linearly to 0 over `total_frames` (T4.1: 3e-4).
+    pub lr: f64,
+    pub clip: f64,
+    pub gamma: f64,
+    pub gae_lambda: f64,
+    pub max_grad_norm: f64,
+    pub value_coef: f64,
+    pub entropy_coef: f64,
+    /// Use bf16 autocast on CUDA.
+    pub mixed_precision: bool,
+}
+
+impl Default for PpoConfig {
+    fn default() -> Self {
+        PpoConfig {
+            rollout: 128,
+            epochs: 4,
+            minibatches: 1,
+            lr: 3e-4,
+            clip: 0.2,
+            gamma: 0.99,
+            gae_lambda: 0.99,
+            max_grad_norm: 0.5,
+            value_coef: 0.5,
+            entropy_coef: 0.01,
+            mixed_precision: true,
+        }
+    }
+}
+
+/// `[checkpoint]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CheckpointConfig {
+    /// Write a checkpoint every this many updates (and on Ctrl-C).
+    pub every_updates: u64,
+    /// Keep this many most recent checkpoints.
+    pub keep: usize,
+}
+
+impl Default for CheckpointConfig {
+    fn default() -> Self {
+        CheckpointConfig { every_updates: 10, keep: 3 }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Device {
+    /// CUDA when a GPU is there, else CPU.
+    #[default]
+    Auto,
+    Cpu,
+    Cuda,
+}
+
+/// The whole file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    pub run: RunSection,
+    #[serde(default)]
+    pub env: EnvConfig,
+    #[serde(default)]
+    pub task: TaskConfig,
+    #[serde(default)]
+    pub model: ModelConfig,
+    #[serde(default)]
+    pub ppo: PpoConfig,
+    #[serde(default)]
+    pub checkpoint: CheckpointConfig,
+    #[serde(default)]
+    pub device: Device,
+}
+
+fn d_seed() -> u64 {
+    1
+}
+fn d_dataset() -> PathBuf {
+    PathBuf::from("data/gond")
+}
+fn d_split() -> Split {
+    Split::Train
+}
+fn d_total_frames() -> u64 {
+    5_000_000
+}
+
+/// A config that cannot be used: file, field path, reason.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {field}: {message}")]
+pub struct ConfigError {
+    pub file: String,
+    pub field: String,
+    pub message: String,
+}
+
+impl RunConfig {
+    pub fn load(path: &Path) -> Result<RunConfig, ConfigError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ConfigError { file: file.clone(), field: "(file)".into(), message: e.to_string() })?;
+        RunConfig::from_toml(&text, &file)
+    }
+
+    pub fn from_toml(text: &str, file: &str) -> Result<RunConfig, ConfigError> {
+        let de = toml::Deserializer::parse(text)
+            .map_err(|e| ConfigError { file: file.into(), field: "(syntax)".into(), message: e.to_string() })?;
+        let cfg: RunConfig = serde_path_to_error::deserialize(de).map_err(|e| ConfigError {
+            file: file.into(),
+            field: e.path().to_string(),
+            message: e.inner().message().to_string(),
+        })?;
+        cfg.validate().map_err(|(field, message)| ConfigError { file: file.into(), field, message })?;
+        Ok(cfg)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("config serialises")
+    }
+
+    /// Range checks serde cannot express.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        let e = |f: &str, m: String| Err((f.to_string(), m));
+        let env = &self.env;
+        if !(1..=64).contains(&env.envs_per_worker) {
+            return e("env.envs_per_worker", format!("must be 1..=64, got {}", env.envs_per_worker));
+        }
+        for (f, v) in [("env.width", env.width), ("env.height", env.height)] {
+            if !(16..=1024).contains(&v) {
+                return e(f, format!("must be 16..=1024 pixels, got {v}"));
+            }
+        }
+        if !(10.0..=170.0).contains(&env.fov_deg) {
+            return e("env.fov_deg", format!("must be 10..=170 degrees, got {}", env.fov_deg));
+        }
+        if !(env.move_step > 0.0 && env.turn_deg > 0.0 && env.robot_radius > 0.0) {
+            return e("env", "move_step, turn_deg and robot_radius must be positive".into());
+        }
+        if self.task.max_steps == 0 {
+            return e("task.max_steps", "must be at least 1".into());
+        }
+        if self.task.success_distance <= 0.0 {
+            return e("task.success_distance", "must be positive".into());
+        }
+        let p = &self.ppo;
+        if p.rollout == 0 || p.epochs == 0 || p.minibatches == 0 {
+            return e("ppo", "rollout, epochs and minibatches must be at least 1".into());
+        }
+        if !(p.lr > 0.0 && p.lr < 1.0) {
+            return e("ppo.lr", format!("must be in (0, 1), got {}", p.lr));
+        }
+        if !(0.0..=1.0).contains(&p.gamma) || !(0.0..=1.0).contains(&p.gae_lambda) {
+            return e("ppo.gamma", "gamma and gae_lambda must be in [0, 1]".into());
+        }
+        if self.model.hidden <= 0 || self.model.gru_layers <= 0 {
+            return e("model.hidden", "hidden and gru_layers must be positive".into());
+        }
+        if !self.model.rgb && !self.model.depth && self.run.method != Method::Random {
+            // blind training is allowed only through eval's blind mode
+            return e("model.rgb", "at least one of model.rgb and model.depth must be on".into());
+        }
+        for (i, s) in self.run.scenes.iter().enumerate() {
+            if crate::scene::SceneId::parse(s).is_none() {
+                return e(&format!("run.scenes[{i}]"), format!("`{s}` is not a room name like FloorPlan201"));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn minimal_config_takes_defaults_from_t41() {
+        let c = RunConfig::from_toml("[run]\nmethod = \"both\"\n", "x.toml").unwrap();
+        assert_eq!(c.ppo.rollout, 128);
+        assert_eq!(c.ppo.epochs, 4);
+        assert_eq!(c.ppo.lr, 3e-4);
+        assert_eq!(c.ppo.clip, 0.2);
+        assert_eq!(c.ppo.gamma, 0.99);
+        assert_eq!(c.ppo.gae_lambda, 0.99);
+        assert_eq!(c.ppo.max_grad_norm, 0.5);
+        assert_eq!(c.task.max_steps, 100);
+        assert_eq!(c.env.width, 224);
+        assert_eq!(c.run.method.schedule(), GestureSchedule::Both);
+    }
+
+    #[test]
+    fn typo_names_the_field_and_file() {
+        let err = RunConfig::from_toml("[run]\nmethod = \"both\"\n[ppo]\nlearning_rate = 1.0\n", "cfg/x.toml").unwrap_err();
+        let s = err.to_string();
+        assert!(s.contains("cfg/x.toml") && s.contains("learning_rate"), "{s}");
+        let err = RunConfig::from_toml("[run]\nmethod = \"telepathy\"\n", "x.toml").unwrap_err();
+        assert!(err.to_string().contains("run.method"), "{err}");
+        let err = RunConfig::from_toml("[run]\nmethod = \"both\"\n[env]\nwidth = 4\n", "x.toml").unwrap_err();
+        assert!(err.to_string().contains("env.width"), "{err}");
+    }
+
+    #[test]
+    fn round_trips_through_toml() {
+        let c = RunConfig::from_toml("[run]\nmethod = \"vis_sem\"\nscenes = [\"FloorPlan1\"]\n", "x.toml").unwrap();
+        let back = RunConfig::from_toml(&c.to_toml(), "y.toml").unwrap();
+        assert_eq!(c, back);
+    }
+}
