@@ -3,7 +3,13 @@
 //! `task` (success, reward, stops) → `render` (RGB, depth, ids) and
 //! `humanoid` / `gesture` (motion → skeleton → avatar). `env` composes them.
 
+pub mod camera;
 pub mod config;
 pub mod geometry;
+pub mod nav;
+pub mod physics;
+pub mod robot;
 pub mod scene;
+pub mod task;
 pub mod util;
+pub mod visibility;

@@ -1,0 +1,160 @@
+//! The pinhole camera shared by the renderer and the CPU visibility checks, so that "in view"
+//! means the same thing to both.
+//!
+//! Frame: x right, y up, z forward (left-handed, as in Unity). At yaw 0 the camera looks along +z
+//! and +x is on the right of the image; pitch > 0 looks up. Pixel (0, 0) is the top-left corner.
+
+use nalgebra::{Matrix4, Point3, Vector3};
+
+/// Near and far clip planes (metres).
+pub const NEAR: f32 = 0.02;
+pub const FAR: f32 = 20.0;
+/// Depth images are linear in 0..MAX_DEPTH metres (§3.2.2).
+pub const MAX_DEPTH: f32 = 10.0;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    pub position: Point3<f32>,
+    pub yaw_deg: f32,
+    pub pitch_deg: f32,
+}
+
+/// Image size and field of view.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Intrinsics {
+    pub width: u32,
+    pub height: u32,
+    /// Vertical field of view (degrees); the horizontal one follows from the aspect ratio.
+    pub fov_deg: f32,
+}
+
+impl Intrinsics {
+    pub fn tan_half_fov_y(&self) -> f32 {
+        (self.fov_deg.to_radians() / 2.0).tan()
+    }
+    pub fn tan_half_fov_x(&self) -> f32 {
+        self.tan_half_fov_y() * self.width as f32 / self.height as f32
+    }
+}
+
+impl Camera {
+    /// Unit vectors (right, up, forward) of the camera in world space.
+    pub fn basis(&self) -> (Vector3<f32>, Vector3<f32>, Vector3<f32>) {
+        let (y, p) = (self.yaw_deg.to_radians(), self.pitch_deg.to_radians());
+        let forward = Vector3::new(y.sin() * p.cos(), p.sin(), y.cos() * p.cos());
+        let right = Vector3::new(y.cos(), 0.0, -y.sin());
+        let up = forward.cross(&right);
+        (right, up, forward)
+    }
+
+    /// World → eye (x right, y up, z = distance along the view axis).
+    pub fn to_eye(&self, p: &Point3<f32>) -> Vector3<f32> {
+        let (r, u, f) = self.basis();
+        let d = p - self.position;
+        Vector3::new(r.dot(&d), u.dot(&d), f.dot(&d))
+    }
+
+    /// Pixel coordinates (x right, y down, continuous) and eye depth of a world point,
+    /// or None if it lies behind the near plane.
+    pub fn project(&self, k: &Intrinsics, p: &Point3<f32>) -> Option<(f32, f32, f32)> {
+        let e = self.to_eye(p);
+        if e.z <= NEAR {
+            return None;
+        }
+        let nx = e.x / (e.z * k.tan_half_fov_x());
+        let ny = e.y / (e.z * k.tan_half_fov_y());
+        let px = (nx + 1.0) * 0.5 * k.width as f32;
+        let py = (1.0 - ny) * 0.5 * k.height as f32;
+        Some((px, py, e.z))
+    }
+
+    /// Whether a world point projects inside the image, at least `margin` pixels from its edges.
+    pub fn in_view(&self, k: &Intrinsics, p: &Point3<f32>, margin: f32) -> bool {
+        match self.project(k, p) {
+            Some((x, y, z)) => {
+                z < FAR
+                    && x >= margin
+                    && y >= margin
+                    && x <= k.width as f32 - margin
+                    && y <= k.height as f32 - margin
+            }
+            None => false,
+        }
+    }
+
+    /// View matrix (world → eye, eye z forward) as used by the shader.
+    pub fn view_matrix(&self) -> Matrix4<f32> {
+        let (r, u, f) = self.basis();
+        let c = self.position.coords;
+        Matrix4::new(
+            r.x, r.y, r.z, -r.dot(&c),
+            u.x, u.y, u.z, -u.dot(&c),
+            f.x, f.y, f.z, -f.dot(&c),
+            0.0, 0.0, 0.0, 1.0,
+        )
+    }
+
+    /// Projection to wgpu clip space (x, y in [−1, 1], z in [0, 1], w = eye depth).
+    pub fn projection_matrix(k: &Intrinsics) -> Matrix4<f32> {
+        let (sx, sy) = (1.0 / k.tan_half_fov_x(), 1.0 / k.tan_half_fov_y());
+        let a = FAR / (FAR - NEAR);
+        let b = -NEAR * FAR / (FAR - NEAR);
+        Matrix4::new(
+            sx, 0.0, 0.0, 0.0,
+            0.0, sy, 0.0, 0.0,
+            0.0, 0.0, a, b,
+            0.0, 0.0, 1.0, 0.0,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const K: Intrinsics = Intrinsics { width: 224, height: 224, fov_deg: 90.0 };
+
+    fn cam(yaw: f32) -> Camera {
+        Camera { position: Point3::new(0.0, 1.5, 0.0), yaw_deg: yaw, pitch_deg: 0.0 }
+    }
+
+    #[test]
+    fn straight_ahead_is_the_image_centre() {
+        let (x, y, z) = cam(0.0).project(&K, &Point3::new(0.0, 1.5, 2.0)).unwrap();
+        assert!((x - 112.0).abs() < 1e-3 && (y - 112.0).abs() < 1e-3 && (z - 2.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn plus_x_is_right_and_up_is_up() {
+        let (x, _, _) = cam(0.0).project(&K, &Point3::new(1.0, 1.5, 2.0)).unwrap();
+        assert!(x > 112.0);
+        let (_, y, _) = cam(0.0).project(&K, &Point3::new(0.0, 2.5, 2.0)).unwrap();
+        assert!(y < 112.0);
+        // yaw 90 looks along +x
+        let (x, _, z) = cam(90.0).project(&K, &Point3::new(2.0, 1.5, 0.0)).unwrap();
+        assert!((x - 112.0).abs() < 1e-3 && (z - 2.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn ninety_degree_fov_edges() {
+        // at 45° off axis a point sits on the image edge
+        let (x, _, _) = cam(0.0).project(&K, &Point3::new(2.0, 1.5, 2.0)).unwrap();
+        assert!((x - 224.0).abs() < 1e-3);
+        assert!(!cam(0.0).in_view(&K, &Point3::new(0.0, 1.5, -1.0), 0.0));
+    }
+
+    #[test]
+    fn matrices_agree_with_project() {
+        let c = Camera { position: Point3::new(0.3, 1.5, -0.7), yaw_deg: 37.0, pitch_deg: -10.0 };
+        let m = Camera::projection_matrix(&K) * c.view_matrix();
+        let p = Point3::new(1.0, 0.8, 2.0);
+        let clip = m * p.to_homogeneous();
+        let (x, y, z) = c.project(&K, &p).unwrap();
+        let nx = clip.x / clip.w;
+        let ny = clip.y / clip.w;
+        assert!(((nx + 1.0) * 112.0 - x).abs() < 1e-3);
+        assert!(((1.0 - ny) * 112.0 - y).abs() < 1e-3);
+        assert!((clip.w - z).abs() < 1e-4);
+        assert!((0.0..=1.0).contains(&(clip.z / clip.w)));
+    }
+}
