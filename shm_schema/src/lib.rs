@@ -142,6 +142,9 @@ pub struct EnvRecord {
     pub gesture_index: u8,
     /// 1 when this env has no more programs to run (evaluation); the record is then stale.
     pub idle: u8,
+    /// The shortest-path expert's action from here (255 when the run does not ask for it).
+    pub expert_action: u8,
+    pub _pad: [u8; 3],
     pub stops: u32,
     /// Target category index (order of `worker::scene::Category::targets()`).
     pub target_category: u32,
