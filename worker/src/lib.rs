@@ -5,9 +5,11 @@
 
 pub mod camera;
 pub mod config;
+pub mod dataset;
 pub mod geometry;
 pub mod nav;
 pub mod physics;
+pub mod program;
 pub mod robot;
 pub mod scene;
 pub mod task;
