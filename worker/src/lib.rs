@@ -7,6 +7,7 @@ pub mod camera;
 pub mod config;
 pub mod dataset;
 pub mod geometry;
+pub mod metrics;
 pub mod nav;
 pub mod physics;
 pub mod program;
