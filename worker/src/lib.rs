@@ -5,5 +5,7 @@
 
 pub mod config;
 pub mod geometry;
+pub mod gesture;
+pub mod humanoid;
 pub mod scene;
 pub mod util;
