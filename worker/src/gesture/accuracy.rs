@@ -62,7 +62,7 @@ pub fn accuracy_with(h: &Humanoid, motion: &Motion, human_pos: Point3<f32>, huma
 
 /// [`accuracy_with`] on the default 1.70 m person.
 pub fn accuracy(motion: &Motion, human_pos: Point3<f32>, human_yaw: f32, target: Point3<f32>, radius: f32) -> f32 {
-    accuracy_with(&Humanoid::default(), motion, human_pos, human_yaw, target, radius)
+    accuracy_with(Humanoid::standard(), motion, human_pos, human_yaw, target, radius)
 }
 
 #[cfg(test)]

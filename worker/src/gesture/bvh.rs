@@ -57,7 +57,7 @@ pub fn import_bytes(bytes: &[u8], file: &str) -> Result<Motion, BvhError> {
         .map_err(|_| parse_err(None, "not a readable BVH file: malformed hierarchy".into()))?;
     // The parser counts lines from 0.
     let bvh = parsed.map_err(|e| parse_err(e.line().map(|l| l + 1), format!("not a readable BVH file: {e}")))?;
-    retarget(&bvh, &Humanoid::default(), file)
+    retarget(&bvh, Humanoid::standard(), file)
 }
 
 /// Checks the structure `bvh_anim` expects (it panics, or reserves memory for the declared
@@ -215,10 +215,10 @@ pub fn joint_kind(name: &str) -> Option<JointKind> {
         }
     }
     for (prefix, side) in [('l', Side::Left), ('r', Side::Right)] {
-        if let Some(rest) = base.strip_prefix(prefix) {
-            if let Some(k) = sided(side, rest.trim_start_matches(['_', '.'])) {
-                return Some(k);
-            }
+        if let Some(rest) = base.strip_prefix(prefix)
+            && let Some(k) = sided(side, rest.trim_start_matches(['_', '.']))
+        {
+            return Some(k);
         }
     }
     None

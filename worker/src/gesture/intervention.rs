@@ -68,8 +68,7 @@ struct ArmKey {
 }
 
 fn solve(spec: ArmSpec) -> ArmKey {
-    static BODY: OnceLock<Humanoid> = OnceLock::new();
-    let sk = BODY.get_or_init(Humanoid::default).skeleton();
+    let sk = Humanoid::standard().skeleton();
     let a = idx::RIGHT_ARM;
     let ua = Bone::RightUpperArm;
     let shoulder = sk.chain(&STANDING, ua).0;

@@ -112,10 +112,8 @@ pub fn mirror_pose(m: &[f32; MUSCLES]) -> [f32; MUSCLES] {
     // Eyes, legs, arms, fingers swap sides (their muscles already mean the same anatomical
     // motion on both sides).
     for (l, r, n) in [(15, 17, 2), (21, 29, 8), (37, 46, 9), (55, 75, 20)] {
-        for k in 0..n {
-            o[l + k] = m[r + k];
-            o[r + k] = m[l + k];
-        }
+        o[l..l + n].copy_from_slice(&m[r..r + n]);
+        o[r..r + n].copy_from_slice(&m[l..l + n]);
     }
     o
 }

@@ -124,11 +124,28 @@ pub fn format_value(v: f32) -> String {
     if s == "-0" { "0".to_string() } else { s }
 }
 
-/// motion.csv text in the original form (header, `;`, CRLF, 3-decimal values).
+/// The first line of a motion.csv.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum CsvHeader {
+    /// `0;1;…;94`, as the original recorder wrote it.
+    #[default]
+    Indices,
+    /// The 95 muscle names (`Spine Front-Back;…`), for people reading the file.
+    Names,
+}
+
+/// motion.csv text in the original form (index header, `;`, CRLF, 3-decimal values).
 pub fn to_csv(m: &Motion) -> String {
+    to_csv_with(m, CsvHeader::Indices)
+}
+
+/// motion.csv text with the chosen header; the rows are always in the original form.
+pub fn to_csv_with(m: &Motion, header: CsvHeader) -> String {
     let mut out = String::with_capacity(60 * 1024);
-    let header: Vec<String> = (0..MUSCLES).map(|i| i.to_string()).collect();
-    out.push_str(&header.join(";"));
+    match header {
+        CsvHeader::Indices => out.push_str(&(0..MUSCLES).map(|i| i.to_string()).collect::<Vec<_>>().join(";")),
+        CsvHeader::Names => out.push_str(&MUSCLE_NAMES.join(";")),
+    }
     out.push_str("\r\n");
     for frame in m.frames() {
         for (i, v) in frame.iter().enumerate() {
@@ -142,15 +159,21 @@ pub fn to_csv(m: &Motion) -> String {
     out
 }
 
-/// Writes a motion.csv atomically. A motion holding NaN or infinity is refused.
+/// Writes a motion.csv in the original form atomically. A motion holding NaN or infinity is
+/// refused.
 pub fn write_csv(path: &Path, m: &Motion) -> std::io::Result<()> {
+    write_csv_with(path, m, CsvHeader::Indices)
+}
+
+/// [`write_csv`] with the chosen header.
+pub fn write_csv_with(path: &Path, m: &Motion, header: CsvHeader) -> std::io::Result<()> {
     if let Some(i) = m.as_flat().iter().position(|v| !v.is_finite()) {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidData,
             format!("frame {}, muscle {}: value {} is not finite", i / MUSCLES, i % MUSCLES, m.as_flat()[i]),
         ));
     }
-    crate::util::write_atomic(path, to_csv(m).as_bytes())
+    crate::util::write_atomic(path, to_csv_with(m, header).as_bytes())
 }
 
 /// A Unity `Vector3` as `JsonUtility` writes it (`{"x": …, "y": …, "z": …}`).
@@ -324,6 +347,9 @@ mod tests {
         let p = d.path().join("motion.csv");
         write_csv(&p, &m).unwrap();
         assert_eq!(std::fs::read(&p).unwrap(), bytes);
+        let mut bad = m.clone();
+        bad.frame_mut(3)[7] = f32::NAN;
+        assert!(write_csv(&d.path().join("nan.csv"), &bad).is_err());
     }
 
     #[test]
@@ -345,6 +371,9 @@ mod tests {
         // LF line ends, no final line end.
         let lf = text.replace("\r\n", "\n");
         assert_eq!(parse_csv(lf.trim_end(), "b").unwrap(), want);
+        // The named header this module writes reads back the same.
+        assert_eq!(parse_csv(&to_csv_with(&want, CsvHeader::Names), "n").unwrap(), want);
+        assert!(to_csv_with(&want, CsvHeader::Names).starts_with("Spine Front-Back;Spine Left-Right;"));
         // Named header, trailing separators, decimal commas.
         let mut lines: Vec<String> = lf.lines().map(String::from).collect();
         lines[0] = MUSCLE_NAMES.join(";");

@@ -12,8 +12,6 @@
 //! finger's last segment, or the hand for an open palm) through the aimed point, and two more
 //! put the face on the target.
 
-use std::sync::OnceLock;
-
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
@@ -79,19 +77,20 @@ pub struct ReferencingStyle {
 
 const KEY_REFERENCING: u64 = 0x5EFE_2E4C;
 
-fn default_body() -> &'static Humanoid {
-    static BODY: OnceLock<Humanoid> = OnceLock::new();
-    BODY.get_or_init(Humanoid::default)
-}
-
 /// A referencing gesture of the default 1.70 m person at `human_pos` (floor point) facing
 /// `human_yaw` (degrees) towards `target`, drawn from `seed`.
 pub fn referencing(seed: u64, human_pos: Point3<f32>, human_yaw: f32, target: Point3<f32>) -> (Motion, ReferencingStyle) {
-    referencing_with(default_body(), seed, human_pos, human_yaw, target)
+    referencing_with(Humanoid::standard(), seed, human_pos, human_yaw, target)
 }
 
 /// [`referencing`] for a given body (its proportions decide the exact arm angles).
+///
+/// Panics if a position or the yaw is not finite (a caller's bug, not a data error).
 pub fn referencing_with(h: &Humanoid, seed: u64, human_pos: Point3<f32>, human_yaw: f32, target: Point3<f32>) -> (Motion, ReferencingStyle) {
+    assert!(
+        human_pos.iter().chain(target.iter()).all(|v| v.is_finite()) && human_yaw.is_finite(),
+        "referencing gesture needs finite positions and yaw, got person {human_pos:?} yaw {human_yaw} target {target:?}"
+    );
     let sk = h.skeleton();
     let mut r = crate::util::rng(seed, &[KEY_REFERENCING]);
 
@@ -109,7 +108,14 @@ pub fn referencing_with(h: &Humanoid, seed: u64, human_pos: Point3<f32>, human_y
     let idle = Idle::new(&mut r);
 
     let hips = sk.hips_height(&base);
-    let t_local = to_hips_frame(target, human_pos, human_yaw, hips);
+    let mut t_local = to_hips_frame(target, human_pos, human_yaw, hips);
+    // A target inside the body cannot be pointed at: treat it as half a metre further out.
+    let chest = Point3::new(0.0, 0.4 * h.height() / 1.7, 0.0);
+    if (t_local - chest).norm() < 0.4 {
+        let out = Vector3::new(t_local.x, 0.0, t_local.z);
+        let out = if out.norm() > 1e-3 { out.normalize() } else { Vector3::z() };
+        t_local += out * 0.5;
+    }
     let bearing = t_local.x.atan2(t_local.z).to_degrees();
 
     // Arm by the target's side; near straight ahead, mostly the right.
@@ -395,6 +401,17 @@ mod tests {
         eprintln!("mean gesture accuracy over {n} random targets: referencing {refs:.3}, intervention {ints:.3}");
         assert!(refs > 0.7, "referencing {refs}");
         assert!(ints < 0.2, "intervention {ints}");
+    }
+
+    #[test]
+    fn odd_targets_still_give_valid_motions() {
+        let pos = Point3::new(1.0, 0.0, 1.0);
+        for t in [pos, Point3::new(1.0, 1.2, 1.0), Point3::new(1.0, 5.0, 1.0), Point3::new(101.0, 1.0, 1.0), Point3::new(1.0, 0.0, 0.2)] {
+            for seed in 0..5 {
+                let (m, _) = referencing(seed, pos, 10.0, t);
+                assert!(m.as_flat().iter().all(|v| v.is_finite() && v.abs() <= 1.0), "target {t:?}");
+            }
+        }
     }
 
     #[test]

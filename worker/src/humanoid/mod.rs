@@ -44,6 +44,13 @@ impl Humanoid {
         Humanoid { skeleton, appearance, shape }
     }
 
+    /// The default person, built once: what gesture synthesis and accuracy use when no body
+    /// is given.
+    pub fn standard() -> &'static Humanoid {
+        static STANDARD: std::sync::OnceLock<Humanoid> = std::sync::OnceLock::new();
+        STANDARD.get_or_init(Humanoid::default)
+    }
+
     /// A person whose height (1.55–1.90 m) and look are drawn from `seed`.
     pub fn seeded(seed: u64) -> Humanoid {
         let mut r = crate::util::rng(seed, &[0x4E16_4700]);

@@ -590,7 +590,7 @@ impl Skeleton {
         }
         // Thumb: leaves the wrist forward and a little under the palm; it curls across the
         // palm towards the little finger, and spreads away from the palm.
-        let dt = v(0.62, -0.30, 0.72).normalize();
+        let dt = v(0.78, -0.28, 0.56).normalize();
         let curl_to = v(0.05, -0.35, -0.94).normalize();
         let flex = dt.cross(&curl_to).normalize();
         let ext = -flex;
@@ -601,9 +601,9 @@ impl Skeleton {
         let thumb_len = [0.046, 0.032, 0.028];
         let mut prev = RightHand;
         let mut off = v(0.022, -0.012, 0.022);
-        for ph in 0..3 {
+        for (ph, len) in thumb_len.into_iter().enumerate() {
             let b = Bone::finger(Side::Right, Finger::Thumb, ph);
-            let mut d = def(prev, off, dt * thumb_len[ph]);
+            let mut d = def(prev, off, dt * len);
             d.twist_axis = dt;
             if ph == 0 {
                 d.swing = [ma(75, ext), ma(76, spread)];
@@ -613,7 +613,7 @@ impl Skeleton {
             }
             right.push((b, d));
             prev = b;
-            off = dt * thumb_len[ph];
+            off = dt * len;
         }
 
         // Legs: front-back about +x (+ = back), in-out about +z (+ = out), twist about +y
@@ -948,12 +948,10 @@ mod tests {
                 let got = rel.axis().unwrap().into_inner() * v.signum();
                 assert!((got - axis.axis).norm() < 1e-3, "{} at {v}: axis {got:?} vs {:?}", MUSCLE_NAMES[i], axis.axis);
                 // Mirror check: the left twin turns about the mirrored axis.
-                if let Some(side) = bone.side() {
-                    if side == Side::Right {
-                        let (lb, la) = sk.muscle_axis(left_muscle(i));
-                        assert_eq!(lb, bone.mirror());
-                        assert!((la.axis - mirror_a(axis.axis)).norm() < 1e-6);
-                    }
+                if bone.side() == Some(Side::Right) {
+                    let (lb, la) = sk.muscle_axis(left_muscle(i));
+                    assert_eq!(lb, bone.mirror());
+                    assert!((la.axis - mirror_a(axis.axis)).norm() < 1e-6);
                 }
             }
         }
