@@ -8,8 +8,8 @@ use std::hint::black_box;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use nalgebra::Point3;
-use worker::gesture::{self, DEFAULT_RADIUS, STANDING};
 use worker::geometry::heading;
+use worker::gesture::{self, DEFAULT_RADIUS, STANDING};
 use worker::humanoid::Humanoid;
 
 /// A target 1–5 m away within ±100° of the person's heading, drawn from the seed.
@@ -58,7 +58,16 @@ fn bench(c: &mut Criterion) {
         })
     });
     g.bench_function("accuracy", |b| {
-        b.iter(|| black_box(gesture::accuracy::accuracy_with(&h, &motion, Point3::origin(), 0.0, Point3::new(1.0, 1.0, 2.0), DEFAULT_RADIUS)))
+        b.iter(|| {
+            black_box(gesture::accuracy::accuracy_with(
+                &h,
+                &motion,
+                Point3::origin(),
+                0.0,
+                Point3::new(1.0, 1.0, 2.0),
+                DEFAULT_RADIUS,
+            ))
+        })
     });
     g.bench_function("standing-pose", |b| b.iter(|| black_box(h.pose(black_box(&STANDING), Point3::origin(), 0.0))));
     g.finish();

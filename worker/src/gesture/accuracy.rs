@@ -50,13 +50,27 @@ pub fn pose_refers_to(pose: &SkeletonPose, target: Point3<f32>, radius: f32) -> 
 }
 
 /// Per frame, whether the pose refers to the target.
-pub fn hits(h: &Humanoid, motion: &Motion, human_pos: Point3<f32>, human_yaw: f32, target: Point3<f32>, radius: f32) -> [bool; FRAMES] {
+pub fn hits(
+    h: &Humanoid,
+    motion: &Motion,
+    human_pos: Point3<f32>,
+    human_yaw: f32,
+    target: Point3<f32>,
+    radius: f32,
+) -> [bool; FRAMES] {
     std::array::from_fn(|t| pose_refers_to(&h.pose(motion.frame(t), human_pos, human_yaw), target, radius))
 }
 
 /// Gesture accuracy of `motion` performed by `h` standing at `human_pos` (floor point) facing
 /// `human_yaw` (degrees) towards `target`.
-pub fn accuracy_with(h: &Humanoid, motion: &Motion, human_pos: Point3<f32>, human_yaw: f32, target: Point3<f32>, radius: f32) -> f32 {
+pub fn accuracy_with(
+    h: &Humanoid,
+    motion: &Motion,
+    human_pos: Point3<f32>,
+    human_yaw: f32,
+    target: Point3<f32>,
+    radius: f32,
+) -> f32 {
     hits(h, motion, human_pos, human_yaw, target, radius).iter().filter(|&&x| x).count() as f32 / FRAMES as f32
 }
 

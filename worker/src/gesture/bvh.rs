@@ -21,7 +21,7 @@ use nalgebra::{Matrix3, Point3, Rotation3, UnitQuaternion, Vector3};
 
 use super::synth::STANDING;
 use super::{FPS, FRAMES, Motion};
-use crate::humanoid::skeleton::BoneDef;
+use crate::humanoid::skeleton::{BoneDef, EVAL_ORDER};
 use crate::humanoid::{BONES, Bone, Finger, Humanoid, MUSCLES, Side, Skeleton, muscle_value};
 
 /// A BVH file that cannot be used.
@@ -121,7 +121,8 @@ fn sanitize(text: &str) -> Result<String, (usize, String)> {
                 }
             }
             "CHANNELS" => {
-                let k: usize = t.get(1).and_then(|v| v.parse().ok()).ok_or((n, "CHANNELS needs a count".to_string()))?;
+                let k: usize =
+                    t.get(1).and_then(|v| v.parse().ok()).ok_or((n, "CHANNELS needs a count".to_string()))?;
                 if k > 6 || k != t.len() - 2 {
                     return Err((n, format!("CHANNELS {k} lists {} channels", t.len().saturating_sub(2))));
                 }
@@ -147,7 +148,13 @@ fn sanitize(text: &str) -> Result<String, (usize, String)> {
         return Err((end, "no `Frame Time:` line".into()));
     }
     if frames.checked_mul(channels) != Some(values) {
-        return Err((end, format!("{frames} frames of {channels} channels need {} values, found {values}", frames.saturating_mul(channels))));
+        return Err((
+            end,
+            format!(
+                "{frames} frames of {channels} channels need {} values, found {values}",
+                frames.saturating_mul(channels)
+            ),
+        ));
     }
     Ok(out)
 }
@@ -193,8 +200,8 @@ pub fn joint_kind(name: &str) -> Option<JointKind> {
     let full = clean(&base);
     match full.as_str() {
         "hips" | "hip" | "pelvis" => return Some(JointKind::Hips),
-        "spine" | "spine1" | "spine2" | "spine3" | "chest" | "chest1" | "chest2" | "upperchest" | "lowerback" | "abdomen"
-        | "torso" => return Some(JointKind::Spine),
+        "spine" | "spine1" | "spine2" | "spine3" | "chest" | "chest1" | "chest2" | "upperchest" | "lowerback"
+        | "abdomen" | "torso" => return Some(JointKind::Spine),
         "neck" => return Some(JointKind::Neck),
         "neck1" | "neck2" => return Some(JointKind::NeckExtra),
         "head" => return Some(JointKind::Head),
@@ -340,7 +347,11 @@ pub fn retarget(bvh: &Bvh, h: &Humanoid, file: &str) -> Result<Motion, BvhError>
     let mapped = map.iter().filter(|m| m.is_some()).count();
     let need = [Bone::Hips, Bone::LeftUpperArm, Bone::RightUpperArm];
     if let Some(b) = need.iter().find(|b| map[b.index()].is_none()) {
-        return Err(err(format!("no joint for the humanoid's {} (found {mapped} humanoid joints among {:?})", b.name(), names)));
+        return Err(err(format!(
+            "no joint for the humanoid's {} (found {mapped} humanoid joints among {:?})",
+            b.name(),
+            names
+        )));
     }
 
     // Rest positions (all rotations zero).
@@ -350,7 +361,9 @@ pub fn retarget(bvh: &Bvh, h: &Humanoid, file: &str) -> Result<Motion, BvhError>
     }
     let rest_of = |b: Bone| map[b.index()].map(|j| rest[j]);
     // The file's body axes → ours. BVH is right-handed: forward = up × right.
-    let up = (rest_of(Bone::Head).or(rest_of(Bone::Neck)).unwrap_or(rest[0] + Vector3::y()) - rest_of(Bone::Hips).unwrap()).normalize();
+    let up = (rest_of(Bone::Head).or(rest_of(Bone::Neck)).unwrap_or(rest[0] + Vector3::y())
+        - rest_of(Bone::Hips).unwrap())
+    .normalize();
     let mut right = rest_of(Bone::RightUpperArm).unwrap() - rest_of(Bone::LeftUpperArm).unwrap();
     right = (right - up * right.dot(&up)).normalize();
     let fwd = up.cross(&right);
@@ -371,7 +384,8 @@ pub fn retarget(bvh: &Bvh, h: &Humanoid, file: &str) -> Result<Motion, BvhError>
         });
         if let Some(d) = dir.filter(|d| d.norm() > 1e-6) {
             let ours = child.map_or(sk.bone_def(b).tip, |c| sk.bone_def(c).offset);
-            align[b.index()] = UnitQuaternion::rotation_between(&ours, &(to_ours * d)).unwrap_or_else(UnitQuaternion::identity);
+            align[b.index()] =
+                UnitQuaternion::rotation_between(&ours, &(to_ours * d)).unwrap_or_else(UnitQuaternion::identity);
         }
     }
 
@@ -450,7 +464,8 @@ fn map_bones(joints: &[Joint], names: &[String]) -> [Option<usize>; BONES] {
             let x = if k == 2 { spine[spine.len() - 1] } else { spine[k] };
             map[b.index()] = Some(x);
         }
-        map[Bone::Neck.index()] = chain.iter().copied().find(|&x| matches!(kinds[x], Some(JointKind::Neck | JointKind::NeckExtra)));
+        map[Bone::Neck.index()] =
+            chain.iter().copied().find(|&x| matches!(kinds[x], Some(JointKind::Neck | JointKind::NeckExtra)));
     }
     for (i, k) in kinds.iter().enumerate() {
         if let Some(JointKind::Bone(side, part)) = k {
@@ -470,7 +485,7 @@ fn muscles_from_globals(
 ) -> [f32; MUSCLES] {
     let mut m = STANDING;
     let mut global = [UnitQuaternion::identity(); BONES];
-    for b in eval_order() {
+    for b in EVAL_ORDER {
         let d = sk.bone_def(b);
         let parent = d.parent.map_or(UnitQuaternion::identity(), |p| global[p.index()]);
         global[b.index()] = match map[b.index()] {
@@ -483,14 +498,6 @@ fn muscles_from_globals(
         }
     }
     m
-}
-
-/// Bones, parents first.
-fn eval_order() -> impl Iterator<Item = Bone> {
-    let mut order: Vec<Bone> = Bone::ALL.to_vec();
-    let depth = |b: Bone| std::iter::successors(b.parent(), |p| p.parent()).count();
-    order.sort_by_key(|&b| depth(b));
-    order.into_iter()
 }
 
 /// Splits a rotation (relative to muscle zero, in the bone's frame) into swing and twist and
@@ -542,7 +549,11 @@ pub fn export(h: &Humanoid, motion: &Motion) -> String {
         let kids = children(b);
         if kids.is_empty() {
             let t = flip(d.tip);
-            let _ = writeln!(out, "{pad}  End Site\n{pad}  {{\n{pad}    OFFSET {:.4} {:.4} {:.4}\n{pad}  }}", t.x, t.y, t.z);
+            let _ = writeln!(
+                out,
+                "{pad}  End Site\n{pad}  {{\n{pad}    OFFSET {:.4} {:.4} {:.4}\n{pad}  }}",
+                t.x, t.y, t.z
+            );
         }
         for c in kids {
             write_joint(out, sk, c, depth + 1, flip, children);
@@ -652,7 +663,14 @@ mod tests {
                 }
             }
         }
-        assert!(worst.0 < 0.01, "muscle {} ({}) frame {} off by {}", worst.2, crate::humanoid::MUSCLE_NAMES[worst.2], worst.1, worst.0);
+        assert!(
+            worst.0 < 0.01,
+            "muscle {} ({}) frame {} off by {}",
+            worst.2,
+            crate::humanoid::MUSCLE_NAMES[worst.2],
+            worst.1,
+            worst.0
+        );
         let mixamo = text.replace("JOINT ", "JOINT mixamorig:").replace("ROOT ", "ROOT mixamorig:");
         let again = import_bytes(mixamo.as_bytes(), "m.bvh").unwrap();
         assert!((again.frame(50)[48] - back.frame(50)[48]).abs() < 1e-4);
@@ -669,7 +687,10 @@ mod tests {
             (good.replacen("JOINT Spine", "JOINT", 1), "line 6: JOINT without a name"),
             (good.replacen("End Site", "End Zone", 1), "`End` must be followed by `Site`"),
             (good.replacen("Frames: 31", "Frames: 4000000000000", 1), "need"),
-            (good.replacen("CHANNELS 3 Zrotation Xrotation Yrotation", "CHANNELS 99999999999 Zrotation", 1), "CHANNELS"),
+            (
+                good.replacen("CHANNELS 3 Zrotation Xrotation Yrotation", "CHANNELS 99999999999 Zrotation", 1),
+                "CHANNELS",
+            ),
             (good.replacen("0.00 96.00", "0.00 x96", 1), "line 4: not a readable BVH"),
         ] {
             let e = import_bytes(bad.as_bytes(), "bad.bvh").unwrap_err().to_string();

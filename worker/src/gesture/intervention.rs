@@ -11,7 +11,10 @@ use std::sync::OnceLock;
 
 use nalgebra::Vector3;
 
-use super::synth::{ArmGoal, aim_bone, FIST, FLAT, HandPose, INDEX_POINT, Idle, OPEN, RELAXED, STANDING, arm_params, envelope, min_jerk, solve_arm};
+use super::synth::{
+    ArmGoal, FIST, FLAT, HandPose, INDEX_POINT, Idle, OPEN, RELAXED, STANDING, aim_bone, arm_params, clamp_pose,
+    envelope, min_jerk, solve_arm,
+};
 use super::{FPS, FRAMES, Motion};
 use crate::humanoid::muscles::idx;
 use crate::humanoid::{Bone, Humanoid, MUSCLES, Side};
@@ -85,7 +88,9 @@ fn solve(spec: ArmSpec) -> ArmKey {
         let (p, q) = sk.chain(pose, Bone::RightHand);
         let hand = q * sk.bone_def(Bone::RightHand).tip.normalize();
         let palm = q * -Vector3::y();
-        16.0 * (p - wrist).norm_squared() + (hand - v(spec.hand).normalize()).norm_squared() + 0.5 * (palm - v(spec.palm).normalize()).norm_squared()
+        16.0 * (p - wrist).norm_squared()
+            + (hand - v(spec.hand).normalize()).norm_squared()
+            + 0.5 * (palm - v(spec.palm).normalize()).norm_squared()
     };
     // Several starts (upper-arm and forearm twist) so that no start gets stuck at a limit.
     let mut best = (f32::INFINITY, STANDING);
@@ -180,11 +185,19 @@ fn build(index: usize) -> Motion {
     let stop_push = spec([0.0, -0.02, 0.52], [0.0, 1.0, 0.25], fwd, &FLAT);
     let span = |a: f32, b: f32| [a, 12.0, b, 12.0];
     let (acts, shakes): (Vec<Act>, Vec<Shake>) = match index {
-        0 => (vec![Act { sides: RIGHT, a: wave_in, b: wave_out, beat: Beat::Sine(1.3), span: span(10.0, 80.0) }], vec![]),
-        1 => (vec![Act { sides: RIGHT, a: wave_in, b: wave_out, beat: Beat::Sine(2.8), span: span(8.0, 78.0) }], vec![]),
-        2 => (vec![Act { sides: LEFT, a: wave_in, b: wave_out, beat: Beat::Sine(1.3), span: span(10.0, 80.0) }], vec![]),
+        0 => {
+            (vec![Act { sides: RIGHT, a: wave_in, b: wave_out, beat: Beat::Sine(1.3), span: span(10.0, 80.0) }], vec![])
+        }
+        1 => {
+            (vec![Act { sides: RIGHT, a: wave_in, b: wave_out, beat: Beat::Sine(2.8), span: span(8.0, 78.0) }], vec![])
+        }
+        2 => {
+            (vec![Act { sides: LEFT, a: wave_in, b: wave_out, beat: Beat::Sine(1.3), span: span(10.0, 80.0) }], vec![])
+        }
         3 => (vec![Act { sides: LEFT, a: wave_in, b: wave_out, beat: Beat::Sine(2.8), span: span(8.0, 78.0) }], vec![]),
-        4 => (vec![Act { sides: BOTH, a: wave_in, b: wave_out, beat: Beat::Sine(1.1), span: span(10.0, 80.0) }], vec![]),
+        4 => {
+            (vec![Act { sides: BOTH, a: wave_in, b: wave_out, beat: Beat::Sine(1.1), span: span(10.0, 80.0) }], vec![])
+        }
         5 => (vec![Act { sides: BOTH, a: wave_in, b: wave_out, beat: Beat::Sine(2.5), span: span(8.0, 78.0) }], vec![]),
         6 => {
             // Forearms crossed in an X in front of the chest, fists, pressed forward twice.
@@ -192,7 +205,9 @@ fn build(index: usize) -> Motion {
             let x2 = spec([-0.27, -0.02, 0.38], [-0.55, 0.8, 0.15], fwd, &FIST);
             (vec![Act { sides: BOTH, a: x, b: x2, beat: Beat::Flick(0.9), span: span(12.0, 78.0) }], vec![])
         }
-        7 => (vec![Act { sides: RIGHT, a: stop, b: stop_push, beat: Beat::Flick(0.8), span: span(10.0, 80.0) }], vec![]),
+        7 => {
+            (vec![Act { sides: RIGHT, a: stop, b: stop_push, beat: Beat::Flick(0.8), span: span(10.0, 80.0) }], vec![])
+        }
         8 => (vec![Act { sides: LEFT, a: stop, b: stop_push, beat: Beat::Flick(0.8), span: span(10.0, 80.0) }], vec![]),
         9 => (vec![Act { sides: BOTH, a: stop, b: stop_push, beat: Beat::Flick(0.8), span: span(10.0, 80.0) }], vec![]),
         10 => (vec![], vec![Shake { amp: 0.6, hz: 1.2, span: span(10.0, 82.0) }]),
@@ -285,9 +300,7 @@ fn build(index: usize) -> Motion {
             m[idx::HEAD_TURN] += 0.5 * turn;
         }
         idle.apply(m, x);
-        for v in m.iter_mut() {
-            *v = v.clamp(-1.0, 1.0);
-        }
+        clamp_pose(m);
     }
     motion
 }
@@ -321,7 +334,8 @@ mod tests {
                 assert!(d < 0.1, "{} frame {t} differs from standing by {d}", INTERVENTION_NAMES[i]);
             }
             for (j, n) in all.iter().enumerate().skip(i + 1) {
-                let diff: f32 = m.as_flat().iter().zip(n.as_flat()).map(|(a, b)| (a - b).abs()).sum::<f32>() / FRAMES as f32;
+                let diff: f32 =
+                    m.as_flat().iter().zip(n.as_flat()).map(|(a, b)| (a - b).abs()).sum::<f32>() / FRAMES as f32;
                 assert!(diff > 0.3, "{} and {} are too alike ({diff})", INTERVENTION_NAMES[i], INTERVENTION_NAMES[j]);
             }
         }
@@ -332,7 +346,12 @@ mod tests {
         for s in [
             ArmSpec { wrist: [0.3, 0.17, 0.17], hand: [0.55, 0.84, 0.0], palm: [0.0, 0.0, 1.0], fingers: &OPEN },
             ArmSpec { wrist: [0.0, -0.03, 0.49], hand: [0.0, 1.0, 0.15], palm: [0.0, 0.0, 1.0], fingers: &FLAT },
-            ArmSpec { wrist: [-0.3, -0.24, 0.22], hand: [-0.95, 0.15, -0.25], palm: [0.0, -0.3, -0.95], fingers: &RELAXED },
+            ArmSpec {
+                wrist: [-0.3, -0.24, 0.22],
+                hand: [-0.95, 0.15, -0.25],
+                palm: [0.0, -0.3, -0.95],
+                fingers: &RELAXED,
+            },
         ] {
             let (_, err) = solved(s);
             assert!(err < 0.03, "wrist {err} m off");
@@ -363,6 +382,9 @@ mod tests {
         let turns: Vec<f32> = (20..70).map(|t| at(&shake, t).head_forward().x).collect();
         assert!(turns.iter().any(|&x| x > 0.3) && turns.iter().any(|&x| x < -0.3));
         let folded = at(&intervention(15), 50);
-        assert!(folded.hand_position(Side::Right).x < 0.0 && folded.hand_position(Side::Left).x > 0.0, "hands at the opposite elbows");
+        assert!(
+            folded.hand_position(Side::Right).x < 0.0 && folded.hand_position(Side::Left).x > 0.0,
+            "hands at the opposite elbows"
+        );
     }
 }

@@ -110,7 +110,8 @@ fn fields(row: &str) -> Vec<&str> {
 
 fn parse_value(s: &str) -> Option<f32> {
     let s = s.trim();
-    let v: f32 = if s.contains(',') && !s.contains('.') { s.replacen(',', ".", 1).parse().ok()? } else { s.parse().ok()? };
+    let v: f32 =
+        if s.contains(',') && !s.contains('.') { s.replacen(',', ".", 1).parse().ok()? } else { s.parse().ok()? };
     v.is_finite().then_some(v)
 }
 
@@ -302,16 +303,22 @@ impl Metadata {
             field: e.path().to_string(),
             message: e.inner().to_string(),
         })?;
-        let finite = [m.human_pos, m.target_pos, m.target_to_human].iter().all(|p| p.vec().iter().all(|v| v.is_finite()));
+        let finite =
+            [m.human_pos, m.target_pos, m.target_to_human].iter().all(|p| p.vec().iter().all(|v| v.is_finite()));
         if !finite || !m.human_rot.is_finite() {
-            return Err(MotionFileError::Field { file: file.into(), field: "humanPos".into(), message: "positions and rotation must be finite".into() });
+            return Err(MotionFileError::Field {
+                file: file.into(),
+                field: "humanPos".into(),
+                message: "positions and rotation must be finite".into(),
+            });
         }
         Ok(m)
     }
 
     pub fn load(path: &Path) -> Result<Metadata, MotionFileError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| MotionFileError::Io { file: file.clone(), source })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| MotionFileError::Io { file: file.clone(), source })?;
         Metadata::from_json(&text, &file)
     }
 
@@ -333,8 +340,10 @@ impl Metadata {
 mod tests {
     use super::*;
 
-    const SAMPLE_CSV: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/gond-sample/2021-05-04_13-22-28_mocap.csv");
-    const SAMPLE_JSON: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/gond-sample/2021-05-04_13-22-28_mocap.json");
+    const SAMPLE_CSV: &str =
+        concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/gond-sample/2021-05-04_13-22-28_mocap.csv");
+    const SAMPLE_JSON: &str =
+        concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/gond-sample/2021-05-04_13-22-28_mocap.json");
 
     #[test]
     fn sample_csv_round_trips_bit_exactly() {
@@ -354,7 +363,17 @@ mod tests {
 
     #[test]
     fn value_format_is_the_recorders() {
-        for (v, s) in [(0.0, "0"), (-0.0, "0"), (-0.0004, "0"), (1.0, "1"), (-1.0, "-1"), (0.6, "0.6"), (-0.056, "-0.056"), (0.12345, "0.123"), (12.5, "12.5")] {
+        for (v, s) in [
+            (0.0, "0"),
+            (-0.0, "0"),
+            (-0.0004, "0"),
+            (1.0, "1"),
+            (-1.0, "-1"),
+            (0.6, "0.6"),
+            (-0.056, "-0.056"),
+            (0.12345, "0.123"),
+            (12.5, "12.5"),
+        ] {
             assert_eq!(format_value(v), s, "{v}");
         }
         // Any 3-decimal value survives write → read unchanged.
@@ -432,14 +451,29 @@ mod tests {
         assert!((off - direct).norm() < 1e-4, "targetToHuman is target minus person");
         // Written back in the original layout, it reads back identical and keeps field order.
         let json = m.to_json();
-        assert!(json.starts_with("{\n    \"instruction\": \"go to is a cup\",\n    \"sceneType\": \"Kitchen\","), "{json}");
+        assert!(
+            json.starts_with("{\n    \"instruction\": \"go to is a cup\",\n    \"sceneType\": \"Kitchen\","),
+            "{json}"
+        );
         assert!(!json.ends_with('\n'));
         assert_eq!(Metadata::from_json(&json, "x").unwrap(), m);
         let original: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(SAMPLE_JSON).unwrap()).unwrap();
         let ours: serde_json::Value = serde_json::from_str(&json).unwrap();
-        assert_eq!(original.as_object().unwrap().keys().collect::<Vec<_>>(), ours.as_object().unwrap().keys().collect::<Vec<_>>());
+        assert_eq!(
+            original.as_object().unwrap().keys().collect::<Vec<_>>(),
+            ours.as_object().unwrap().keys().collect::<Vec<_>>()
+        );
         // Built from world units it stores the recorder's scaling.
-        let n = Metadata::new("go to the cup", "Kitchen", 1, "Cup", h, 180.0, m.target_position(), ["i.png", "m.csv", "a.wav"]);
+        let n = Metadata::new(
+            "go to the cup",
+            "Kitchen",
+            1,
+            "Cup",
+            h,
+            180.0,
+            m.target_position(),
+            ["i.png", "m.csv", "a.wav"],
+        );
         assert!((n.human_rot - 0.5).abs() < 1e-6);
         assert!((n.target_to_human.z - m.target_to_human.z).abs() < 1e-6);
     }
@@ -447,7 +481,9 @@ mod tests {
     #[test]
     fn bad_metadata_names_the_field() {
         let text = std::fs::read_to_string(SAMPLE_JSON).unwrap();
-        let e = Metadata::from_json(&text.replace("\"humanRot\": 0.5", "\"humanRot\": \"half\""), "meta.json").unwrap_err().to_string();
+        let e = Metadata::from_json(&text.replace("\"humanRot\": 0.5", "\"humanRot\": \"half\""), "meta.json")
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("meta.json: field `humanRot`"), "{e}");
         let e = Metadata::from_json(&text.replace("\"y\": 0.0", "\"w\": 0.0"), "meta.json").unwrap_err().to_string();
         assert!(e.contains("humanPos"), "{e}");

@@ -18,8 +18,8 @@ use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
 use super::synth::{
-    ArmGoal, HandPose, INDEX_POINT, Idle, OPEN, STANDING, TWO_FINGER, Wobble, aim_bone, blend_hand, envelope,
-    solve_arm, solve_gaze, to_hips_frame,
+    ArmGoal, HandPose, INDEX_POINT, Idle, OPEN, STANDING, TWO_FINGER, Wobble, aim_bone, blend_hand, clamp_pose,
+    envelope, solve_arm, solve_gaze, to_hips_frame,
 };
 use super::{FRAMES, Motion};
 use crate::humanoid::muscles::idx;
@@ -79,14 +79,25 @@ const KEY_REFERENCING: u64 = 0x5EFE_2E4C;
 
 /// A referencing gesture of the default 1.70 m person at `human_pos` (floor point) facing
 /// `human_yaw` (degrees) towards `target`, drawn from `seed`.
-pub fn referencing(seed: u64, human_pos: Point3<f32>, human_yaw: f32, target: Point3<f32>) -> (Motion, ReferencingStyle) {
+pub fn referencing(
+    seed: u64,
+    human_pos: Point3<f32>,
+    human_yaw: f32,
+    target: Point3<f32>,
+) -> (Motion, ReferencingStyle) {
     referencing_with(Humanoid::standard(), seed, human_pos, human_yaw, target)
 }
 
 /// [`referencing`] for a given body (its proportions decide the exact arm angles).
 ///
 /// Panics if a position or the yaw is not finite (a caller's bug, not a data error).
-pub fn referencing_with(h: &Humanoid, seed: u64, human_pos: Point3<f32>, human_yaw: f32, target: Point3<f32>) -> (Motion, ReferencingStyle) {
+pub fn referencing_with(
+    h: &Humanoid,
+    seed: u64,
+    human_pos: Point3<f32>,
+    human_yaw: f32,
+    target: Point3<f32>,
+) -> (Motion, ReferencingStyle) {
     assert!(
         human_pos.iter().chain(target.iter()).all(|v| v.is_finite()) && human_yaw.is_finite(),
         "referencing gesture needs finite positions and yaw, got person {human_pos:?} yaw {human_yaw} target {target:?}"
@@ -183,9 +194,23 @@ pub fn referencing_with(h: &Humanoid, seed: u64, human_pos: Point3<f32>, human_y
     } else {
         aim_bone(sk, &mut pose, ua, aim - shoulder);
     }
-    let params = [a + idx::ARM_DOWN_UP, a + idx::ARM_FRONT_BACK, a + idx::ARM_TWIST, a + idx::HAND_DOWN_UP, a + idx::HAND_IN_OUT];
+    let params = [
+        a + idx::ARM_DOWN_UP,
+        a + idx::ARM_FRONT_BACK,
+        a + idx::ARM_TWIST,
+        a + idx::HAND_DOWN_UP,
+        a + idx::HAND_IN_OUT,
+    ];
     let stay = [0.02, 0.02, 0.05, 0.12, 0.12];
-    solve_arm(sk, &mut pose, side, &ArmGoal { ray: Some((shape.ray_bone(side), aim)), ..Default::default() }, &params, &stay, 12);
+    solve_arm(
+        sk,
+        &mut pose,
+        side,
+        &ArmGoal { ray: Some((shape.ray_bone(side), aim)), ..Default::default() },
+        &params,
+        &stay,
+        12,
+    );
 
     // Where the face goes: at the target, from the standing and from the pointing posture.
     let gaze_err = Vector3::new(normal(0.04).sample(&mut r), normal(0.03).sample(&mut r), 0.0) * to_target.norm();
@@ -196,7 +221,8 @@ pub fn referencing_with(h: &Humanoid, seed: u64, human_pos: Point3<f32>, human_y
     let gaze_on = if r.random_bool(0.3) { 0 } else { lead.saturating_sub(r.random_range(0..12)) };
     let gaze_ramp = r.random_range(5..11) as f32;
     let end = lead + rise + hold;
-    let gaze_off = if r.random_bool(0.45) { FRAMES as u32 } else { (end + r.random_range(0..=ret + 10)).min(FRAMES as u32) };
+    let gaze_off =
+        if r.random_bool(0.45) { FRAMES as u32 } else { (end + r.random_range(0..=ret + 10)).min(FRAMES as u32) };
     let gaze_fall = r.random_range(6..13) as f32;
 
     // Tremor while holding, a little overshoot-and-settle after the rise.
@@ -314,18 +340,12 @@ fn best_twist(sk: &Skeleton, pose: &mut [f32; MUSCLES], side: Side, aim: Point3<
     pose[i] = best.1;
 }
 
-fn clamp_pose(m: &mut [f32; MUSCLES]) {
-    for v in m.iter_mut() {
-        *v = v.clamp(-1.0, 1.0);
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::heading;
     use crate::gesture::accuracy::{DEFAULT_RADIUS, accuracy_with};
     use crate::gesture::intervention::{INTERVENTIONS, intervention};
-    use crate::geometry::heading;
 
     /// A random target around a person: 1–5 m away, within ±100° of their heading, 0–2 m high.
     fn scenario(seed: u64) -> (Point3<f32>, f32, Point3<f32>) {
@@ -377,10 +397,14 @@ mod tests {
             let (o, d) = pose.ray(s.shape.ray_bone(s.side));
             let off = (t - o).normalize().dot(&d).clamp(-1.0, 1.0).acos().to_degrees();
             let allowed = s.aim_error_deg[0].hypot(s.aim_error_deg[1]) + 5.0;
-            worst = worst.max(off - allowed);
-            assert!(off < allowed, "seed {seed}: ray {off:.1}° off the target (aim error {:?}, style {s:?})", s.aim_error_deg);
+            worst = worst.max(off - allowed + 5.0);
+            assert!(
+                off < allowed,
+                "seed {seed}: ray {off:.1}° off the target (aim error {:?}, style {s:?})",
+                s.aim_error_deg
+            );
         }
-        eprintln!("worst margin {worst:.1}°");
+        eprintln!("largest pointing error beyond the drawn aiming error: {worst:.1}°");
     }
 
     /// Synthesized referencing gestures score high gesture accuracy towards their targets;
@@ -406,7 +430,13 @@ mod tests {
     #[test]
     fn odd_targets_still_give_valid_motions() {
         let pos = Point3::new(1.0, 0.0, 1.0);
-        for t in [pos, Point3::new(1.0, 1.2, 1.0), Point3::new(1.0, 5.0, 1.0), Point3::new(101.0, 1.0, 1.0), Point3::new(1.0, 0.0, 0.2)] {
+        for t in [
+            pos,
+            Point3::new(1.0, 1.2, 1.0),
+            Point3::new(1.0, 5.0, 1.0),
+            Point3::new(101.0, 1.0, 1.0),
+            Point3::new(1.0, 0.0, 0.2),
+        ] {
             for seed in 0..5 {
                 let (m, _) = referencing(seed, pos, 10.0, t);
                 assert!(m.as_flat().iter().all(|v| v.is_finite() && v.abs() <= 1.0), "target {t:?}");
@@ -427,6 +457,9 @@ mod tests {
             turned += (s.torso_turn_deg.abs() > 5.0) as u32;
         }
         assert_eq!(shapes.len(), 3);
-        assert!((15..60).contains(&bent) && (25..75).contains(&left) && turned > 5, "bent {bent} left {left} turned {turned}");
+        assert!(
+            (15..60).contains(&bent) && (25..75).contains(&left) && turned > 5,
+            "bent {bent} left {left} turned {turned}"
+        );
     }
 }

@@ -48,11 +48,15 @@ pub type HandPose = [f32; 20];
 pub const RELAXED: HandPose =
     [-0.75, 0.31, 0.31, 0.64, 0.55, -0.3, 0.65, 0.7, 0.52, -0.4, 0.62, 0.7, 0.5, -0.05, 0.6, 0.7, 0.48, 0.2, 0.6, 0.7];
 /// Index finger out, the others curled, thumb over them.
-pub const INDEX_POINT: HandPose =
-    [-0.9, -0.6, -0.4, 0.0, 0.95, 0.0, 0.95, 0.9, -0.9, 0.0, -0.95, -0.6, -0.95, 0.0, -0.95, -0.6, -0.95, 0.1, -0.95, -0.6];
+pub const INDEX_POINT: HandPose = [
+    -0.9, -0.6, -0.4, 0.0, 0.95, 0.0, 0.95, 0.9, -0.9, 0.0, -0.95, -0.6, -0.95, 0.0, -0.95, -0.6, -0.95, 0.1, -0.95,
+    -0.6,
+];
 /// Index and middle finger out in a slight V.
-pub const TWO_FINGER: HandPose =
-    [-0.9, -0.6, -0.4, 0.0, 0.95, 0.3, 0.95, 0.9, 0.95, -0.5, 0.95, 0.9, -0.95, 0.0, -0.95, -0.6, -0.95, 0.1, -0.95, -0.6];
+pub const TWO_FINGER: HandPose = [
+    -0.9, -0.6, -0.4, 0.0, 0.95, 0.3, 0.95, 0.9, 0.95, -0.5, 0.95, 0.9, -0.95, 0.0, -0.95, -0.6, -0.95, 0.1, -0.95,
+    -0.6,
+];
 /// Open hand, fingers loosely apart.
 pub const OPEN: HandPose =
     [0.3, 0.5, 0.6, 0.7, 0.9, 0.1, 0.9, 0.85, 0.9, 0.0, 0.9, 0.85, 0.88, 0.0, 0.88, 0.85, 0.85, 0.3, 0.85, 0.8];
@@ -60,14 +64,22 @@ pub const OPEN: HandPose =
 pub const FLAT: HandPose =
     [0.5, -0.3, 0.8, 0.8, 0.95, -0.3, 0.95, 0.9, 0.95, -0.3, 0.95, 0.9, 0.95, 0.3, 0.95, 0.9, 0.95, 0.2, 0.95, 0.9];
 /// Closed fist.
-pub const FIST: HandPose =
-    [-0.8, -0.5, -0.5, -0.6, -1.0, 0.0, -1.0, -0.8, -1.0, 0.0, -1.0, -0.8, -1.0, 0.0, -1.0, -0.8, -1.0, 0.0, -1.0, -0.8];
+pub const FIST: HandPose = [
+    -0.8, -0.5, -0.5, -0.6, -1.0, 0.0, -1.0, -0.8, -1.0, 0.0, -1.0, -0.8, -1.0, 0.0, -1.0, -0.8, -1.0, 0.0, -1.0, -0.8,
+];
 
 /// Writes a hand shape into a pose, blended by `w` (0: keep, 1: the shape).
 pub fn blend_hand(pose: &mut [f32; MUSCLES], side: Side, shape: &HandPose, w: f32) {
     let b = side.finger_muscles();
     for (i, s) in shape.iter().enumerate() {
         pose[b + i] += (s - pose[b + i]) * w;
+    }
+}
+
+/// Keeps every muscle inside its range.
+pub fn clamp_pose(m: &mut [f32; MUSCLES]) {
+    for v in m.iter_mut() {
+        *v = v.clamp(-1.0, 1.0);
     }
 }
 
@@ -79,11 +91,7 @@ pub fn min_jerk(t: f32) -> f32 {
 
 /// Rises over `[a, a + rise]`, holds, falls over `[b, b + fall]` (frames; min-jerk edges).
 pub fn envelope(frame: f32, a: f32, rise: f32, b: f32, fall: f32) -> f32 {
-    if frame < b {
-        min_jerk((frame - a) / rise.max(1e-3))
-    } else {
-        1.0 - min_jerk((frame - b) / fall.max(1e-3))
-    }
+    if frame < b { min_jerk((frame - a) / rise.max(1e-3)) } else { 1.0 - min_jerk((frame - b) / fall.max(1e-3)) }
 }
 
 /// Smooth random motion: a sum of a few sinusoids with drawn frequencies and phases.
@@ -118,7 +126,11 @@ pub struct Idle {
 
 impl Idle {
     pub fn new(r: &mut impl Rng) -> Idle {
-        let breath = (r.random_range(0.008..0.02), std::f32::consts::TAU * r.random_range(0.2..0.33) / FPS, r.random_range(0.0..6.3));
+        let breath = (
+            r.random_range(0.008..0.02),
+            std::f32::consts::TAU * r.random_range(0.2..0.33) / FPS,
+            r.random_range(0.0..6.3),
+        );
         let mut ch = |i: usize, amp: f32, hz: f32| (i, Wobble::new(r, amp, hz));
         Idle {
             breath,
@@ -177,7 +189,15 @@ pub fn arm_params(side: Side) -> [usize; 9] {
 
 /// Adjusts `params` of `pose` so that `side`'s arm meets `goal` as well as it can, staying near
 /// the starting values (weights `stay` per parameter) where the goal leaves freedom.
-pub fn solve_arm(sk: &Skeleton, pose: &mut [f32; MUSCLES], side: Side, goal: &ArmGoal, params: &[usize], stay: &[f32], iters: usize) {
+pub fn solve_arm(
+    sk: &Skeleton,
+    pose: &mut [f32; MUSCLES],
+    side: Side,
+    goal: &ArmGoal,
+    params: &[usize],
+    stay: &[f32],
+    iters: usize,
+) {
     let hand = Bone::hand(side);
     let hand_tip = sk.bone_def(hand).tip.normalize();
     let start = *pose;
@@ -337,7 +357,15 @@ mod tests {
         let sk = h.skeleton();
         let mut m = STANDING;
         let goal = Point3::new(0.3, 0.5, 0.35);
-        solve_arm(sk, &mut m, Side::Right, &ArmGoal { wrist: Some(goal), ..Default::default() }, &arm_params(Side::Right), &[0.01; 9], 30);
+        solve_arm(
+            sk,
+            &mut m,
+            Side::Right,
+            &ArmGoal { wrist: Some(goal), ..Default::default() },
+            &arm_params(Side::Right),
+            &[0.01; 9],
+            30,
+        );
         let (p, _) = sk.chain(&m, Bone::RightHand);
         assert!((p - goal).norm() < 0.01, "wrist at {p:?}");
 

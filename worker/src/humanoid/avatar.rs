@@ -179,9 +179,18 @@ impl AvatarShape {
         // Head with a face: nose, eyes, mouth; hair on top and at the back.
         ellipsoid(&mut out, Bone::Head, v(0.0, 0.06, 0.012), v(0.076, 0.112, 0.094), look.skin, skin);
         match look.hair_style {
-            HairStyle::Short => ellipsoid(&mut out, Bone::Head, v(0.0, 0.088, -0.012), v(0.081, 0.1, 0.094), look.hair, Material::Matte),
+            HairStyle::Short => {
+                ellipsoid(&mut out, Bone::Head, v(0.0, 0.088, -0.012), v(0.081, 0.1, 0.094), look.hair, Material::Matte)
+            }
             HairStyle::Long => {
-                ellipsoid(&mut out, Bone::Head, v(0.0, 0.088, -0.012), v(0.081, 0.1, 0.094), look.hair, Material::Matte);
+                ellipsoid(
+                    &mut out,
+                    Bone::Head,
+                    v(0.0, 0.088, -0.012),
+                    v(0.081, 0.1, 0.094),
+                    look.hair,
+                    Material::Matte,
+                );
                 let rot = p.rotation(Bone::Head);
                 out.push(part(
                     Shape::Box,
@@ -192,7 +201,9 @@ impl AvatarShape {
                     Material::Matte,
                 ));
             }
-            HairStyle::Shaved => ellipsoid(&mut out, Bone::Head, v(0.0, 0.1, -0.01), v(0.078, 0.085, 0.09), look.hair, Material::Matte),
+            HairStyle::Shaved => {
+                ellipsoid(&mut out, Bone::Head, v(0.0, 0.1, -0.01), v(0.078, 0.085, 0.09), look.hair, Material::Matte)
+            }
         }
         let head_rot = p.rotation(Bone::Head);
         let nose_rot = head_rot * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 100f32.to_radians());
@@ -208,7 +219,14 @@ impl AvatarShape {
         for eye in [Bone::LeftEye, Bone::RightEye] {
             let (c, r) = (p.position(eye), p.rotation(eye));
             out.push(part(Shape::Sphere, c, r, Vector3::repeat(0.0135 * s), [0.85, 0.85, 0.85], Material::Matte));
-            out.push(part(Shape::Sphere, c + r * (v(0.0, 0.0, 0.009) * s), r, Vector3::repeat(0.0078 * s), [0.03, 0.025, 0.02], Material::Matte));
+            out.push(part(
+                Shape::Sphere,
+                c + r * (v(0.0, 0.0, 0.009) * s),
+                r,
+                Vector3::repeat(0.0078 * s),
+                [0.03, 0.025, 0.02],
+                Material::Matte,
+            ));
         }
         let jaw = p.rotation(Bone::Jaw);
         out.push(part(
@@ -225,7 +243,14 @@ impl AvatarShape {
         for side in Side::BOTH {
             limb(&mut out, Bone::upper_arm(side), segment_radius(Bone::upper_arm(side)) * s, look.shirt, fab);
             let la = Bone::lower_arm(side);
-            out.push(part(Shape::Sphere, p.position(la), p.rotation(la), Vector3::repeat(0.041 * s), sleeve.0, sleeve.1));
+            out.push(part(
+                Shape::Sphere,
+                p.position(la),
+                p.rotation(la),
+                Vector3::repeat(0.041 * s),
+                sleeve.0,
+                sleeve.1,
+            ));
             limb(&mut out, la, segment_radius(la) * s, sleeve.0, sleeve.1);
             let hand = Bone::hand(side);
             let hr = p.rotation(hand);
@@ -252,7 +277,14 @@ impl AvatarShape {
                 Side::Right => (Bone::RightUpperLeg, Bone::RightLowerLeg, Bone::RightFoot),
             };
             limb(&mut out, ul, segment_radius(ul) * s, look.trousers, fab);
-            out.push(part(Shape::Sphere, p.position(ll), p.rotation(ll), Vector3::repeat(0.057 * s), look.trousers, fab));
+            out.push(part(
+                Shape::Sphere,
+                p.position(ll),
+                p.rotation(ll),
+                Vector3::repeat(0.057 * s),
+                look.trousers,
+                fab,
+            ));
             limb(&mut out, ll, segment_radius(ll) * s, look.trousers, fab);
             let fr = p.rotation(foot);
             out.push(part(
@@ -287,7 +319,8 @@ mod tests {
             assert!((part.rotation.norm() - 1.0).abs() < 1e-4);
         }
         // Nothing below the floor, the top of the head near the body height.
-        let (lo, hi) = parts.iter().map(Part::aabb).fold((f32::MAX, f32::MIN), |(lo, hi), (a, b)| (lo.min(a.y), hi.max(b.y)));
+        let (lo, hi) =
+            parts.iter().map(Part::aabb).fold((f32::MAX, f32::MIN), |(lo, hi), (a, b)| (lo.min(a.y), hi.max(b.y)));
         assert!(lo > -0.01 && lo < 0.03, "lowest point {lo}");
         assert!((hi - h.height()).abs() < 0.06, "top {hi} for a {} m person", h.height());
     }
@@ -297,7 +330,8 @@ mod tests {
         let h = Humanoid::default();
         let p = h.pose(&STANDING, Point3::origin(), 90.0);
         let parts = h.parts(&p);
-        let fingers: Vec<&Part> = parts.iter().filter(|q| q.shape == Shape::Cylinder && q.half_extents.x < 0.012).collect();
+        let fingers: Vec<&Part> =
+            parts.iter().filter(|q| q.shape == Shape::Cylinder && q.half_extents.x < 0.012).collect();
         assert_eq!(fingers.len(), 30, "15 finger segments per hand");
         assert!(fingers.iter().all(|f| f.half_extents.x >= 0.008), "at least 1.6 cm thick");
         // The nose sits in front of the head, in the facing direction (yaw 90: +x).
@@ -310,7 +344,8 @@ mod tests {
     #[test]
     fn appearance_is_seeded() {
         assert_eq!(Appearance::seeded(7), Appearance::seeded(7));
-        let looks: std::collections::HashSet<String> = (0..20).map(|s| format!("{:?}", Appearance::seeded(s))).collect();
+        let looks: std::collections::HashSet<String> =
+            (0..20).map(|s| format!("{:?}", Appearance::seeded(s))).collect();
         assert!(looks.len() > 15);
         let heights: Vec<f32> = (0..20).map(|s| Humanoid::seeded(s).height()).collect();
         assert!(heights.iter().all(|h| (1.55..=1.9).contains(h)));

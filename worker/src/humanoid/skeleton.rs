@@ -29,10 +29,21 @@ use crate::geometry::yaw_rotation;
 /// Number of humanoid bones (Unity's `HumanBodyBones`, without `LastBone`).
 pub const BONES: usize = 55;
 
-/// Unity's `HumanBodyBones`, same order and numbering.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-#[repr(u8)]
-pub enum Bone {
+/// Declares `Bone` and its names from one list.
+macro_rules! bones {
+    ($($name:ident),* $(,)?) => {
+        /// Unity's `HumanBodyBones`, same order and numbering.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+        #[repr(u8)]
+        pub enum Bone {
+            $($name),*
+        }
+
+        const BONE_NAMES: [&str; BONES] = [$(stringify!($name)),*];
+    };
+}
+
+bones!(
     Hips,
     LeftUpperLeg,
     RightUpperLeg,
@@ -88,7 +99,7 @@ pub enum Bone {
     RightLittleIntermediate,
     RightLittleDistal,
     UpperChest,
-}
+);
 
 /// Body side, the person's own.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -277,66 +288,8 @@ impl Bone {
     }
 }
 
-const BONE_NAMES: [&str; BONES] = [
-    "Hips",
-    "LeftUpperLeg",
-    "RightUpperLeg",
-    "LeftLowerLeg",
-    "RightLowerLeg",
-    "LeftFoot",
-    "RightFoot",
-    "Spine",
-    "Chest",
-    "Neck",
-    "Head",
-    "LeftShoulder",
-    "RightShoulder",
-    "LeftUpperArm",
-    "RightUpperArm",
-    "LeftLowerArm",
-    "RightLowerArm",
-    "LeftHand",
-    "RightHand",
-    "LeftToes",
-    "RightToes",
-    "LeftEye",
-    "RightEye",
-    "Jaw",
-    "LeftThumbProximal",
-    "LeftThumbIntermediate",
-    "LeftThumbDistal",
-    "LeftIndexProximal",
-    "LeftIndexIntermediate",
-    "LeftIndexDistal",
-    "LeftMiddleProximal",
-    "LeftMiddleIntermediate",
-    "LeftMiddleDistal",
-    "LeftRingProximal",
-    "LeftRingIntermediate",
-    "LeftRingDistal",
-    "LeftLittleProximal",
-    "LeftLittleIntermediate",
-    "LeftLittleDistal",
-    "RightThumbProximal",
-    "RightThumbIntermediate",
-    "RightThumbDistal",
-    "RightIndexProximal",
-    "RightIndexIntermediate",
-    "RightIndexDistal",
-    "RightMiddleProximal",
-    "RightMiddleIntermediate",
-    "RightMiddleDistal",
-    "RightRingProximal",
-    "RightRingIntermediate",
-    "RightRingDistal",
-    "RightLittleProximal",
-    "RightLittleIntermediate",
-    "RightLittleDistal",
-    "UpperChest",
-];
-
-/// Parents before children.
-const EVAL_ORDER: [Bone; BONES] = {
+/// Every bone, parents before children.
+pub const EVAL_ORDER: [Bone; BONES] = {
     use Bone::*;
     [
         Hips,
@@ -637,9 +590,8 @@ impl Skeleton {
         right.push((RightToes, toes));
 
         for (b, d) in right {
-            let mirror_axis = |m: Option<MuscleAxis>| {
-                m.map(|m| MuscleAxis { muscle: left_muscle(m.muscle), axis: mirror_a(m.axis) })
-            };
+            let mirror_axis =
+                |m: Option<MuscleAxis>| m.map(|m| MuscleAxis { muscle: left_muscle(m.muscle), axis: mirror_a(m.axis) });
             let (axis, angle) = d.zero.axis_angle().map(|(a, t)| (a.into_inner(), t)).unwrap_or((x, 0.0));
             let left = BoneDef {
                 parent: d.parent.map(Bone::mirror),
@@ -915,7 +867,18 @@ mod tests {
     fn t_pose_muscles() {
         let sk = Skeleton::new(1.7);
         let mut m = zero();
-        for (i, v) in [(21, 0.6), (29, 0.6), (24, 1.0), (32, 1.0), (39, 0.4), (48, 0.4), (40, 0.3), (49, 0.3), (42, 1.0), (51, 1.0)] {
+        for (i, v) in [
+            (21, 0.6),
+            (29, 0.6),
+            (24, 1.0),
+            (32, 1.0),
+            (39, 0.4),
+            (48, 0.4),
+            (40, 0.3),
+            (49, 0.3),
+            (42, 1.0),
+            (51, 1.0),
+        ] {
             m[i] = v;
         }
         let p = sk.pose(&m, Point3::origin(), 0.0);
@@ -944,7 +907,12 @@ mod tests {
                 let local0 = p0.rotation(parent).inverse() * p0.rotation(bone);
                 let rel = local0.inverse() * local;
                 let want = if v > 0.0 { MUSCLE_RANGES[i].1 } else { -MUSCLE_RANGES[i].0 };
-                assert!((rel.angle().to_degrees() - want).abs() < 0.01, "{} at {v}: {}°", MUSCLE_NAMES[i], rel.angle().to_degrees());
+                assert!(
+                    (rel.angle().to_degrees() - want).abs() < 0.01,
+                    "{} at {v}: {}°",
+                    MUSCLE_NAMES[i],
+                    rel.angle().to_degrees()
+                );
                 let got = rel.axis().unwrap().into_inner() * v.signum();
                 assert!((got - axis.axis).norm() < 1e-3, "{} at {v}: axis {got:?} vs {:?}", MUSCLE_NAMES[i], axis.axis);
                 // Mirror check: the left twin turns about the mirrored axis.
@@ -995,7 +963,10 @@ mod tests {
         assert!(dir(1, 1.0, Bone::Spine).x > 0.6);
         // Upper Leg In-Out +1 spreads the legs; Front-Back −1 lifts the thigh forward.
         assert!(dir(30, 1.0, Bone::RightUpperLeg).x > 0.6 && dir(22, 1.0, Bone::LeftUpperLeg).x < -0.6);
-        assert!(dir(29, -1.0, Bone::RightUpperLeg).z > 0.8 && dir(29, -1.0, Bone::RightUpperLeg).y > 0.4, "120° hip flexion");
+        assert!(
+            dir(29, -1.0, Bone::RightUpperLeg).z > 0.8 && dir(29, -1.0, Bone::RightUpperLeg).y > 0.4,
+            "120° hip flexion"
+        );
         // Fingers: +1 straight (in line with the hand), −1 curled towards the palm.
         let mut m = zero();
         m[79] = 1.0;
