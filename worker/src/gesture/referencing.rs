@@ -244,11 +244,9 @@ pub fn referencing_with(
         let x = t as f32;
         let e_arm = envelope(x, lead_f, rise_f, lead_f + rise_f + hold_f, ret_f);
         let e_hand = envelope(x, lead_f + 0.25 * rise_f, 0.7 * rise_f, lead_f + rise_f + hold_f - 2.0, 0.7 * ret_f);
-        let e_gaze = if (t as u32) < gaze_on {
-            0.0
-        } else {
-            envelope(x, gaze_on as f32, if gaze_on == 0 { 0.0 } else { gaze_ramp }, gaze_off as f32, gaze_fall)
-        };
+        // Looking at the target from the start means looking at it in frame 0 already.
+        let e_gaze =
+            envelope(x, gaze_on as f32, if gaze_on == 0 { 0.0 } else { gaze_ramp }, gaze_off as f32, gaze_fall);
         let m = motion.frame_mut(t);
         for k in 0..9 {
             m[a + k] = base[a + k] + (pose[a + k] - base[a + k]) * e_arm;

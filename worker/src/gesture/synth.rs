@@ -89,9 +89,19 @@ pub fn min_jerk(t: f32) -> f32 {
     t * t * t * (10.0 + t * (-15.0 + 6.0 * t))
 }
 
-/// Rises over `[a, a + rise]`, holds, falls over `[b, b + fall]` (frames; min-jerk edges).
+/// Rises over `[a, a + rise]`, holds, falls over `[b, b + fall]` (frames; min-jerk edges; a
+/// zero-length edge is a step).
 pub fn envelope(frame: f32, a: f32, rise: f32, b: f32, fall: f32) -> f32 {
-    if frame < b { min_jerk((frame - a) / rise.max(1e-3)) } else { 1.0 - min_jerk((frame - b) / fall.max(1e-3)) }
+    let edge = |x: f32, len: f32| {
+        if len > 0.0 {
+            min_jerk(x / len)
+        } else if x >= 0.0 {
+            1.0
+        } else {
+            0.0
+        }
+    };
+    if frame < b { edge(frame - a, rise) } else { 1.0 - edge(frame - b, fall) }
 }
 
 /// Smooth random motion: a sum of a few sinusoids with drawn frequencies and phases.
