@@ -7,6 +7,8 @@ pub mod camera;
 pub mod config;
 pub mod dataset;
 pub mod geometry;
+pub mod gesture;
+pub mod humanoid;
 pub mod metrics;
 pub mod nav;
 pub mod physics;
