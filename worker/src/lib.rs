@@ -5,5 +5,6 @@
 
 pub mod config;
 pub mod geometry;
+pub mod render;
 pub mod scene;
 pub mod util;
