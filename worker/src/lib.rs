@@ -13,6 +13,7 @@ pub mod metrics;
 pub mod nav;
 pub mod physics;
 pub mod program;
+pub mod render;
 pub mod robot;
 pub mod scene;
 pub mod task;
