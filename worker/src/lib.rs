@@ -6,6 +6,7 @@
 pub mod camera;
 pub mod config;
 pub mod dataset;
+pub mod env;
 pub mod geometry;
 pub mod gesture;
 pub mod humanoid;
