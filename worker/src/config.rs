@@ -236,6 +236,8 @@ pub struct PpoConfig {
     pub max_grad_norm: f64,
     pub value_coef: f64,
     pub entropy_coef: f64,
+    /// Clip the value loss around the rollout's values with `clip` (as CleanRL's `clip_vloss`).
+    pub clip_value_loss: bool,
     /// Use bf16 autocast on CUDA.
     pub mixed_precision: bool,
 }
@@ -253,6 +255,7 @@ impl Default for PpoConfig {
             max_grad_norm: 0.5,
             value_coef: 0.5,
             entropy_coef: 0.01,
+            clip_value_loss: true,
             mixed_precision: true,
         }
     }
