@@ -167,3 +167,4 @@ pub fn update_once(t: &mut Trainer) -> crate::metrics::UpdateMetrics {
     let bootstrap = vec![0.0f32; t.rollout.envs];
     t.update(&bootstrap)
 }
+

@@ -197,8 +197,9 @@ impl ConvHead {
     }
 }
 
-/// A small CNN for CPU runs: three 3×3 stride-2 convolutions (32, 64, 64 channels), average
-/// pooled to at most 4×4, FC. About 16 MFLOP for a 64×64 frame.
+/// A small CNN for CPU runs: a 4×4 stride-4 "patchify" convolution (32 channels), two 3×3
+/// stride-2 convolutions (64, 64), average pooled to at most 4×4, FC. About 2.2 M multiply-adds
+/// for a 64×64 frame — PPO re-runs it over every stored frame in every epoch, so it must be cheap.
 #[derive(Debug)]
 struct SmallCnn {
     convs: [nn::Conv2D; 3],
@@ -208,15 +209,17 @@ struct SmallCnn {
 
 impl SmallCnn {
     fn new(p: &nn::Path, c_in: i64, hw: (i64, i64), hidden: i64) -> SmallCnn {
-        let c = nn::ConvConfig { stride: 2, padding: 1, ..Default::default() };
-        let side = |n: i64| (n + 7) / 8; // three stride-2 convolutions with padding 1
+        let patch = nn::ConvConfig { stride: 4, ..Default::default() };
+        let down = nn::ConvConfig { stride: 2, padding: 1, ..Default::default() };
+        // ⌊n/4⌋ after the patches, then ⌈·/2⌉ twice
+        let side = |n: i64| ((n / 4 + 1) / 2 + 1) / 2;
         let (h, w) = (side(hw.0), side(hw.1));
         let (ph, pw) = (h.min(4), w.min(4));
         SmallCnn {
             convs: [
-                nn::conv2d(p / "conv1", c_in, 32, 3, c),
-                nn::conv2d(p / "conv2", 32, 64, 3, c),
-                nn::conv2d(p / "conv3", 64, 64, 3, c),
+                nn::conv2d(p / "conv1", c_in, 32, 4, patch),
+                nn::conv2d(p / "conv2", 32, 64, 3, down),
+                nn::conv2d(p / "conv3", 64, 64, 3, down),
             ],
             pool: (ph != h || pw != w).then_some([ph, pw]),
             fc: nn::linear(p / "fc", 64 * ph * pw, hidden, Default::default()),
@@ -744,6 +747,17 @@ pub(crate) mod tests {
             };
         }
         o
+    }
+
+    #[test]
+    fn small_cnn_fits_any_frame_size() {
+        for (hw, flat) in [((16, 16), 64), ((64, 64), 64 * 16), ((64, 100), 64 * 16), ((224, 224), 64 * 16)] {
+            let vs = nn::VarStore::new(Device::Cpu);
+            let cnn = SmallCnn::new(&vs.root(), 3, hw, 8);
+            assert_eq!(vs.variables()["fc.weight"].size(), vec![8, flat], "{hw:?}");
+            let y = tch::no_grad(|| cnn.forward(&Tensor::zeros([2, 3, hw.0, hw.1], (Kind::Float, Device::Cpu))));
+            assert_eq!(y.size(), vec![2, 8]);
+        }
     }
 
     #[test]

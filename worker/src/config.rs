@@ -238,7 +238,8 @@ pub struct PpoConfig {
     pub entropy_coef: f64,
     /// Clip the value loss around the rollout's values with `clip` (as CleanRL's `clip_vloss`).
     pub clip_value_loss: bool,
-    /// Use bf16 autocast on CUDA.
+    /// On CUDA, run the frozen ResNet-18 in bf16 and keep its features in bf16 (the trained
+    /// layers stay f32).
     pub mixed_precision: bool,
 }
 
