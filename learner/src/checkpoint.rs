@@ -354,8 +354,7 @@ mod tests {
         assert_eq!(p.act(&o.batch()).unwrap(), q.act(&o.batch()).unwrap());
 
         // a policy-only load (evaluation)
-        let mut r = Policy::new(&other, 2, Device::Cpu).unwrap();
-        load_policy(&path, &mut r, &cfg).unwrap();
+        let mut r = Policy::from_checkpoint(&cfg, 2, Device::Cpu, &path).unwrap();
         p.reset();
         r.reset();
         assert_eq!(p.act_deterministic(&o.batch()).unwrap(), r.act_deterministic(&o.batch()).unwrap());

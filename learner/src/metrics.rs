@@ -42,6 +42,9 @@ pub struct UpdateMetrics {
     pub bootstrapped: u64,
     pub truncated_without_final: u64,
     pub lost_messages: u64,
+    /// Optimizer steps skipped because the gradient was not finite.
+    #[serde(default)]
+    pub skipped_steps: u64,
     /// Seconds spent in the PPO epochs.
     pub update_seconds: f64,
 }

@@ -549,6 +549,26 @@ impl Policy {
     /// Builds the network for `cfg` and `n_envs` envs on `device`, loading the ResNet-18
     /// weights when the config names them. Variables are initialised from the run seed.
     pub fn new(cfg: &RunConfig, n_envs: usize, device: Device) -> Result<Policy, ModelError> {
+        Policy::build(cfg, n_envs, device, true)
+    }
+
+    /// A policy for evaluation, its weights read from a checkpoint of a run with this config
+    /// (the ResNet-18 weights file need not be present: the checkpoint holds the trunk too).
+    pub fn from_checkpoint(
+        cfg: &RunConfig,
+        n_envs: usize,
+        device: Device,
+        checkpoint: &std::path::Path,
+    ) -> Result<Policy, crate::LearnerError> {
+        let mut p = Policy::build(cfg, n_envs, device, false)?;
+        crate::checkpoint::load_policy(checkpoint, &mut p, cfg)?;
+        p.notes.push(format!("weights from {}", checkpoint.display()));
+        Ok(p)
+    }
+
+    /// Builds the network; `load_weights`: read the configured ResNet-18 file (not when a
+    /// checkpoint is about to overwrite every variable anyway).
+    pub(crate) fn build(cfg: &RunConfig, n_envs: usize, device: Device, load_weights: bool) -> Result<Policy, ModelError> {
         let spec = NetSpec::from_config(cfg);
         if n_envs == 0 {
             return Err(ModelError::Config("a policy needs at least one env".into()));
@@ -561,7 +581,7 @@ impl Policy {
         let mut notes = vec![spec.describe()];
         if spec.random() {
             notes.push("Random: uniform actions; the network is neither used nor trained".into());
-        } else if let (Some(path), Some(f)) = (&cfg.model.resnet_weights, &net.frozen) {
+        } else if let (Some(path), Some(f), true) = (&cfg.model.resnet_weights, &net.frozen, load_weights) {
             let n = resnet::load_torchvision(&vs, "resnet.", path)?;
             f.refresh(&vs);
             notes.push(format!("loaded {n} ResNet-18 tensors from {} (frozen)", path.display()));
@@ -874,6 +894,62 @@ pub(crate) mod tests {
         assert_eq!(opt.state().len() / 2, vars.values().filter(|v| v.requires_grad()).count());
         // 2 × (1×1 convs 74k + FC 1.6M) + gesture FC 4.9M + embedding 19k + GRU 5.5M + heads 1.1M
         assert!((14_000_000..15_000_000).contains(&p.trainable_parameters()), "{}", p.trainable_parameters());
+    }
+
+    /// The bf16 copy of the frozen trunk (used on CUDA) follows the f32 weights: checked on the
+    /// CPU, which runs bf16 convolutions too.
+    #[test]
+    fn bf16_trunk_copy_tracks_the_f32_weights() {
+        let mut cfg = tiny_config("vis_sem");
+        cfg.model.encoder = Encoder::Resnet18;
+        cfg.model.resnet_weights = Some("unused.pth".into());
+        cfg.env.width = 32;
+        cfg.env.height = 32;
+        let spec = NetSpec::from_config(&cfg);
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = PolicyNet::new(&vs, &spec, true);
+        let f = net.frozen.as_ref().unwrap();
+        tch::no_grad(|| {
+            for (k, mut v) in vs.variables() {
+                if k.starts_with("resnet.") && k.ends_with("running_var") {
+                    v.copy_(&(Tensor::rand_like(&v) + 0.5));
+                }
+            }
+        });
+        f.refresh(&vs);
+        let x = Tensor::rand([2, 3, 32, 32], (Kind::Float, Device::Cpu));
+        let (full, half) = tch::no_grad(|| {
+            (f.trunk.forward(&resnet::imagenet_normalize(&x)), f.features(&x).to_kind(Kind::Float))
+        });
+        assert_eq!(f.feature_kind(), Kind::BFloat16);
+        let err = (&full - &half).abs().max().double_value(&[]);
+        let scale = full.abs().max().double_value(&[]);
+        assert!(err < 0.05 * scale.max(1.0), "bf16 error {err} vs scale {scale}");
+    }
+
+    /// On a GPU machine: the same policy on CUDA and on the CPU agrees. Skipped (with a line
+    /// saying so) where there is no GPU.
+    #[test]
+    fn cuda_policy_agrees_with_cpu() {
+        crate::device::load_cuda_backend();
+        if !tch::Cuda::is_available() {
+            eprintln!("cuda_policy_agrees_with_cpu: skipped, no CUDA device on this machine");
+            return;
+        }
+        let cfg = tiny_config("both");
+        let mut cpu = Policy::new(&cfg, 3, Device::Cpu).unwrap();
+        let mut gpu = Policy::new(&cfg, 3, Device::Cuda(0)).unwrap();
+        tch::no_grad(|| {
+            let src = cpu.vs.variables();
+            for (k, mut v) in gpu.vs.variables() {
+                v.copy_(&src[&k].to_device(Device::Cuda(0)));
+            }
+        });
+        let o = random_obs(3, 16, 4);
+        let (a, b) = (cpu.act_deterministic(&o.batch()).unwrap(), gpu.act_deterministic(&o.batch()).unwrap());
+        for (x, y) in a.values.iter().zip(&b.values) {
+            assert!((x - y).abs() < 1e-3, "{a:?} vs {b:?}");
+        }
     }
 
     #[test]

@@ -115,7 +115,11 @@ pub struct Trainer {
 impl Trainer {
     /// A fresh agent for `n_envs` envs.
     pub fn new(cfg: &RunConfig, n_envs: usize, device: Device) -> Result<Trainer, LearnerError> {
-        let policy = Policy::new(cfg, n_envs, device)?;
+        Trainer::build(cfg, n_envs, device, true)
+    }
+
+    fn build(cfg: &RunConfig, n_envs: usize, device: Device, load_weights: bool) -> Result<Trainer, LearnerError> {
+        let policy = Policy::build(cfg, n_envs, device, load_weights)?;
         let mut hp = Hyper::from_config(cfg);
         if hp.minibatches > n_envs {
             tracing::warn!("ppo.minibatches = {} > {n_envs} envs: using {n_envs}", hp.minibatches);
@@ -144,7 +148,7 @@ impl Trainer {
     /// An agent continuing from a checkpoint: weights, Adam state, update and frame counts (so
     /// the lr schedule continues), random streams. Episodes start afresh.
     pub fn resume(cfg: &RunConfig, n_envs: usize, device: Device, checkpoint: &std::path::Path) -> Result<Trainer, LearnerError> {
-        let mut t = Trainer::new(cfg, n_envs, device)?;
+        let mut t = Trainer::build(cfg, n_envs, device, false)?;
         crate::checkpoint::load_trainer(checkpoint, &mut t)?;
         Ok(t)
     }
@@ -276,7 +280,13 @@ impl Trainer {
                     self.opt.zero_grad();
                     loss.backward();
                     let grad_norm = self.opt.clip_grad_norm(hp.max_grad_norm);
-                    self.opt.step();
+                    if grad_norm.is_finite() {
+                        self.opt.step();
+                    } else {
+                        // one bad minibatch must not poison every weight with NaN
+                        m.skipped_steps += 1;
+                        continue;
+                    }
 
                     for (s, v) in sums.iter_mut().zip([
                         pg_loss.double_value(&[]),
@@ -291,6 +301,7 @@ impl Trainer {
                     batches += 1.0;
                 }
             }
+            let batches = f64::max(batches, 1.0);
             m.policy_loss = sums[0] / batches;
             m.value_loss = sums[1] / batches;
             m.entropy = sums[2] / batches;
