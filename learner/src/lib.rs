@@ -20,6 +20,7 @@ pub mod model;
 pub mod obs;
 pub mod optim;
 pub mod ppo;
+pub mod pth;
 pub mod resnet;
 pub mod rollout;
 pub mod smoke;

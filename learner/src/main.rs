@@ -37,6 +37,8 @@ enum Command {
         #[arg(long)]
         resume: bool,
     },
+    /// Check a torchvision ResNet-18 checkpoint (.pth/.pt/.safetensors) before a long run.
+    Weights { path: PathBuf },
     /// Time a forward of the tiny network (batch 32) and PPO updates on 1280 samples.
     Bench {
         /// Also the dissertation's network (frozen ResNet-18 at 224², GRU 2×512) — slow on a CPU.
@@ -95,6 +97,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Info => println!("{}", device::report(dev)),
         Command::Smoke { updates, envs, run_dir, resume } => smoke_run(dev, updates, envs, run_dir, resume)?,
         Command::Bench { faithful, reps } => bench_run(dev, faithful, reps)?,
+        Command::Weights { path } => println!("{}", learner::resnet::check_weights(&path)?),
     }
     Ok(())
 }

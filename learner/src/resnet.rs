@@ -125,7 +125,7 @@ pub struct WeightsError {
 }
 
 /// Reads the named tensors of a torchvision ResNet-18 checkpoint: `.safetensors`, or a
-/// `.pt`/`.pth`/`.bin` state dict written by `torch.save` (read through libtorch's pickle loader).
+/// `.pt`/`.pth`/`.bin` state dict written by `torch.save` (see [`crate::pth`]).
 pub fn read_torchvision(path: &Path) -> Result<HashMap<String, Tensor>, WeightsError> {
     let err = |reason: String| WeightsError { file: path.display().to_string(), reason };
     if !path.is_file() {
@@ -137,17 +137,10 @@ pub fn read_torchvision(path: &Path) -> Result<HashMap<String, Tensor>, WeightsE
     }
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     let named = match ext.as_str() {
-        "safetensors" => Tensor::read_safetensors(path),
-        "pt" | "pth" | "bin" => Tensor::loadz_multi_with_device(path, Device::Cpu),
+        "safetensors" => Tensor::read_safetensors(path).map_err(|e| err(format!("cannot read it: {e}")))?,
+        "pt" | "pth" | "bin" => crate::pth::read_state_dict(path).map_err(|e| err(format!("cannot read it: {e}")))?,
         _ => return Err(err(format!("unknown extension `.{ext}`: use .safetensors, .pt or .pth"))),
-    }
-    .map_err(|e| {
-        err(format!(
-            "cannot read it ({e}). If it is a torch.save file that libtorch cannot unpickle, convert it: \
-             python -c \"import torch, safetensors.torch as s; s.save_file(torch.load('{0}'), '{0}.safetensors')\"",
-            path.display()
-        ))
-    })?;
+    };
     // DataParallel checkpoints prefix every name with `module.`.
     Ok(named.into_iter().map(|(k, v)| (k.strip_prefix("module.").map(str::to_string).unwrap_or(k), v)).collect())
 }
@@ -191,6 +184,25 @@ pub fn load_torchvision(vs: &nn::VarStore, prefix: &str, path: &Path) -> Result<
         Ok(())
     })?;
     Ok(wanted.len())
+}
+
+/// Loads a checkpoint into a fresh ResNet-18 as the frozen encoder would, and runs it once:
+/// a check to make before a long run. Returns a one-line summary.
+pub fn check_weights(path: &Path) -> Result<String, WeightsError> {
+    let vs = nn::VarStore::new(Device::Cpu);
+    let net = Resnet18::new(&vs.root());
+    let n = load_torchvision(&vs, "", path)?;
+    let x = imagenet_normalize(&Tensor::full([1, 3, 224, 224], 0.5, (Kind::Float, Device::Cpu)));
+    let y = tch::no_grad(|| net.forward(&x));
+    if y.isfinite().all().int64_value(&[]) == 0 {
+        return Err(WeightsError { file: path.display().to_string(), reason: "conv5 output is not finite".into() });
+    }
+    Ok(format!(
+        "{}: {n} ResNet-18 tensors loaded; conv5 of a grey 224x224 image: {:?}, mean {:.4}",
+        path.display(),
+        y.size(),
+        y.mean(Kind::Float).double_value(&[])
+    ))
 }
 
 #[cfg(test)]
@@ -239,15 +251,24 @@ mod tests {
         let file = dir.path().join("resnet18.safetensors");
         Tensor::write_safetensors(&named, &file).unwrap();
 
-        let b = nn::VarStore::new(Device::Cpu);
-        let net_b = Resnet18::new(&(b.root() / "enc"));
-        let n = load_torchvision(&b, "enc.", &file).unwrap();
-        // 20 convolutions + 20 batch norms × (weight, bias, running mean, running var)
-        assert_eq!(n, 100);
+        // and the same as torch.save(model.state_dict()) writes it
+        let pth = dir.path().join("resnet18.pth");
+        let refs: Vec<(&str, Tensor)> = named.iter().map(|(k, v)| (k.as_str(), v.shallow_clone())).collect();
+        crate::pth::tests::write_torch_save(&pth, &refs);
+
         let x = Tensor::rand([2, 3, 64, 64], (Kind::Float, Device::Cpu));
-        let (ya, yb) = tch::no_grad(|| (net_a.forward(&x), net_b.forward(&x)));
-        assert!(ya.allclose(&yb, 1e-5, 1e-5, false));
+        let ya = tch::no_grad(|| net_a.forward(&x));
         assert!(ya.abs().sum(Kind::Float).double_value(&[]) > 0.0);
+        for f in [&file, &pth] {
+            let b = nn::VarStore::new(Device::Cpu);
+            let net_b = Resnet18::new(&(b.root() / "enc"));
+            let n = load_torchvision(&b, "enc.", f).unwrap();
+            // 20 convolutions + 20 batch norms × (weight, bias, running mean, running var)
+            assert_eq!(n, 100);
+            let yb = tch::no_grad(|| net_b.forward(&x));
+            assert!(ya.allclose(&yb, 1e-5, 1e-5, false), "{}", f.display());
+        }
+        assert!(check_weights(&pth).unwrap().contains("100 ResNet-18 tensors"));
     }
 
     #[test]
