@@ -154,6 +154,21 @@ impl Inputs {
     }
 }
 
+/// One step's inputs, which on the CPU may read the observation batch's buffers in place (no
+/// host copy): they live no longer than those buffers (`'a`). The rollout copies them.
+#[derive(Debug)]
+pub(crate) struct Prepared<'a> {
+    pub inputs: Inputs,
+    _buffers: std::marker::PhantomData<&'a [u8]>,
+}
+
+impl std::ops::Deref for Prepared<'_> {
+    type Target = Inputs;
+    fn deref(&self) -> &Inputs {
+        &self.inputs
+    }
+}
+
 /// RGB u8 `[B, H, W, 3]` → f32 `[B, 3, H, W]` in 0..1.
 pub fn rgb_unit(raw: &Tensor) -> Tensor {
     raw.permute([0, 3, 1, 2]).to_kind(Kind::Float) / 255.0
@@ -655,13 +670,15 @@ impl Policy {
     }
 
     /// Checks the batch, converts it to the stored form, and works out where memory resets.
-    pub(crate) fn prepare(&self, obs: &ObsBatch) -> Result<(Inputs, Vec<bool>), ObsError> {
+    pub(crate) fn prepare<'a>(&self, obs: &ObsBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
         obs.validate(self.n_envs, (self.spec.height as usize, self.spec.width as usize))?;
         let starts = obs.envs.iter().zip(&self.force_reset).map(|(e, f)| e.episode_start || e.lost || *f).collect();
-        if self.spec.random() {
-            return Ok((Inputs { rgb: None, depth: None, gesture: None, target: None, pose: None }, starts));
-        }
-        Ok((self.net.prepare(obs, self.device), starts))
+        let inputs = if self.spec.random() {
+            Inputs { rgb: None, depth: None, gesture: None, target: None, pose: None }
+        } else {
+            self.net.prepare(obs, self.device)
+        };
+        Ok((Prepared { inputs, _buffers: std::marker::PhantomData }, starts))
     }
 
     /// The network on one step, from the current memory (reset where `starts`).
@@ -847,7 +864,7 @@ pub(crate) mod tests {
             let f = p.forward(&x, st);
             acted.extend(f.values.clone());
             p.commit(f, &o.batch());
-            stored.push(x);
+            stored.push(x.map(|t| t.copy())); // `o` is dropped at the end of the iteration
         }
         let stack = |get: fn(&Inputs) -> Option<&Tensor>| {
             Some(Tensor::stack(&stored.iter().map(|x| get(x).unwrap().shallow_clone()).collect::<Vec<_>>(), 0))

@@ -173,13 +173,13 @@ impl ObsBatch<'_> {
         Ok(())
     }
 
-    /// RGB as one u8 tensor `[N, H, W, 3]` on `device` (CPU views are copied once, by `cat`,
-    /// only when there are several groups).
+    /// RGB as one u8 tensor `[N, H, W, 3]` on `device` (see `gather` for when it is a copy).
     pub(crate) fn rgb_tensor(&self, device: Device) -> Tensor {
+        // (may alias the batch's buffer, see `gather`)
         let (h, w) = (self.height as i64, self.width as i64);
         self.gather(device, |f| {
-            // SAFETY: `validate` checked the slice holds E*H*W*3 bytes; the view does not outlive
-            // this call (it is copied by `to_device`/`cat`/the caller's `copy_` before return).
+            // SAFETY: `validate` checked the slice holds E*H*W*3 bytes; the tensor lives no longer
+            // than the batch's buffers (`Prepared<'a>`), or is copied (`to_device`, `cat`).
             unsafe { Tensor::from_blob(f.rgb.as_ptr(), &[f.envs as i64, h, w, 3], &[], Kind::Uint8, Device::Cpu) }
         })
     }
@@ -227,15 +227,13 @@ impl ObsBatch<'_> {
         Tensor::from_slice(&p).view([self.n() as i64, 3]).to_device(device)
     }
 
-    /// One tensor for all groups. The returned tensor never aliases the caller's buffers.
+    /// One tensor for all groups: on the GPU a copy; on the CPU with one group, the caller's
+    /// buffer itself (no host copy) — hence [`crate::model::Prepared`] carries the batch's
+    /// lifetime.
     fn gather(&self, device: Device, view: impl Fn(&FrameView) -> Tensor) -> Tensor {
-        let parts: Vec<Tensor> = self.frames.iter().filter(|f| f.envs > 0).map(|f| view(f).to_device(device)).collect();
-        match parts.len() {
-            // `to_device` to the CPU returns the same (aliasing) tensor: copy it.
-            1 if device == Device::Cpu => parts[0].copy(),
-            1 => parts.into_iter().next().unwrap(),
-            _ => Tensor::cat(&parts, 0),
-        }
+        let mut parts: Vec<Tensor> =
+            self.frames.iter().filter(|f| f.envs > 0).map(|f| view(f).to_device(device)).collect();
+        if parts.len() == 1 { parts.pop().unwrap() } else { Tensor::cat(&parts, 0) }
     }
 }
 
