@@ -50,7 +50,12 @@ pub fn random_obs(n: usize, side: usize, seed: u64) -> OwnedObs {
     o.depth.iter_mut().for_each(|v| *v = rng.random());
     o.gesture.iter_mut().for_each(|v| *v = half::f16::from_f32(rng.random::<f32>() - 0.5));
     for (i, e) in o.envs.iter_mut().enumerate() {
-        *e = EnvStep { episode_start: true, gesture: GestureKind::Referencing, target: i as i64 % 37, ..Default::default() };
+        *e = EnvStep {
+            episode_start: true,
+            gesture: GestureKind::Referencing,
+            target: (i as i64 * 5) % crate::model::target_count(),
+            ..Default::default()
+        };
     }
     o
 }
@@ -167,4 +172,3 @@ pub fn update_once(t: &mut Trainer) -> crate::metrics::UpdateMetrics {
     let bootstrap = vec![0.0f32; t.rollout.envs];
     t.update(&bootstrap)
 }
-

@@ -40,7 +40,18 @@ pub fn config_hash(cfg: &RunConfig) -> String {
     let s = NetSpec::from_config(cfg);
     let key = format!(
         "method={:?};encoder={:?};frozen={};rgb={};depth={};gesture={};semantic={};pose={};hw={}x{};hidden={};gru={}",
-        s.method, s.encoder, s.frozen, s.rgb, s.depth, s.gesture, s.semantic, s.pose, s.width, s.height, s.hidden, s.gru_layers
+        s.method,
+        s.encoder,
+        s.frozen,
+        s.rgb,
+        s.depth,
+        s.gesture,
+        s.semantic,
+        s.pose,
+        s.width,
+        s.height,
+        s.hidden,
+        s.gru_layers
     );
     let digest = Sha256::digest(key.as_bytes());
     digest.iter().take(8).map(|b| format!("{b:02x}")).collect()
@@ -115,9 +126,9 @@ pub fn load_trainer(path: &Path, t: &mut Trainer) -> Result<(), CheckpointError>
     let (tensors, meta) = read(path, &t.cfg)?;
     load_variables(path, &tensors, &t.policy)?;
     let number = |key: &str| -> Result<u64, CheckpointError> {
-        meta.get(key)
-            .and_then(|v| v.parse().ok())
-            .ok_or_else(|| error(path, format!("has no `{key}` counter (a policy-only checkpoint cannot resume training)")))
+        meta.get(key).and_then(|v| v.parse().ok()).ok_or_else(|| {
+            error(path, format!("has no `{key}` counter (a policy-only checkpoint cannot resume training)"))
+        })
     };
     let (updates, frames, adam_step) = (number("updates")?, number("frames")?, number("adam_step")?);
     let names: Vec<String> = t.opt.state().into_iter().map(|(k, _)| k).collect();
@@ -165,7 +176,13 @@ fn check_shape(path: &Path, key: &str, src: &Tensor, dst: &Tensor) -> Result<(),
     if src.size() != dst.size() || src.kind() != dst.kind() {
         return Err(error(
             path,
-            format!("tensor `{key}` is {:?} {:?}, this network needs {:?} {:?}", src.kind(), src.size(), dst.kind(), dst.size()),
+            format!(
+                "tensor `{key}` is {:?} {:?}, this network needs {:?} {:?}",
+                src.kind(),
+                src.size(),
+                dst.kind(),
+                dst.size()
+            ),
         ));
     }
     Ok(())
@@ -222,7 +239,8 @@ fn write(
     let mut blobs: Vec<(String, Dtype, Vec<usize>, Vec<u8>)> = Vec::with_capacity(tensors.len());
     for (name, t) in tensors {
         let t = t.detach().to_device(Device::Cpu).contiguous();
-        let dtype = dtype_of(t.kind()).ok_or_else(|| error(path, format!("cannot store `{name}` of kind {:?}", t.kind())))?;
+        let dtype =
+            dtype_of(t.kind()).ok_or_else(|| error(path, format!("cannot store `{name}` of kind {:?}", t.kind())))?;
         let numel = t.numel();
         let mut data = vec![0u8; numel * t.kind().elt_size_in_bytes()];
         if numel > 0 {
@@ -240,7 +258,8 @@ fn write(
         .map(|(n, d, s, data)| TensorView::new(*d, s.clone(), data).map(|v| (n.as_str(), v)))
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| error(path, e.to_string()))?;
-    let bytes = safetensors::serialize(views, Some(meta.into_iter().collect())).map_err(|e| error(path, e.to_string()))?;
+    let bytes =
+        safetensors::serialize(views, Some(meta.into_iter().collect())).map_err(|e| error(path, e.to_string()))?;
     worker::util::write_atomic(path, &bytes).map_err(|e| error(path, format!("cannot write: {e}")))
 }
 
@@ -278,9 +297,11 @@ fn read(path: &Path, cfg: &RunConfig) -> Result<(HashMap<String, Tensor>, HashMa
     }
     let mut tensors = HashMap::with_capacity(views.len());
     for (name, v) in views {
-        let kind = kind_of(v.dtype()).ok_or_else(|| error(path, format!("tensor `{name}` has unsupported dtype {:?}", v.dtype())))?;
+        let kind = kind_of(v.dtype())
+            .ok_or_else(|| error(path, format!("tensor `{name}` has unsupported dtype {:?}", v.dtype())))?;
         let shape: Vec<i64> = v.shape().iter().map(|d| *d as i64).collect();
-        let t = Tensor::f_from_data_size(v.data(), &shape, kind).map_err(|e| error(path, format!("tensor `{name}`: {e}")))?;
+        let t = Tensor::f_from_data_size(v.data(), &shape, kind)
+            .map_err(|e| error(path, format!("tensor `{name}`: {e}")))?;
         tensors.insert(name, t);
     }
     Ok((tensors, meta))
@@ -295,7 +316,8 @@ fn rng_from(path: &Path, meta: &HashMap<String, String>, key: &str) -> Result<Ch
     let bad = || error(path, format!("metadata `{key}` is missing or malformed"));
     let s = meta.get(key).ok_or_else(bad)?;
     let mut parts = s.split(':');
-    let (seed_hex, stream, pos) = (parts.next().ok_or_else(bad)?, parts.next().ok_or_else(bad)?, parts.next().ok_or_else(bad)?);
+    let (seed_hex, stream, pos) =
+        (parts.next().ok_or_else(bad)?, parts.next().ok_or_else(bad)?, parts.next().ok_or_else(bad)?);
     if seed_hex.len() != 64 {
         return Err(bad());
     }

@@ -43,11 +43,7 @@ pub fn load_cuda_backend() -> &'static CudaBackend {
                 Err(e) => tried.push(format!("{}: {e}", lib.display())),
             }
         }
-        CudaBackend::Unavailable(if tried.is_empty() {
-            "no libtorch directory found".into()
-        } else {
-            tried.join("; ")
-        })
+        CudaBackend::Unavailable(if tried.is_empty() { "no libtorch directory found".into() } else { tried.join("; ") })
     })
 }
 
@@ -155,10 +151,7 @@ pub fn report(device: Device) -> String {
     } else {
         "no CUDA device".to_string()
     };
-    format!(
-        "device {device:?}; {backend}; {gpus}; {} CPU threads for torch",
-        tch::get_num_threads()
-    )
+    format!("device {device:?}; {backend}; {gpus}; {} CPU threads for torch", tch::get_num_threads())
 }
 
 #[cfg(test)]

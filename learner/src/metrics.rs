@@ -122,7 +122,8 @@ impl MetricsLog {
     }
 
     pub fn append(&mut self, m: &UpdateMetrics) -> Result<(), MetricsError> {
-        let err = |e: std::io::Error| MetricsError::File { file: self.jsonl.display().to_string(), message: e.to_string() };
+        let err =
+            |e: std::io::Error| MetricsError::File { file: self.jsonl.display().to_string(), message: e.to_string() };
         if let Some(dir) = self.jsonl.parent() {
             std::fs::create_dir_all(dir).map_err(err)?;
         }

@@ -186,7 +186,12 @@ fn resnet_input(x: &Tensor) -> Tensor {
 }
 
 fn linear(p: nn::Path, i: i64, o: i64, gain: f64) -> nn::Linear {
-    nn::linear(p, i, o, nn::LinearConfig { ws_init: nn::Init::Orthogonal { gain }, bs_init: Some(nn::Init::Const(0.0)), bias: true })
+    nn::linear(
+        p,
+        i,
+        o,
+        nn::LinearConfig { ws_init: nn::Init::Orthogonal { gain }, bs_init: Some(nn::Init::Const(0.0)), bias: true },
+    )
 }
 
 /// The trained part after a ResNet trunk: two 1×1 convolutions 512→128→64, flatten, FC.
@@ -208,7 +213,15 @@ impl ConvHead {
     }
 
     fn forward(&self, conv5: &Tensor) -> Tensor {
-        conv5.to_kind(Kind::Float).apply(&self.reduce1).relu().apply(&self.reduce2).relu().flatten(1, -1).apply(&self.fc).relu()
+        conv5
+            .to_kind(Kind::Float)
+            .apply(&self.reduce1)
+            .relu()
+            .apply(&self.reduce2)
+            .relu()
+            .flatten(1, -1)
+            .apply(&self.fc)
+            .relu()
     }
 }
 
@@ -383,15 +396,17 @@ impl PolicyNet {
             let p = &root / name;
             match (spec.encoder, spec.frozen) {
                 (Encoder::Resnet18, true) => Visual::Frozen(ConvHead::new(&p, side, h)),
-                (Encoder::Resnet18, false) => Visual::Resnet(Resnet18::new(&(&p / "resnet")), ConvHead::new(&p, side, h)),
+                (Encoder::Resnet18, false) => {
+                    Visual::Resnet(Resnet18::new(&(&p / "resnet")), ConvHead::new(&p, side, h))
+                }
                 (Encoder::SmallCnn, _) => Visual::SmallCnn(SmallCnn::new(&p, c_in, (spec.height, spec.width), h)),
             }
         };
         let rgb = spec.rgb.then(|| visual("rgb", 3));
         let depth = spec.depth.then(|| visual("depth", 1));
-        let gesture = spec.gesture.then(|| {
-            nn::linear(&root / "gesture", (GESTURE_FRAMES * GESTURE_FEATURES) as i64, h, Default::default())
-        });
+        let gesture = spec
+            .gesture
+            .then(|| nn::linear(&root / "gesture", (GESTURE_FRAMES * GESTURE_FEATURES) as i64, h, Default::default()));
         let target = spec.semantic.then(|| nn::embedding(&root / "target", target_count(), h, Default::default()));
         let pose = spec.pose.then(|| nn::linear(&root / "pose", 3, h, Default::default()));
         let gru_cfg = nn::RNNConfig {
@@ -583,7 +598,12 @@ impl Policy {
 
     /// Builds the network; `load_weights`: read the configured ResNet-18 file (not when a
     /// checkpoint is about to overwrite every variable anyway).
-    pub(crate) fn build(cfg: &RunConfig, n_envs: usize, device: Device, load_weights: bool) -> Result<Policy, ModelError> {
+    pub(crate) fn build(
+        cfg: &RunConfig,
+        n_envs: usize,
+        device: Device,
+        load_weights: bool,
+    ) -> Result<Policy, ModelError> {
         let spec = NetSpec::from_config(cfg);
         if n_envs == 0 {
             return Err(ModelError::Config("a policy needs at least one env".into()));
@@ -685,7 +705,12 @@ impl Policy {
     pub(crate) fn forward(&self, x: &Inputs, starts: Vec<bool>) -> Forward {
         let n = self.n_envs;
         if self.spec.random() {
-            return Forward { logits: vec![0.0; n * 4], values: vec![0.0; n], hidden: self.hidden.shallow_clone(), starts };
+            return Forward {
+                logits: vec![0.0; n * 4],
+                values: vec![0.0; n],
+                hidden: self.hidden.shallow_clone(),
+                starts,
+            };
         }
         tch::no_grad(|| {
             let feats = self.net.encode(x).unsqueeze(0);
@@ -693,7 +718,8 @@ impl Policy {
             let keep = Tensor::from_slice(&keep).to_device(self.device).view([1, -1]);
             let (out, hidden) = self.net.recurrent(&feats, &self.hidden, &keep, &[true]);
             let (logits, values) = self.net.heads(&out.squeeze_dim(0));
-            let logits = Vec::<f32>::try_from(logits.to_kind(Kind::Float).to_device(Device::Cpu).flatten(0, -1)).unwrap();
+            let logits =
+                Vec::<f32>::try_from(logits.to_kind(Kind::Float).to_device(Device::Cpu).flatten(0, -1)).unwrap();
             let values = Vec::<f32>::try_from(values.to_kind(Kind::Float).to_device(Device::Cpu)).unwrap();
             Forward { logits, values, hidden, starts }
         })
@@ -702,7 +728,8 @@ impl Policy {
     /// Picks actions from a forward's logits (host side, from the policy's own random stream).
     pub(crate) fn choose(&mut self, fwd: &Forward, mode: ActMode) -> Actions {
         let n = self.n_envs;
-        let mut out = Actions { actions: Vec::with_capacity(n), log_probs: Vec::with_capacity(n), values: fwd.values.clone() };
+        let mut out =
+            Actions { actions: Vec::with_capacity(n), log_probs: Vec::with_capacity(n), values: fwd.values.clone() };
         for i in 0..n {
             let logp = log_softmax(&fwd.logits[i * 4..i * 4 + 4]);
             let a = if mode == ActMode::Greedy && !self.spec.random() {
@@ -756,7 +783,8 @@ pub fn log_softmax(x: &[f32]) -> Vec<f32> {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::obs::{EnvStep, GestureKind, OwnedObs};
+    pub use crate::bench::random_obs;
+    use crate::obs::GestureKind;
 
     pub fn tiny_config(method: &str) -> RunConfig {
         RunConfig::from_toml(
@@ -767,23 +795,6 @@ pub(crate) mod tests {
             "test.toml",
         )
         .unwrap()
-    }
-
-    pub fn random_obs(n: usize, hw: usize, seed: u64) -> OwnedObs {
-        let mut rng = worker::util::rng(seed, &[]);
-        let mut o = OwnedObs::new(n, hw, hw);
-        o.rgb.iter_mut().for_each(|v| *v = rng.random());
-        o.depth.iter_mut().for_each(|v| *v = rng.random());
-        o.gesture.iter_mut().for_each(|v| *v = half::f16::from_f32(rng.random::<f32>() - 0.5));
-        for (i, e) in o.envs.iter_mut().enumerate() {
-            *e = EnvStep {
-                episode_start: true,
-                gesture: GestureKind::Referencing,
-                target: (i as i64 * 5) % target_count(),
-                ..Default::default()
-            };
-        }
-        o
     }
 
     #[test]
@@ -935,9 +946,8 @@ pub(crate) mod tests {
         });
         f.refresh(&vs);
         let x = Tensor::rand([2, 3, 32, 32], (Kind::Float, Device::Cpu));
-        let (full, half) = tch::no_grad(|| {
-            (f.trunk.forward(&resnet::imagenet_normalize(&x)), f.features(&x).to_kind(Kind::Float))
-        });
+        let (full, half) =
+            tch::no_grad(|| (f.trunk.forward(&resnet::imagenet_normalize(&x)), f.features(&x).to_kind(Kind::Float)));
         assert_eq!(f.feature_kind(), Kind::BFloat16);
         let err = (&full - &half).abs().max().double_value(&[]);
         let scale = full.abs().max().double_value(&[]);

@@ -202,10 +202,10 @@ impl ObsBatch<'_> {
             GestureView::F16(s) => unsafe {
                 Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Half, Device::Cpu)
             },
-            GestureView::F32(s) => unsafe {
-                Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Float, Device::Cpu)
+            GestureView::F32(s) => {
+                unsafe { Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Float, Device::Cpu) }
+                    .to_kind(Kind::Half)
             }
-            .to_kind(Kind::Half),
         });
         t.to_kind(Kind::Half)
     }

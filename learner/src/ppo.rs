@@ -147,7 +147,12 @@ impl Trainer {
 
     /// An agent continuing from a checkpoint: weights, Adam state, update and frame counts (so
     /// the lr schedule continues), random streams. Episodes start afresh.
-    pub fn resume(cfg: &RunConfig, n_envs: usize, device: Device, checkpoint: &std::path::Path) -> Result<Trainer, LearnerError> {
+    pub fn resume(
+        cfg: &RunConfig,
+        n_envs: usize,
+        device: Device,
+        checkpoint: &std::path::Path,
+    ) -> Result<Trainer, LearnerError> {
         let mut t = Trainer::build(cfg, n_envs, device, false)?;
         crate::checkpoint::load_trainer(checkpoint, &mut t)?;
         Ok(t)
@@ -391,13 +396,8 @@ pub fn value_loss(new: &Tensor, old: &Tensor, returns: &Tensor, valid: &Tensor, 
 
 /// 1 − Var(R − V) / Var(R) over valid steps (1: the critic explains the returns; ≤ 0: not at all).
 pub fn explained_variance(values: &[f32], returns: &[f32], valid: &[bool]) -> f64 {
-    let pairs: Vec<(f64, f64)> = values
-        .iter()
-        .zip(returns)
-        .zip(valid)
-        .filter(|(_, v)| **v)
-        .map(|((v, r), _)| (*v as f64, *r as f64))
-        .collect();
+    let pairs: Vec<(f64, f64)> =
+        values.iter().zip(returns).zip(valid).filter(|(_, v)| **v).map(|((v, r), _)| (*v as f64, *r as f64)).collect();
     if pairs.len() < 2 {
         return 0.0;
     }

@@ -28,8 +28,17 @@ enum Value {
     Dict(Vec<(Value, Value)>),
     /// `module.name`, e.g. `torch.FloatStorage`.
     Global(String),
-    Storage { kind: Kind, key: String },
-    Tensor { kind: Kind, key: String, offset: i64, size: Vec<i64>, stride: Vec<i64> },
+    Storage {
+        kind: Kind,
+        key: String,
+    },
+    Tensor {
+        kind: Kind,
+        key: String,
+        offset: i64,
+        size: Vec<i64>,
+        stride: Vec<i64>,
+    },
     /// Something built by a callable we do not know (kept only to report it).
     Object(String),
     Mark,
@@ -143,7 +152,11 @@ fn unpickle(data: &[u8]) -> Result<Value, String> {
             b'T' | b'B' => {
                 let n = u32le(take(&mut pos, 4)?) as usize;
                 let bytes = take(&mut pos, n)?.to_vec();
-                stack.push(if op == b'T' { Value::Str(String::from_utf8_lossy(&bytes).into_owned()) } else { Value::Bytes(bytes) });
+                stack.push(if op == b'T' {
+                    Value::Str(String::from_utf8_lossy(&bytes).into_owned())
+                } else {
+                    Value::Bytes(bytes)
+                });
             }
             b'C' => {
                 let n = take(&mut pos, 1)?[0] as usize;
@@ -329,7 +342,8 @@ pub fn read_state_dict(path: &Path) -> Result<Vec<(String, Tensor)>, String> {
         if size.iter().all(|s| *s > 0) && needed > storage.size()[0] {
             return Err(format!("`{name}` reaches past its storage"));
         }
-        let t = storage.f_as_strided(size.as_slice(), stride.as_slice(), offset).map_err(|e| format!("`{name}`: {e}"))?;
+        let t =
+            storage.f_as_strided(size.as_slice(), stride.as_slice(), offset).map_err(|e| format!("`{name}`: {e}"))?;
         out.push((name, t.contiguous()));
     }
     Ok(out)

@@ -235,7 +235,8 @@ mod tests {
     fn lost_messages_drop_the_step_and_truncation_without_final_is_counted() {
         let h0 = Tensor::zeros([1, 2, 4], (Kind::Float, Device::Cpu));
         let mut r = Rollout::new(4, 2, &h0);
-        let x = Inputs { rgb: None, depth: None, gesture: None, target: Some(Tensor::from_slice(&[3i64, 4])), pose: None };
+        let x =
+            Inputs { rgb: None, depth: None, gesture: None, target: Some(Tensor::from_slice(&[3i64, 4])), pose: None };
         r.push(&x, &[true, true], &acted(2, 1.0), &[true, true]);
         let lost = EnvStep { lost: true, reward: 7.0, ..Default::default() };
         let cut = EnvStep { truncated: true, episode_start: true, reward: 0.5, ..Default::default() };

@@ -97,7 +97,8 @@ impl CueTask {
     /// Applies one action per env and prepares the next message.
     pub fn step(&mut self, actions: &[i64]) {
         for (k, &a) in actions.iter().enumerate() {
-            let mut e = EnvStep { gesture: GestureKind::Referencing, target: self.obs.envs[k].target, ..Default::default() };
+            let mut e =
+                EnvStep { gesture: GestureKind::Referencing, target: self.obs.envs[k].target, ..Default::default() };
             if self.reset_next[k] {
                 // the action on a final observation is ignored: reset, reward 0
                 self.reset(k);
