@@ -162,10 +162,10 @@ fn smoke_run(dev: tch::Device, updates: u64, envs: usize, run_dir: PathBuf, resu
     }
     let p = checkpoint::save_in_dir(&ckpt_dir, &trainer, trainer.cfg.checkpoint.keep)?;
     println!(
-        "success rate {:.2} (untrained, sampling) → {:.2} (trained, greedy) after {} updates in {:.1} s\n\
+        "success rate {:.2} (at start, sampling) → {:.2} (trained, greedy) after {} updates in {:.1} s\n\
          metrics {}  curves {}  checkpoint {}",
         report.before,
-        report.after,
+        report.after.unwrap_or(f64::NAN),
         report.updates,
         report.seconds,
         log.jsonl.display(),

@@ -174,8 +174,8 @@ pub fn success_rate(policy: &mut Policy, episodes: usize, mode: ActMode, seed: u
 pub struct SmokeReport {
     /// Success of the policy at the start, sampling (chance level when untrained).
     pub before: f64,
-    /// Success after training, greedy.
-    pub after: f64,
+    /// Success after training, greedy (None when the run was stopped early).
+    pub after: Option<f64>,
     pub updates: u64,
     pub seconds: f64,
     pub metrics: Vec<UpdateMetrics>,
@@ -211,19 +211,17 @@ pub fn run_from(
     let mut task = CueTask::new(envs, side, cfg.run.seed);
     let started = Instant::now();
     let mut metrics = Vec::new();
-    while trainer.updates < updates {
+    let mut stopped = false;
+    while trainer.updates < updates && !stopped {
         let out = trainer.step(&task.observation())?;
         task.step(&out.actions.actions);
         if let Some(m) = out.update {
-            let go_on = on_update(&trainer, &m);
+            stopped = !on_update(&trainer, &m);
             metrics.push(m);
-            if !go_on {
-                break;
-            }
         }
     }
     let seconds = started.elapsed().as_secs_f64();
-    let after = success_rate(&mut trainer.policy, 200, ActMode::Greedy, 2)?;
+    let after = if stopped { None } else { Some(success_rate(&mut trainer.policy, 200, ActMode::Greedy, 2)?) };
     Ok((SmokeReport { before, after, updates: trainer.updates, seconds, metrics }, trainer))
 }
 
@@ -283,10 +281,13 @@ mod tests {
         let (report, trainer) = run(&cfg, Device::Cpu, 40, |_, _| true).unwrap();
         eprintln!(
             "smoke: success {:.2} → {:.2} in {} updates, {:.1} s",
-            report.before, report.after, report.updates, report.seconds
+            report.before,
+            report.after.unwrap(),
+            report.updates,
+            report.seconds
         );
         assert!(report.before < 0.3, "chance level {}", report.before);
-        assert!(report.after > 0.9, "after training {}", report.after);
+        assert!(report.after.unwrap() > 0.9, "after training {:?}", report.after);
         let last = report.metrics.last().unwrap();
         assert!(last.success_rate.unwrap() > 0.5, "{last:?}");
         assert!(last.bootstrapped + last.episodes > 0);
