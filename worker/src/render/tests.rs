@@ -147,6 +147,9 @@ fn a_batch_equals_the_same_views_one_by_one_and_repeats_exactly() {
     }
     let again = render(&mut r, &views);
     assert!(again == batch, "same input, different bytes");
+    r.set_frustum_culling(false);
+    assert!(render(&mut r, &views) == batch, "frustum culling changed the image");
+    r.set_frustum_culling(true);
     // the views are not trivially alike: they see different things
     assert!(batch[0] != batch[1]);
     assert!(batch.iter().all(|f| f.ids.iter().any(|&i| i >= crate::geometry::ID_FIRST_OBJECT)));
