@@ -66,7 +66,7 @@ pub struct ViewUniform {
     pub right: [f32; 4],
     pub up: [f32; 4],
     pub forward: [f32; 4],
-    /// xyz = eye.
+    /// xyz = eye, w = the height of a pixel at 1 m depth (metres), for pattern anti-aliasing.
     pub eye: [f32; 4],
     /// (sx, sy, A, B) of `projection_scale` and `depth_coefficients`.
     pub proj: [f32; 4],
@@ -82,7 +82,7 @@ impl ViewUniform {
             right: [r.x, r.y, r.z, 0.0],
             up: [u.x, u.y, u.z, 0.0],
             forward: [f.x, f.y, f.z, 0.0],
-            eye: [e.x, e.y, e.z, 1.0],
+            eye: [e.x, e.y, e.z, 2.0 / (sy * cfg.height as f32)],
             proj: [sx, sy, a, b],
         }
     }

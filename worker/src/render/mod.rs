@@ -401,7 +401,7 @@ impl Renderer {
 
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("scene.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(match std::env::var("XX_SHADER") { Ok(f) => std::fs::read_to_string(f).unwrap().into(), Err(_) => include_str!("scene.wgsl").into() }),
+            source: wgpu::ShaderSource::Wgsl(include_str!("scene.wgsl").into()),
         });
         let view_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("view"),

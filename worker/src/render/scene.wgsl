@@ -14,7 +14,7 @@ struct ViewUniform {
     right: vec4<f32>,
     up: vec4<f32>,
     forward: vec4<f32>,
-    eye: vec4<f32>,
+    eye: vec4<f32>, // xyz eye, w = pixel height at 1 m depth (metres)
     proj: vec4<f32>, // sx, sy, A, B: clip z = A - B * z_view (reversed Z), w = z_view
 };
 
@@ -46,7 +46,7 @@ struct VertexOut {
     // (stripe phase, wobble phase, tile grid u, tile grid v): all linear in position
     @location(1) pattern: vec4<f32>,
     @location(2) z_view: f32,
-    // (stripe amplitude, wobble amplitude, grid darkening, grid line half width)
+    // (stripe amplitude, wobble amplitude, pattern fade per metre of depth, grid darkening)
     @location(3) @interpolate(flat) look: vec4<f32>,
     @location(4) @interpolate(flat) tag: u32,
 };
@@ -56,6 +56,8 @@ const SUN: vec3<f32> = vec3<f32>(0.55, 0.53, 0.50);
 const SKY: vec3<f32> = vec3<f32>(0.62, 0.64, 0.68);
 const GROUND: vec3<f32> = vec3<f32>(0.30, 0.28, 0.26);
 const TILE_PERIOD: f32 = 0.3;
+// grout half width in grid units (6 mm)
+const GROUT: f32 = 0.02;
 
 // How a material looks; indexed by geometry::Material.
 struct Look {
@@ -74,14 +76,14 @@ fn look_of(material: u32) -> Look {
     var l = Look(vec3<f32>(0.0), vec3<f32>(0.0), vec2<f32>(0.0), 0.0, 1.0, 1.0, 0.0, 0.0, 0.0);
     switch material {
         case 1u: { // wood: grain along the longest side, wavy
-            l.stripe = vec3<f32>(0.0, 90.0, 90.0);
-            l.wobble = vec3<f32>(4.0, 20.0, 0.0);
-            l.amp = vec2<f32>(0.07, 3.0);
+            l.stripe = vec3<f32>(0.0, 60.0, 60.0);
+            l.wobble = vec3<f32>(4.0, 15.0, 0.0);
+            l.amp = vec2<f32>(0.08, 2.5);
         }
-        case 2u: { // fabric: a fine weave, soft light
-            l.stripe = vec3<f32>(260.0, 0.0, 0.0);
-            l.wobble = vec3<f32>(0.0, 260.0, 260.0);
-            l.amp = vec2<f32>(0.045, 1.5);
+        case 2u: { // fabric: a coarse weave, soft light
+            l.stripe = vec3<f32>(120.0, 0.0, 0.0);
+            l.wobble = vec3<f32>(0.0, 120.0, 120.0);
+            l.amp = vec2<f32>(0.05, 1.5);
             l.sun = 0.85;
         }
         case 3u: { // metal
@@ -171,8 +173,11 @@ fn vs_main(v: VertexIn) -> VertexOut {
         g = world.xy;
     }
     out.pattern = vec4<f32>(dot(p, look.stripe), dot(p, look.wobble), g / TILE_PERIOD);
-    // grout half width 6 mm in grid units
-    out.look = vec4<f32>(look.amp, look.grid, select(-1.0, 0.006 / TILE_PERIOD, look.grid > 0.0));
+    // Patterns finer than a few pixels alias into noise: fade them out with depth. Full
+    // strength while a stripe period spans 8+ pixels (grout: while a pixel is under 8 mm),
+    // gone by half that; `fade` is the slope of 2 − z·fade.
+    let stripe_per_metre = select(length(look.stripe) / 0.8, 1.0 / 0.008, look.grid > 0.0);
+    out.look = vec4<f32>(look.amp, stripe_per_metre * view.eye.w, look.grid);
     out.tag = inst.tag;
     return out;
 }
@@ -182,11 +187,17 @@ struct FragmentOut {
     @location(1) info: u32,
 };
 
+// A triangle wave with the period and range of sin(x), far cheaper per pixel.
+fn wave(x: f32) -> f32 {
+    return abs(fract(x * 0.15915494 + 0.25) - 0.5) * 4.0 - 1.0;
+}
+
 @fragment
 fn fs_main(in: VertexOut) -> FragmentOut {
-    let stripe = 1.0 + in.look.x * sin(in.pattern.x + in.look.y * sin(in.pattern.y));
+    let fade = clamp(2.0 - in.z_view * in.look.z, 0.0, 1.0);
+    let stripe = 1.0 + in.look.x * fade * wave(in.pattern.x + in.look.y * wave(in.pattern.y));
     let f = abs(fract(in.pattern.zw + 0.5) - 0.5);
-    let grout = select(1.0, 1.0 - in.look.z, min(f.x, f.y) < in.look.w);
+    let grout = 1.0 - select(0.0, in.look.w * fade, min(f.x, f.y) < GROUT);
     let depth = u32(clamp(in.z_view * 0.1, 0.0, 1.0) * 65535.0 + 0.5);
     var out: FragmentOut;
     out.color = vec4<f32>(in.color * (stripe * grout), 1.0);
