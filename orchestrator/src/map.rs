@@ -336,8 +336,19 @@ impl TopDownMap {
                 // the first free spot near the object, else the one that overlaps least
                 let (dx, dy) = (tw / 2 + 3 * SS, th + 2 * SS);
                 let candidates = [
-                    (0, 0), (0, -dy), (0, dy), (dx, 0), (-dx, 0), (dx, -dy), (-dx, -dy), (dx, dy), (-dx, dy),
-                    (0, -2 * dy), (0, 2 * dy), (2 * dx, 0), (-2 * dx, 0),
+                    (0, 0),
+                    (0, -dy),
+                    (0, dy),
+                    (dx, 0),
+                    (-dx, 0),
+                    (dx, -dy),
+                    (-dx, -dy),
+                    (dx, dy),
+                    (-dx, dy),
+                    (0, -2 * dy),
+                    (0, 2 * dy),
+                    (2 * dx, 0),
+                    (-2 * dx, 0),
                 ];
                 let rect = |dx: i32, dy: i32| (cx + dx - tw / 2, cy + dy - th / 2, cx + dx + tw / 2, cy + dy + th / 2);
                 let overlap = |r: (i32, i32, i32, i32)| -> i64 {
@@ -370,7 +381,9 @@ impl TopDownMap {
             }
         }
         self.with_area(|area| {
-            let style = TextStyle::from((font(), size as f64).into_font()).color(&INK).pos(Pos::new(HPos::Center, VPos::Center));
+            let style = TextStyle::from((font(), size as f64).into_font())
+                .color(&INK)
+                .pos(Pos::new(HPos::Center, VPos::Center));
             for (r, name) in &labels {
                 area.draw(&Rectangle::new([(r.0, r.1), (r.2, r.3)], WHITE.mix(0.78).filled()))?;
                 area.draw(&Text::new(*name, ((r.0 + r.2) / 2, (r.1 + r.3) / 2), style.clone()))?;
@@ -388,7 +401,9 @@ impl TopDownMap {
             area.draw(&PathElement::new(vec![(x0, y), (x1, y)], s))?;
             area.draw(&PathElement::new(vec![(x0, y - tick), (x0, y + tick)], s))?;
             area.draw(&PathElement::new(vec![(x1, y - tick), (x1, y + tick)], s))?;
-            let style = TextStyle::from((font(), (10 * SS) as f64).into_font()).color(&INK).pos(Pos::new(HPos::Left, VPos::Center));
+            let style = TextStyle::from((font(), (10 * SS) as f64).into_font())
+                .color(&INK)
+                .pos(Pos::new(HPos::Left, VPos::Center));
             area.draw(&Text::new("1 m", (x1 + 4 * SS, y), style))?;
             Ok(())
         });
@@ -467,7 +482,7 @@ impl TopDownMap {
         self
     }
 
-    fn ring_radius(&self, object: usize) -> Option<(( i32, i32), i32)> {
+    fn ring_radius(&self, object: usize) -> Option<((i32, i32), i32)> {
         let (c, r) = *self.objects.get(object)?;
         Some((self.px(c[0], c[1]), self.len(r.max(0.15) + 0.12)))
     }
@@ -561,18 +576,22 @@ impl TopDownMap {
     fn draw_decorations(&self, area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>) -> Drawn {
         let f = font();
         if let Some(t) = &self.title {
-            let style = TextStyle::from((f, (15 * SS) as f64).into_font()).color(&INK).pos(Pos::new(HPos::Left, VPos::Center));
+            let style =
+                TextStyle::from((f, (15 * SS) as f64).into_font()).color(&INK).pos(Pos::new(HPos::Left, VPos::Center));
             area.draw(&Text::new(t.as_str(), (10 * SS, TITLE_PX * SS / 2), style))?;
         }
         let x = self.size.0 as i32 - LEGEND_PX * SS + 12 * SS;
         let mut y = TITLE_PX * SS + 16 * SS;
-        let text = TextStyle::from((f, (11 * SS) as f64).into_font()).color(&INK).pos(Pos::new(HPos::Left, VPos::Center));
+        let text =
+            TextStyle::from((f, (11 * SS) as f64).into_font()).color(&INK).pos(Pos::new(HPos::Left, VPos::Center));
         let row = 22 * SS;
         for item in &self.legend {
             let c = (x + 9 * SS, y);
             match item {
                 Legend::Reachable => area.draw(&Circle::new(c, 2 * SS, REACHABLE.filled()))?,
-                Legend::Path => area.draw(&PathElement::new(vec![(x, y), (x + 18 * SS, y)], PATH.stroke_width(3 * SS as u32)))?,
+                Legend::Path => {
+                    area.draw(&PathElement::new(vec![(x, y), (x + 18 * SS, y)], PATH.stroke_width(3 * SS as u32)))?
+                }
                 Legend::Person => area.draw(&Circle::new(c, 6 * SS, PERSON.filled()))?,
                 Legend::Robot => area.draw(&Circle::new(c, 8 * SS, ROBOT.filled()))?,
                 Legend::Target => area.draw(&Circle::new(c, 7 * SS, TARGET.stroke_width(3 * SS as u32)))?,
@@ -592,7 +611,8 @@ impl TopDownMap {
         let mut bytes = Vec::new();
         img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
             .map_err(|e| MapError::Encode { path: path.display().to_string(), message: e.to_string() })?;
-        worker::util::write_atomic(path, &bytes).map_err(|source| MapError::Write { path: path.display().to_string(), source })
+        worker::util::write_atomic(path, &bytes)
+            .map_err(|source| MapError::Write { path: path.display().to_string(), source })
     }
 
     /// Output size in pixels (width, height).
@@ -637,7 +657,11 @@ fn downsample(pixels: &[u8], (w, h): (u32, u32), k: u32) -> RgbImage {
                     }
                 }
             }
-            out.put_pixel(x, y, image::Rgb([((acc[0] + n / 2) / n) as u8, ((acc[1] + n / 2) / n) as u8, ((acc[2] + n / 2) / n) as u8]));
+            out.put_pixel(
+                x,
+                y,
+                image::Rgb([((acc[0] + n / 2) / n) as u8, ((acc[1] + n / 2) / n) as u8, ((acc[2] + n / 2) / n) as u8]),
+            );
         }
     }
     out
@@ -704,7 +728,9 @@ mod tests {
         assert_eq!(img.height(), (5.7f32 * 80.0).ceil() as u32 + TITLE_PX as u32);
 
         let close = |a: image::Rgb<u8>, b: RGBColor| {
-            (a.0[0] as i32 - b.0 as i32).abs() <= 3 && (a.0[1] as i32 - b.1 as i32).abs() <= 3 && (a.0[2] as i32 - b.2 as i32).abs() <= 3
+            (a.0[0] as i32 - b.0 as i32).abs() <= 3
+                && (a.0[1] as i32 - b.1 as i32).abs() <= 3
+                && (a.0[2] as i32 - b.2 as i32).abs() <= 3
         };
         let count = |c: RGBColor| img.pixels().filter(|p| close(**p, c)).count();
         // the blue sofa, the red armchair and the walls are there in their colours

@@ -237,7 +237,11 @@ mod tests {
             }
             culled += 1;
             for _ in 0..200 {
-                let v = Vector3::new(rng.random_range(-1.0..1.0f32), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+                let v = Vector3::new(
+                    rng.random_range(-1.0..1.0f32),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                );
                 if v.norm() > 1.0 {
                     continue;
                 }

@@ -174,7 +174,11 @@ fn unit_sphere(segments: u32, rings: u32) -> Mesh {
             let centre = {
                 let v = |i: u16| m.vertices[i as usize].position;
                 let (pa, pb, pc, pd) = (v(a), v(b), v(c), v(d));
-                [(pa[0] + pb[0] + pc[0] + pd[0]) / 4.0, (pa[1] + pb[1] + pc[1] + pd[1]) / 4.0, (pa[2] + pb[2] + pc[2] + pd[2]) / 4.0]
+                [
+                    (pa[0] + pb[0] + pc[0] + pd[0]) / 4.0,
+                    (pa[1] + pb[1] + pc[1] + pd[1]) / 4.0,
+                    (pa[2] + pb[2] + pc[2] + pd[2]) / 4.0,
+                ]
             };
             // the bands touching a pole have one degenerate triangle each: skip it
             if r != 0 {

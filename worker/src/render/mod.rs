@@ -397,7 +397,8 @@ impl Renderer {
         .map_err(|e| RenderError::Device { adapter: describe(&info), message: e.to_string() })?;
 
         let capacity = cfg.max_views_per_submit.min(limits.max_texture_array_layers as usize).max(1);
-        let view_stride = align_up(std::mem::size_of::<ViewUniform>() as u64, limits.min_uniform_buffer_offset_alignment as u64);
+        let view_stride =
+            align_up(std::mem::size_of::<ViewUniform>() as u64, limits.min_uniform_buffer_offset_alignment as u64);
 
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("scene.wgsl"),
@@ -477,8 +478,16 @@ impl Renderer {
                 entry_point: Some("fs_main"),
                 compilation_options: Default::default(),
                 targets: &[
-                    Some(wgpu::ColorTargetState { format: COLOR_FORMAT, blend: None, write_mask: wgpu::ColorWrites::ALL }),
-                    Some(wgpu::ColorTargetState { format: INFO_FORMAT, blend: None, write_mask: wgpu::ColorWrites::ALL }),
+                    Some(wgpu::ColorTargetState {
+                        format: COLOR_FORMAT,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    }),
+                    Some(wgpu::ColorTargetState {
+                        format: INFO_FORMAT,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    }),
                 ],
             }),
             multiview_mask: None,
@@ -620,10 +629,10 @@ impl Renderer {
 
     /// Frees a scene's GPU buffers; the handle becomes invalid.
     pub fn release_scene(&mut self, h: SceneHandle) {
-        if let Some(s) = self.scenes.get_mut(h.slot as usize) {
-            if s.generation == h.generation {
-                s.scene = None;
-            }
+        if let Some(s) = self.scenes.get_mut(h.slot as usize)
+            && s.generation == h.generation
+        {
+            s.scene = None;
         }
     }
 
@@ -681,7 +690,14 @@ impl Renderer {
             let start = self.scratch_draws.len();
             let first_group = dynamic.groups.len();
             dynamic.push(v.dynamic, false);
-            cull(frustum, &dynamic.bounds, &dynamic.groups[first_group..], true, &mut self.scratch_refs, &mut self.scratch_draws);
+            cull(
+                frustum,
+                &dynamic.bounds,
+                &dynamic.groups[first_group..],
+                true,
+                &mut self.scratch_refs,
+                &mut self.scratch_draws,
+            );
             let scene = self.scenes[v.scene.slot as usize].scene.as_ref().expect("checked in render()");
             cull(frustum, &scene.bounds, &scene.groups, false, &mut self.scratch_refs, &mut self.scratch_draws);
             self.scratch_view_draws.push((start, self.scratch_draws.len()));
@@ -711,7 +727,10 @@ impl Renderer {
                         view: &self.targets.color_layers[i],
                         depth_slice: None,
                         resolve_target: None,
-                        ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+                        ops: wgpu::Operations {
+                            load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
+                            store: wgpu::StoreOp::Store,
+                        },
                     }),
                     Some(wgpu::RenderPassColorAttachment {
                         view: &self.targets.info_layers[i],
@@ -748,13 +767,22 @@ impl Renderer {
                     bound_dynamic = Some(d.dynamic);
                 }
                 let r = self.ranges[d.mesh];
-                pass.draw_indexed(r.first_index..r.first_index + r.index_count, r.base_vertex, d.first..d.first + d.count);
+                pass.draw_indexed(
+                    r.first_index..r.first_index + r.index_count,
+                    r.base_vertex,
+                    d.first..d.first + d.count,
+                );
             }
         }
         let extent = wgpu::Extent3d { width: self.cfg.width, height: self.cfg.height, depth_or_array_layers: k as u32 };
         for (texture, offset) in [(&self.targets.color, 0), (&self.targets.info, self.info_offset)] {
             encoder.copy_texture_to_buffer(
-                wgpu::TexelCopyTextureInfo { texture, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
+                wgpu::TexelCopyTextureInfo {
+                    texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
                 wgpu::TexelCopyBufferInfo {
                     buffer: &self.readback,
                     layout: wgpu::TexelCopyBufferLayout {
@@ -774,9 +802,7 @@ impl Renderer {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| RenderError::Readback(e.to_string()))?;
         match rx.try_recv() {
             Ok(Ok(())) => {}
             Ok(Err(e)) => return Err(RenderError::Readback(e.to_string())),
@@ -797,7 +823,14 @@ impl Renderer {
 
 /// Appends, for each group, the indices of its instances whose bounding sphere may show in
 /// the frustum, and one draw for the survivors.
-fn cull(frustum: Option<&Frustum>, bounds: &[[f32; 4]], groups: &[Group], dynamic: bool, refs: &mut Vec<u32>, draws: &mut Vec<Draw>) {
+fn cull(
+    frustum: Option<&Frustum>,
+    bounds: &[[f32; 4]],
+    groups: &[Group],
+    dynamic: bool,
+    refs: &mut Vec<u32>,
+    draws: &mut Vec<Draw>,
+) {
     for g in groups {
         let first = refs.len() as u32;
         for i in g.first..g.first + g.count {

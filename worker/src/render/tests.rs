@@ -39,12 +39,12 @@ impl Frame {
 
 fn render(r: &mut Renderer, views: &[View<'_>]) -> Vec<Frame> {
     let (w, h) = (r.config().width as usize, r.config().height as usize);
-    let mut frames: Vec<Frame> =
-        views.iter().map(|_| Frame { w, rgb: vec![7; w * h * 3], depth: vec![7; w * h], ids: vec![7; w * h] }).collect();
-    let mut outs: Vec<ViewOut> = frames
-        .iter_mut()
-        .map(|f| ViewOut { rgb: &mut f.rgb, depth: &mut f.depth, ids: Some(&mut f.ids) })
+    let mut frames: Vec<Frame> = views
+        .iter()
+        .map(|_| Frame { w, rgb: vec![7; w * h * 3], depth: vec![7; w * h], ids: vec![7; w * h] })
         .collect();
+    let mut outs: Vec<ViewOut> =
+        frames.iter_mut().map(|f| ViewOut { rgb: &mut f.rgb, depth: &mut f.depth, ids: Some(&mut f.ids) }).collect();
     r.render(views, &mut outs).unwrap();
     frames
 }
@@ -81,7 +81,10 @@ fn plus_x_is_on_the_right_and_yaw_90_looks_along_plus_x() {
     let ahead_x = r.upload_scene(&[red_box([3.0, 1.5, 0.0], 0.3, 9)]);
     let frames = render(
         &mut r,
-        &[View { scene: right, camera: eye(0.0), dynamic: &[] }, View { scene: ahead_x, camera: eye(90.0), dynamic: &[] }],
+        &[
+            View { scene: right, camera: eye(0.0), dynamic: &[] },
+            View { scene: ahead_x, camera: eye(90.0), dynamic: &[] },
+        ],
     );
     let f = &frames[0];
     let mut cols = (0..224 * 224).filter(|i| f.ids[*i] == 9).map(|i| i % 224);
