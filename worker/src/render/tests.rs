@@ -266,3 +266,9 @@ fn adapter_is_described() {
     let s = r.adapter_info();
     assert!(s.contains("Vulkan") || s.contains("Gl"), "{s}");
 }
+
+#[test]
+fn a_renderer_can_move_to_another_thread() {
+    fn send<T: Send>() {}
+    send::<Renderer>();
+}
