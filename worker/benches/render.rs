@@ -1,7 +1,8 @@
 //! Render throughput on the benchmark room at 224×224 with colour, depth and id readback:
 //! views per second at 1, 8 and 16 views per submit.
 //!
-//! `cargo bench -p worker --bench render` (about a minute on a 2-core CPU with lavapipe).
+//! `cargo bench -p worker --bench render` (about 30 s on a 2-core CPU with lavapipe;
+//! `GESTHOR_WGPU_BACKEND=gl` measures the OpenGL path instead).
 
 use std::hint::black_box;
 use std::time::Duration;
