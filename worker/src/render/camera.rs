@@ -66,7 +66,7 @@ pub struct ViewUniform {
     pub right: [f32; 4],
     pub up: [f32; 4],
     pub forward: [f32; 4],
-    /// xyz = eye.
+    /// xyz = eye, w = the height of a pixel at 1 m depth (metres), for pattern anti-aliasing.
     pub eye: [f32; 4],
     /// (sx, sy, A, B) of `projection_scale` and `depth_coefficients`.
     pub proj: [f32; 4],
@@ -82,7 +82,7 @@ impl ViewUniform {
             right: [r.x, r.y, r.z, 0.0],
             up: [u.x, u.y, u.z, 0.0],
             forward: [f.x, f.y, f.z, 0.0],
-            eye: [e.x, e.y, e.z, 1.0],
+            eye: [e.x, e.y, e.z, 2.0 / (sy * cfg.height as f32)],
             proj: [sx, sy, a, b],
         }
     }
@@ -108,6 +108,50 @@ pub fn project(camera: &Camera, cfg: &RenderConfig, point: Point3<f32>) -> Optio
         return None;
     }
     Some((px, py, zv))
+}
+
+/// The view volume of a camera, for skipping parts that cannot appear in its image.
+#[derive(Clone, Copy, Debug)]
+pub struct Frustum {
+    eye: Vector3<f32>,
+    right: Vector3<f32>,
+    up: Vector3<f32>,
+    forward: Vector3<f32>,
+    /// Projection scales and 1/√(s² + 1), the length of the side planes' normals.
+    sx: f32,
+    sy: f32,
+    nx: f32,
+    ny: f32,
+}
+
+impl Frustum {
+    pub fn new(camera: &Camera, cfg: &RenderConfig) -> Frustum {
+        let (right, up, forward) = camera.basis();
+        let (sx, sy) = projection_scale(cfg);
+        Frustum {
+            eye: camera.position.coords,
+            right,
+            up,
+            forward,
+            sx,
+            sy,
+            nx: 1.0 / (sx * sx + 1.0).sqrt(),
+            ny: 1.0 / (sy * sy + 1.0).sqrt(),
+        }
+    }
+
+    /// Whether a sphere may show in the image. Conservative (a centimetre of slack on every
+    /// plane): it never drops a sphere the rasteriser would draw, so culling cannot change
+    /// a single pixel.
+    pub fn may_see_sphere(&self, center: [f32; 3], radius: f32) -> bool {
+        let d = Vector3::from(center) - self.eye;
+        let r = radius + 0.01;
+        let (x, y, z) = (d.dot(&self.right), d.dot(&self.up), d.dot(&self.forward));
+        z + r >= NEAR
+            && z - r <= FAR
+            && (x.abs() * self.sx - z) * self.nx <= r
+            && (y.abs() * self.sy - z) * self.ny <= r
+    }
 }
 
 /// Linear depth (metres) to the 16-bit value of the depth image: 0..10 m → 0..65535, clamped.
@@ -171,6 +215,41 @@ mod tests {
         let c = Camera { position: Point3::new(0.0, 1.5, 0.0), yaw_deg: 0.0, pitch_deg: 20.0 };
         let (_, py, _) = project(&c, &cfg(), Point3::new(0.0, 1.5, 2.0)).unwrap();
         assert!(py > 112.0);
+    }
+
+    #[test]
+    fn frustum_keeps_every_sphere_with_a_visible_point() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let c = RenderConfig { width: 160, height: 96, fov_deg: 75.0, max_views_per_submit: 1 };
+        let mut culled = 0;
+        for _ in 0..2000 {
+            let cam = Camera {
+                position: Point3::new(rng.random_range(-2.0..2.0), 1.5, rng.random_range(-2.0..2.0)),
+                yaw_deg: rng.random_range(0.0..360.0),
+                pitch_deg: rng.random_range(-30.0..30.0),
+            };
+            let f = Frustum::new(&cam, &c);
+            let center = [rng.random_range(-6.0..6.0), rng.random_range(-1.0..4.0), rng.random_range(-6.0..6.0)];
+            let radius = rng.random_range(0.01..1.0f32);
+            if f.may_see_sphere(center, radius) {
+                continue;
+            }
+            culled += 1;
+            for _ in 0..200 {
+                let v = Vector3::new(
+                    rng.random_range(-1.0..1.0f32),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                );
+                if v.norm() > 1.0 {
+                    continue;
+                }
+                let p = Point3::from(center) + v * radius;
+                assert!(project(&cam, &c, p).is_none(), "culled sphere {center:?} r {radius} has visible point {p:?}");
+            }
+        }
+        assert!(culled > 500, "{culled}");
     }
 
     #[test]
