@@ -9,46 +9,12 @@
 use nalgebra::{Point3, Vector3};
 
 use super::RenderConfig;
-
-/// Near clipping plane (metres).
-pub const NEAR: f32 = 0.02;
-/// Far clipping plane (metres).
-pub const FAR: f32 = 20.0;
-/// Depth that maps to the largest depth value; farther (and empty) pixels saturate (§3.2.2).
-pub const MAX_DEPTH_M: f32 = 10.0;
-
-/// Where the camera is and where it looks.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Camera {
-    /// The eye point (the robot's camera sits 1.5 m above the floor).
-    pub position: Point3<f32>,
-    /// Degrees, clockwise from above; 0 looks along +z, 90 along +x.
-    pub yaw_deg: f32,
-    /// Degrees; positive looks up.
-    pub pitch_deg: f32,
-}
-
-impl Camera {
-    pub fn new(position: Point3<f32>, yaw_deg: f32) -> Camera {
-        Camera { position, yaw_deg, pitch_deg: 0.0 }
-    }
-
-    /// (right, up, forward), orthonormal, in world coordinates.
-    pub fn basis(&self) -> (Vector3<f32>, Vector3<f32>, Vector3<f32>) {
-        let (sy, cy) = self.yaw_deg.to_radians().sin_cos();
-        let (sp, cp) = self.pitch_deg.to_radians().sin_cos();
-        let forward = Vector3::new(sy * cp, sp, cy * cp);
-        let right = Vector3::new(cy, 0.0, -sy);
-        let up = Vector3::new(-sy * sp, cp, -cy * sp);
-        (right, up, forward)
-    }
-}
+pub use crate::camera::{Camera, FAR, MAX_DEPTH as MAX_DEPTH_M, NEAR};
 
 /// Scale factors of the projection: (x, y) multipliers of view x and y before the divide.
 pub fn projection_scale(cfg: &RenderConfig) -> (f32, f32) {
-    let sy = 1.0 / (cfg.fov_deg.to_radians() * 0.5).tan();
-    let sx = sy * cfg.height as f32 / cfg.width as f32;
-    (sx, sy)
+    let k = cfg.intrinsics();
+    (1.0 / k.tan_half_fov_x(), 1.0 / k.tan_half_fov_y())
 }
 
 /// Reversed-Z depth: clip z = A − B·z_view with w = z_view, so NDC z is 1 at the near plane
@@ -93,21 +59,9 @@ impl ViewUniform {
 /// [i, i+1) × [j, j+1). None when the point lies outside the view frustum. Uses the same
 /// math as the shader, so a point projected here lands on the pixel the renderer shades.
 pub fn project(camera: &Camera, cfg: &RenderConfig, point: Point3<f32>) -> Option<(f32, f32, f32)> {
-    let (r, u, f) = camera.basis();
-    let d = point - camera.position;
-    let (xv, yv, zv) = (d.dot(&r), d.dot(&u), d.dot(&f));
-    if !(NEAR..=FAR).contains(&zv) {
-        return None;
-    }
-    let (sx, sy) = projection_scale(cfg);
-    let (x_ndc, y_ndc) = (xv * sx / zv, yv * sy / zv);
+    let (px, py, zv) = camera.project(&cfg.intrinsics(), &point)?;
     let (w, h) = (cfg.width as f32, cfg.height as f32);
-    let px = (x_ndc + 1.0) * 0.5 * w;
-    let py = (1.0 - y_ndc) * 0.5 * h;
-    if px < 0.0 || px >= w || py < 0.0 || py >= h {
-        return None;
-    }
-    Some((px, py, zv))
+    ((NEAR..=FAR).contains(&zv) && px >= 0.0 && px < w && py >= 0.0 && py < h).then_some((px, py, zv))
 }
 
 /// The view volume of a camera, for skipping parts that cannot appear in its image.

@@ -56,6 +56,11 @@ impl Default for RenderConfig {
 }
 
 impl RenderConfig {
+    /// Image size and field of view, as the camera module speaks of them.
+    pub fn intrinsics(&self) -> crate::camera::Intrinsics {
+        crate::camera::Intrinsics { width: self.width, height: self.height, fov_deg: self.fov_deg }
+    }
+
     fn validate(&self) -> Result<(), RenderError> {
         let bad = |m: String| Err(RenderError::Config(m));
         if self.width == 0 || self.height == 0 || self.width > 8192 || self.height > 8192 {
