@@ -7,9 +7,6 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
-/// DejaVu Sans (Bitstream Vera licence, `assets/DejaVuSans-LICENSE.txt`), so plots have text
-/// on machines without system fonts.
-static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 
 /// What one PPO update reports.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -143,7 +140,7 @@ impl MetricsLog {
 fn register_font() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, worker::util::FONT_TTF);
     });
 }
 

@@ -1,4 +1,8 @@
 //! The orchestrator's library side: what its commands draw and compute, testable apart from
 //! the CLI in `main.rs`.
 
+pub mod dataset_cmd;
+pub mod fonts;
 pub mod map;
+pub mod plot;
+pub mod tables;

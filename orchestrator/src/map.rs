@@ -20,9 +20,6 @@ use worker::geometry::{Part, Shape, heading};
 use worker::render::mesh::Mesh;
 use worker::scene::Scene;
 
-/// DejaVu Sans (Bitstream Vera licence, see assets/DejaVuSans-LICENSE.txt).
-const FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
-const FONT_FAMILY: &str = "sans-serif";
 
 /// Supersampling factor: drawn at this multiple of the output size, then averaged.
 const SS: i32 = 2;
@@ -104,12 +101,7 @@ pub struct TopDownMap {
 }
 
 fn font() -> &'static str {
-    static REGISTERED: OnceLock<()> = OnceLock::new();
-    REGISTERED.get_or_init(|| {
-        let ok = plotters::style::register_font(FONT_FAMILY, FontStyle::Normal, FONT).is_ok();
-        assert!(ok, "the bundled DejaVu Sans must parse");
-    });
-    FONT_FAMILY
+    crate::fonts::ensure()
 }
 
 /// Linear RGB 0..1 → a display colour (the renderer's gamma 2.2).
