@@ -6,5 +6,6 @@ pub mod dataset_cmd;
 pub mod fonts;
 pub mod map;
 pub mod plot;
+pub mod program_cmd;
 pub mod render_cmd;
 pub mod tables;

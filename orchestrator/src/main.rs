@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench_sim, dataset_cmd, render_cmd};
+use orchestrator::{bench_sim, dataset_cmd, program_cmd, render_cmd};
 
 #[derive(Parser)]
 #[command(name = "orchestrator", version, about = "GesTHOR-RS: build the dataset, run the rollout farm, evaluate, benchmark")]
@@ -21,6 +21,11 @@ enum Command {
     Dataset(dataset_cmd::DatasetCmd),
     /// Render what the robot sees in a room, and a top-down map.
     Render(render_cmd::RenderArgs),
+    /// Export a program in the original recorder's folder layout.
+    #[command(subcommand)]
+    Program(program_cmd::ProgramCmd),
+    /// Render the person performing a program's gesture (robot view and from above, PNG + GIF).
+    Replay(program_cmd::ReplayArgs),
     /// The simulator's speed in one process.
     BenchSim(bench_sim::SimArgs),
 }
@@ -31,6 +36,8 @@ fn main() -> ExitCode {
         Command::Dataset(c) => dataset_cmd::run(c),
         Command::Render(a) => render_cmd::run(a),
         Command::BenchSim(a) => bench_sim::run(a),
+        Command::Program(c) => program_cmd::run(c),
+        Command::Replay(a) => program_cmd::replay(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
