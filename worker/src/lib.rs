@@ -5,11 +5,14 @@
 
 pub mod camera;
 pub mod config;
+pub mod farm;
 pub mod geometry;
 pub mod nav;
 pub mod physics;
+pub mod process;
 pub mod robot;
 pub mod scene;
 pub mod task;
+pub mod transport;
 pub mod util;
 pub mod visibility;
