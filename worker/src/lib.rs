@@ -5,11 +5,14 @@
 
 pub mod camera;
 pub mod config;
+pub mod dataset;
 pub mod farm;
 pub mod geometry;
+pub mod metrics;
 pub mod nav;
 pub mod physics;
 pub mod process;
+pub mod program;
 pub mod robot;
 pub mod scene;
 pub mod task;

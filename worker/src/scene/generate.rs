@@ -435,7 +435,7 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
             let items = [Apple, Bread, ButterKnife, Cup, Fork, Knife, PaperTowelRoll, Plate, Potato, Spoon, Tomato];
             for c in items {
                 if l.chance(0.75) {
-                    let n = if l.chance(0.3) { 2 } else { 1 };
+                    let n = if l.chance(0.4) { 2 } else { 1 };
                     for _ in 0..n {
                         l.on_host(c, &hosts);
                     }
@@ -526,7 +526,7 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
             for _ in 0..l.rng.random_range(1..=2) {
                 l.on_wall(Window, None);
             }
-            if l.chance(0.4) {
+            for _ in 0..l.rng.random_range(0..=2) {
                 l.on_wall(Poster, None);
             }
             l.on_wall(Door, None);
@@ -671,7 +671,7 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
                     }
                 }
             }
-            for _ in 0..(1 + l.chance(0.3) as usize) {
+            for _ in 0..(1 + l.chance(0.45) as usize) {
                 if l.chance(0.9) {
                     if let Some(th) = l.on_wall(TowelHolder, None) {
                         if l.chance(0.9) {
@@ -772,17 +772,6 @@ mod tests {
             }
             let rep = repeated.get(&t).copied().unwrap_or(0);
             assert!(rep * 4 >= 30, "{t:?}: only {rep}/30 rooms repeat a target category");
-        }
-    }
-}
-#[cfg(test)]
-mod probe {
-    #[test]
-    #[ignore]
-    fn print_stats() {
-        for s in super::generate_all(1) {
-            let t: std::collections::BTreeSet<_> = s.objects.iter().filter(|o| s.scene_type.targets().contains(&o.category)).map(|o| o.category.name()).collect();
-            println!("{} {}x{} objs={} targets={} {:?}", s.name, s.room.width, s.room.depth, s.objects.len(), t.len(), t);
         }
     }
 }

@@ -1,0 +1,209 @@
+//! `orchestrator dataset build|stats|export`: make GOND, draw its statistics (Figs 3.8–3.12),
+//! export a program in the original folder format.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use nalgebra::Point3;
+
+use worker::dataset::build::{BuildOptions, Synthesized, build};
+use worker::dataset::{Dataset, Verify};
+use worker::gesture;
+use worker::program::{Hand, Program};
+use worker::scene::{Category, SceneType, Split};
+
+use crate::plot;
+
+#[derive(Subcommand, Debug)]
+pub enum DatasetCmd {
+    /// Build programs for train/val/test.
+    Build(BuildArgs),
+    /// Draw the dataset's statistics as PNG figures and a Markdown summary.
+    Stats(StatsArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BuildArgs {
+    /// Folder to build into.
+    #[arg(long, default_value = "data/gond")]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Train programs in total (the dissertation has about 230,000).
+    #[arg(long, default_value_t = 8_000)]
+    pub train: u64,
+    /// Validation programs per room (20 rooms).
+    #[arg(long, default_value_t = 250)]
+    pub val_per_room: u64,
+    /// Test programs per room (20 rooms).
+    #[arg(long, default_value_t = 250)]
+    pub test_per_room: u64,
+    /// Build only these splits (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "train,val,test")]
+    pub splits: Vec<String>,
+    /// Replace a dataset already in the folder.
+    #[arg(long)]
+    pub force: bool,
+    /// Worker threads (default: all cores). The output does not depend on it.
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+#[derive(Args, Debug)]
+pub struct StatsArgs {
+    #[arg(long, default_value = "data/gond")]
+    pub dataset: PathBuf,
+    /// Where to write the figures and summary (default: DATASET/stats).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+pub fn run(cmd: DatasetCmd) -> anyhow::Result<()> {
+    match cmd {
+        DatasetCmd::Build(a) => build_cmd(a),
+        DatasetCmd::Stats(a) => stats_cmd(a),
+    }
+}
+
+/// The referencing synthesiser as the builder calls it.
+pub fn synth(seed: u64, human: Point3<f32>, yaw: f32, target: Point3<f32>) -> Synthesized {
+    let (motion, style) = gesture::referencing(seed, human, yaw, target);
+    let accuracy = gesture::accuracy(&motion, human, yaw, target, gesture::DEFAULT_RADIUS);
+    Synthesized {
+        motion: motion.as_flat().to_vec(),
+        hand: if style.side == worker::humanoid::Side::Right { Hand::Right } else { Hand::Left },
+        style: style.shape as u8,
+        accuracy,
+    }
+}
+
+pub fn interventions() -> Vec<(String, Vec<f32>)> {
+    (0..gesture::INTERVENTIONS).map(|i| (gesture::INTERVENTION_NAMES[i].to_string(), gesture::intervention(i).as_flat().to_vec())).collect()
+}
+
+fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
+    let splits = a
+        .splits
+        .iter()
+        .map(|s| Split::from_name(s).with_context(|| format!("--splits: `{s}` is not one of train, val, test")))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let opts = BuildOptions { seed: a.seed, train_programs: a.train, val_per_room: a.val_per_room, test_per_room: a.test_per_room, splits, ..Default::default() };
+    let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let multi = MultiProgress::new();
+    let style = ProgressStyle::with_template("{prefix:>6} [{bar:40}] {pos}/{len} programs {per_sec} eta {eta}").unwrap().progress_chars("=> ");
+    let bars: BTreeMap<Split, ProgressBar> = opts
+        .splits
+        .iter()
+        .map(|&s| {
+            let total: u64 = worker::dataset::build::per_room(&opts, s).iter().map(|r| r.1).sum();
+            let b = multi.add(ProgressBar::new(total).with_style(style.clone()).with_prefix(s.name()));
+            (s, b)
+        })
+        .collect();
+    let t = Instant::now();
+    let manifest = pool.install(|| {
+        build(&a.out, &opts, a.force, &synth, &interventions(), &|s, done, _| {
+            if let Some(b) = bars.get(&s) {
+                b.set_position(done);
+            }
+        })
+    })?;
+    for b in bars.values() {
+        b.finish();
+    }
+    let secs = t.elapsed().as_secs_f64();
+    let bytes: u64 = std::fs::read_dir(&a.out)?.filter_map(|e| e.ok()).filter_map(|e| e.metadata().ok()).filter(|m| m.is_file()).map(|m| m.len()).sum();
+    let total: u64 = manifest.splits.values().map(|s| s.programs).sum();
+    println!(
+        "built {} programs in {:.1} s ({:.0} programs/s, {} threads) into {} ({:.1} MB)",
+        total,
+        secs,
+        total as f64 / secs,
+        threads,
+        a.out.display(),
+        bytes as f64 / 1e6
+    );
+    for (name, s) in &manifest.splits {
+        println!("  {name:5}: {:6} programs, {:.1}% with several instances of the target category", s.programs, 100.0 * s.multi_instance_share);
+    }
+    Ok(())
+}
+
+fn stats_cmd(a: StatsArgs) -> anyhow::Result<()> {
+    let ds = Dataset::open(&a.dataset, Verify::Full)?;
+    let out = a.out.unwrap_or_else(|| a.dataset.join("stats"));
+    std::fs::create_dir_all(&out)?;
+    let mut by_split: BTreeMap<Split, Vec<Program>> = BTreeMap::new();
+    for s in Split::ALL {
+        if ds.split(s).is_some() {
+            by_split.insert(s, ds.index(s)?);
+        }
+    }
+    let summary = write_stats(&by_split, &out)?;
+    println!("{summary}");
+    println!("figures and summary in {}", out.display());
+    Ok(())
+}
+
+/// Draws the figures and writes `summary.md`; returns the summary text.
+pub fn write_stats(by_split: &BTreeMap<Split, Vec<Program>>, out: &Path) -> anyhow::Result<String> {
+    let main_split = if by_split.contains_key(&Split::Train) { Split::Train } else { *by_split.keys().next().context("the dataset has no split")? };
+    let main = &by_split[&main_split];
+
+    // Fig. 3.8: programs per scene type.
+    let per_type: Vec<(String, f64)> = SceneType::ALL.iter().map(|t| (t.name().to_string(), main.iter().filter(|p| p.scene_type == *t).count() as f64)).collect();
+    plot::bars(&out.join("fig3_8_scene_types.png"), &format!("Programs per scene type ({})", main_split.name()), "programs", &per_type)?;
+
+    // Fig. 3.9: programs per object type.
+    let mut per_cat: Vec<(String, f64)> = Category::targets().map(|c| (c.name().to_string(), main.iter().filter(|p| p.target == c).count() as f64)).collect();
+    per_cat.sort_by(|a, b| b.1.total_cmp(&a.1));
+    plot::hbars(&out.join("fig3_9_object_types.png"), &format!("Programs per object type ({})", main_split.name()), "programs", &per_cat)?;
+
+    // Fig. 3.11: instances of the target category, per split.
+    let buckets = ["1", "2", "3", "4+"];
+    let mut groups: Vec<(String, Vec<f64>)> = Vec::new();
+    let mut shares = Vec::new();
+    for (s, progs) in by_split {
+        let mut c = [0f64; 4];
+        for p in progs {
+            c[(p.instances.clamp(1, 4) - 1) as usize] += 1.0;
+        }
+        let multi = progs.iter().filter(|p| p.instances > 1).count() as f64 / progs.len().max(1) as f64;
+        shares.push((s.name(), multi));
+        groups.push((format!("{} ({:.0}% multi)", s.name(), 100.0 * multi), c.to_vec()));
+    }
+    plot::grouped_bars(&out.join("fig3_11_instances.png"), "Instances of the target category in the room", "programs", &buckets, &groups)?;
+
+    // Fig. 3.12: geodesic robot–target and Euclidean robot–person distances.
+    let all: Vec<&Program> = by_split.values().flatten().collect();
+    let geo: Vec<f64> = all.iter().map(|p| p.geodesic as f64).collect();
+    let rh: Vec<f64> = all.iter().map(|p| p.robot_human_distance as f64).collect();
+    plot::histogram(&out.join("fig3_12a_geodesic.png"), "Geodesic distance robot start → target (m)", "metres", &geo, 0.25)?;
+    plot::histogram(&out.join("fig3_12b_robot_person.png"), "Euclidean distance robot start ↔ person (m)", "metres", &rh, 0.25)?;
+
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let acc: Vec<f64> = all.iter().map(|p| p.gesture_accuracy as f64).collect();
+    let right = all.iter().filter(|p| p.hand == Hand::Right).count() as f64 / all.len().max(1) as f64;
+    let mut md = String::from("# GOND statistics\n\n| split | programs | rooms | multi-instance share | mean geodesic (m) | mean robot–person (m) |\n|---|---:|---:|---:|---:|---:|\n");
+    for (s, progs) in by_split {
+        let rooms: std::collections::BTreeSet<&str> = progs.iter().map(|p| p.scene.as_str()).collect();
+        let g: Vec<f64> = progs.iter().map(|p| p.geodesic as f64).collect();
+        let d: Vec<f64> = progs.iter().map(|p| p.robot_human_distance as f64).collect();
+        let multi = shares.iter().find(|x| x.0 == s.name()).map_or(0.0, |x| x.1);
+        md += &format!("| {} | {} | {} | {:.1}% | {:.2} | {:.2} |\n", s.name(), progs.len(), rooms.len(), 100.0 * multi, mean(&g), mean(&d));
+    }
+    md += &format!(
+        "\nReferencing gestures: mean gesture accuracy {:.2} (fraction of frames whose pointing ray passes within {} m of the target), right hand {:.0}%.\n",
+        mean(&acc),
+        gesture::DEFAULT_RADIUS,
+        100.0 * right
+    );
+    md += "\n![scene types](fig3_8_scene_types.png)\n![object types](fig3_9_object_types.png)\n![instances](fig3_11_instances.png)\n![geodesic](fig3_12a_geodesic.png)\n![robot-person](fig3_12b_robot_person.png)\n";
+    worker::util::write_atomic(&out.join("summary.md"), md.as_bytes())?;
+    Ok(md)
+}

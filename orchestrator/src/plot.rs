@@ -1,0 +1,212 @@
+//! Charts for dataset statistics and evaluation (PNG, plotters with an embedded font).
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+const W: u32 = 1000;
+const H: u32 = 560;
+const BLUE: RGBColor = RGBColor(52, 101, 164);
+const PALETTE: [RGBColor; 4] = [RGBColor(52, 101, 164), RGBColor(204, 85, 0), RGBColor(78, 154, 6), RGBColor(117, 80, 123)];
+
+fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
+    anyhow::anyhow!("drawing chart: {e}")
+}
+
+/// Vertical bars with value labels.
+pub fn bars(path: &Path, title: &str, y_label: &str, data: &[(String, f64)]) -> anyhow::Result<()> {
+    crate::fonts::ensure();
+    let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let max = data.iter().map(|d| d.1).fold(1.0, f64::max) * 1.15;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 26))
+        .margin(20)
+        .x_label_area_size(50)
+        .y_label_area_size(70)
+        .build_cartesian_2d((0..data.len()).into_segmented(), 0.0..max)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .y_desc(y_label)
+        .x_labels(data.len())
+        .x_label_formatter(&|v| match v {
+            SegmentValue::CenterOf(i) => data.get(*i).map(|d| d.0.clone()).unwrap_or_default(),
+            _ => String::new(),
+        })
+        .label_style(("sans-serif", 16))
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(data.iter().enumerate().map(|(i, d)| {
+            Rectangle::new([(SegmentValue::Exact(i), 0.0), (SegmentValue::Exact(i + 1), d.1)], BLUE.filled()).into_dyn()
+        }))
+        .map_err(err)?;
+    chart
+        .draw_series(data.iter().enumerate().map(|(i, d)| {
+            Text::new(format!("{}", d.1 as u64), (SegmentValue::CenterOf(i), d.1 + max * 0.02), ("sans-serif", 15).into_font())
+        }))
+        .map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// Horizontal bars (many categories).
+pub fn hbars(path: &Path, title: &str, x_label: &str, data: &[(String, f64)]) -> anyhow::Result<()> {
+    crate::fonts::ensure();
+    let h = (80 + data.len() as u32 * 22).max(300);
+    let root = BitMapBackend::new(path, (W, h)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let max = data.iter().map(|d| d.1).fold(1.0, f64::max) * 1.12;
+    let n = data.len();
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 26))
+        .margin(20)
+        .x_label_area_size(40)
+        .y_label_area_size(160)
+        .build_cartesian_2d(0.0..max, (0..n).into_segmented())
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .disable_y_mesh()
+        .x_desc(x_label)
+        .y_labels(n)
+        .y_label_formatter(&|v| match v {
+            SegmentValue::CenterOf(i) => data.get(n - 1 - *i).map(|d| d.0.clone()).unwrap_or_default(),
+            _ => String::new(),
+        })
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(err)?;
+    chart
+        .draw_series(data.iter().enumerate().map(|(i, d)| {
+            let row = n - 1 - i;
+            let mut r = Rectangle::new([(0.0, SegmentValue::Exact(row)), (d.1, SegmentValue::Exact(row + 1))], BLUE.filled());
+            r.set_margin(2, 2, 0, 0);
+            r
+        }))
+        .map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// Groups of bars: one group per `groups` entry, one bar per bucket.
+pub fn grouped_bars(path: &Path, title: &str, y_label: &str, buckets: &[&str], groups: &[(String, Vec<f64>)]) -> anyhow::Result<()> {
+    crate::fonts::ensure();
+    let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let max = groups.iter().flat_map(|g| g.1.iter().copied()).fold(1.0, f64::max) * 1.15;
+    let nb = buckets.len();
+    let slots = groups.len() * (nb + 1);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 26))
+        .margin(20)
+        .x_label_area_size(50)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..slots as f64, 0.0..max)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .y_desc(y_label)
+        .x_labels(0)
+        .label_style(("sans-serif", 16))
+        .draw()
+        .map_err(err)?;
+    for (gi, (name, vals)) in groups.iter().enumerate() {
+        let x0 = (gi * (nb + 1)) as f64;
+        for (bi, v) in vals.iter().enumerate() {
+            let x = x0 + bi as f64;
+            chart
+                .draw_series(std::iter::once(Rectangle::new([(x + 0.1, 0.0), (x + 0.9, *v)], PALETTE[bi % PALETTE.len()].filled())))
+                .map_err(err)?;
+        }
+        chart
+            .draw_series(std::iter::once(Text::new(name.clone(), (x0 + 0.1, -max * 0.06), ("sans-serif", 16).into_font())))
+            .map_err(err)?;
+    }
+    for (bi, b) in buckets.iter().enumerate() {
+        let c = PALETTE[bi % PALETTE.len()];
+        chart
+            .draw_series(std::iter::once(Rectangle::new([(0.0, 0.0), (0.0, 0.0)], c.filled())))
+            .map_err(err)?
+            .label(format!("{b} instance(s)"))
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], c.filled()));
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).label_font(("sans-serif", 15)).draw().map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// Histogram with a fixed bin width and the mean marked.
+pub fn histogram(path: &Path, title: &str, x_label: &str, values: &[f64], bin: f64) -> anyhow::Result<()> {
+    crate::fonts::ensure();
+    let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let hi = values.iter().copied().fold(bin, f64::max);
+    let nbins = (hi / bin).ceil() as usize + 1;
+    let mut counts = vec![0u64; nbins];
+    for v in values {
+        counts[((v / bin) as usize).min(nbins - 1)] += 1;
+    }
+    let max = counts.iter().copied().max().unwrap_or(1) as f64 * 1.12;
+    let mean = values.iter().sum::<f64>() / values.len().max(1) as f64;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 26))
+        .margin(20)
+        .x_label_area_size(50)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..nbins as f64 * bin, 0.0..max)
+        .map_err(err)?;
+    chart.configure_mesh().x_desc(x_label).y_desc("programs").label_style(("sans-serif", 16)).draw().map_err(err)?;
+    chart
+        .draw_series(counts.iter().enumerate().map(|(i, c)| {
+            Rectangle::new([(i as f64 * bin, 0.0), ((i + 1) as f64 * bin, *c as f64)], BLUE.mix(0.85).filled())
+        }))
+        .map_err(err)?;
+    chart.draw_series(std::iter::once(PathElement::new(vec![(mean, 0.0), (mean, max)], RED.stroke_width(2)))).map_err(err)?;
+    chart
+        .draw_series(std::iter::once(Text::new(format!("mean {mean:.2} m"), (mean + bin * 0.3, max * 0.92), ("sans-serif", 18).into_font())))
+        .map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// Line chart of several series over a shared x axis.
+pub fn lines(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[(String, Vec<(f64, f64)>)]) -> anyhow::Result<()> {
+    crate::fonts::ensure();
+    let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let pts = series.iter().flat_map(|s| s.1.iter());
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for &(x, y) in pts {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if x0 > x1 {
+        (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
+    }
+    let pad = ((y1 - y0) * 0.08).max(1e-3);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 26))
+        .margin(20)
+        .x_label_area_size(50)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1.max(x0 + 1e-9), (y0 - pad)..(y1 + pad))
+        .map_err(err)?;
+    chart.configure_mesh().x_desc(x_label).y_desc(y_label).label_style(("sans-serif", 16)).draw().map_err(err)?;
+    for (i, (name, s)) in series.iter().enumerate() {
+        let c = PALETTE[i % PALETTE.len()];
+        chart
+            .draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(2)))
+            .map_err(err)?
+            .label(name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).label_font(("sans-serif", 15)).draw().map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}

@@ -1,0 +1,264 @@
+//! Evaluation tables in the layouts of chapter 4 (T4.2–T4.7), as Markdown and CSV.
+
+use std::collections::BTreeMap;
+use std::fmt::Write;
+
+use serde::{Deserialize, Serialize};
+
+use worker::metrics::{EpisodeResult, Scores, scores};
+use worker::program::Program;
+use worker::scene::SceneType;
+
+/// What the policy may see during an evaluation pass.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EvalMode {
+    /// Everything the checkpoint was trained with.
+    Normal,
+    /// Visual inputs zeroed (T4.6).
+    Blind,
+    /// Depth zeroed: RGB only (T4.7).
+    RgbOnly,
+    /// RGB zeroed: depth only (T4.7).
+    DepthOnly,
+}
+
+impl EvalMode {
+    pub const ALL: [EvalMode; 4] = [EvalMode::Normal, EvalMode::Blind, EvalMode::RgbOnly, EvalMode::DepthOnly];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            EvalMode::Normal => "normal",
+            EvalMode::Blind => "blind",
+            EvalMode::RgbOnly => "rgb_only",
+            EvalMode::DepthOnly => "depth_only",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<EvalMode> {
+        EvalMode::ALL.into_iter().find(|m| m.name() == s)
+    }
+
+    /// (zero RGB, zero depth) for the policy's inputs.
+    pub fn zeroed(self) -> (bool, bool) {
+        match self {
+            EvalMode::Normal => (false, false),
+            EvalMode::Blind => (true, true),
+            EvalMode::RgbOnly => (false, true),
+            EvalMode::DepthOnly => (true, false),
+        }
+    }
+}
+
+pub const STOPS: [(Option<usize>, &str); 4] = [(Some(1), "1"), (Some(2), "2"), (Some(3), "3"), (None, "∞")];
+
+/// Everything one checkpoint's evaluation produced.
+pub struct Evaluation<'a> {
+    pub label: String,
+    pub split: &'a str,
+    pub programs: &'a [Program],
+    pub passes: BTreeMap<EvalMode, Vec<EpisodeResult>>,
+    pub dts_threshold: f64,
+}
+
+fn bucket(instances: u32) -> &'static str {
+    match instances {
+        0 | 1 => "1",
+        2 => "2",
+        _ => "3+",
+    }
+}
+
+impl Evaluation<'_> {
+    fn scene_type(&self, e: &EpisodeResult) -> SceneType {
+        self.programs[e.program as usize].scene_type
+    }
+
+    fn instances(&self, e: &EpisodeResult) -> u32 {
+        self.programs[e.program as usize].instances
+    }
+
+    pub fn scores(&self, mode: EvalMode, k: Option<usize>, filter: impl Fn(&EpisodeResult) -> bool) -> Option<Scores> {
+        let eps = self.passes.get(&mode)?;
+        Some(scores(eps.iter().filter(|e| filter(e)), k, self.dts_threshold))
+    }
+
+    /// Markdown with every table this evaluation supports.
+    pub fn markdown(&self) -> String {
+        let mut md = String::new();
+        let normal = EvalMode::Normal;
+        let n = self.passes.get(&normal).map_or(0, |v| v.len());
+        writeln!(md, "# Evaluation: {} on {} ({} episodes)\n", self.label, self.split, n).unwrap();
+        writeln!(md, "DTS threshold {:.2} m; success needs Stop within 1 m of the target with the target in view.\n", self.dts_threshold).unwrap();
+
+        writeln!(md, "## Navigation performance at 1, 2, 3 and unlimited stops (T4.2 at the first stop)\n").unwrap();
+        writeln!(md, "| stops | SR (%) | SPL (%) | DTS (m) |\n|---|---:|---:|---:|").unwrap();
+        for (k, name) in STOPS {
+            if let Some(s) = self.scores(normal, k, |_| true) {
+                writeln!(md, "| {name} | {:.1} | {:.1} | {:.3} |", s.sr, s.spl, s.dts).unwrap();
+            }
+        }
+
+        writeln!(md, "\n## Per scene type (T4.3 / T4.4)\n").unwrap();
+        writeln!(md, "| scene type | episodes | SR 1 | SR 2 | SR 3 | SR ∞ | SPL 1 | SPL 2 | SPL 3 | SPL ∞ |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|").unwrap();
+        for t in SceneType::ALL {
+            let row: Vec<Scores> = STOPS.iter().filter_map(|(k, _)| self.scores(normal, *k, |e| self.scene_type(e) == t)).collect();
+            if row.is_empty() || row[0].episodes == 0 {
+                continue;
+            }
+            write!(md, "| {} | {} ", t.name(), row[0].episodes).unwrap();
+            for s in &row {
+                write!(md, "| {:.1} ", s.sr).unwrap();
+            }
+            for s in &row {
+                write!(md, "| {:.1} ", s.spl).unwrap();
+            }
+            writeln!(md, "|").unwrap();
+        }
+
+        writeln!(md, "\n## By instances of the target category in the room, first stop (T4.5)\n").unwrap();
+        writeln!(md, "| instances | episodes | SR (%) | SPL (%) | DTS (m) |\n|---|---:|---:|---:|---:|").unwrap();
+        for b in ["1", "2", "3+"] {
+            if let Some(s) = self.scores(normal, Some(1), |e| bucket(self.instances(e)) == b) {
+                if s.episodes > 0 {
+                    writeln!(md, "| {b} | {} | {:.1} | {:.1} | {:.3} |", s.episodes, s.sr, s.spl, s.dts).unwrap();
+                }
+            }
+        }
+
+        if let Some(s) = self.scores(EvalMode::Blind, Some(1), |_| true) {
+            writeln!(md, "\n## Blind mode: visual inputs zeroed, first stop (T4.6)\n").unwrap();
+            writeln!(md, "| mode | SR (%) | SPL (%) | DTS (m) |\n|---|---:|---:|---:|").unwrap();
+            if let Some(n) = self.scores(normal, Some(1), |_| true) {
+                writeln!(md, "| with vision | {:.1} | {:.1} | {:.3} |", n.sr, n.spl, n.dts).unwrap();
+            }
+            writeln!(md, "| blind | {:.1} | {:.1} | {:.3} |", s.sr, s.spl, s.dts).unwrap();
+        }
+
+        let rgb = self.scores(EvalMode::RgbOnly, Some(1), |_| true);
+        let depth = self.scores(EvalMode::DepthOnly, Some(1), |_| true);
+        if rgb.is_some() || depth.is_some() {
+            writeln!(md, "\n## Visual perception ablation, first stop (T4.7)\n").unwrap();
+            writeln!(md, "| vision | SR (%) | SPL (%) | DTS (m) |\n|---|---:|---:|---:|").unwrap();
+            for (name, s) in [("RGB", rgb), ("Depth", depth), ("RGB-D", self.scores(normal, Some(1), |_| true))] {
+                if let Some(s) = s {
+                    writeln!(md, "| {name} | {:.1} | {:.1} | {:.3} |", s.sr, s.spl, s.dts).unwrap();
+                }
+            }
+        }
+        md
+    }
+
+    /// One CSV row per (mode, scene type or "all", instance bucket or "all", stops).
+    pub fn csv(&self) -> String {
+        let mut out = String::from("label,split,mode,scene_type,instances,stops,episodes,sr,spl,dts\n");
+        let types: Vec<Option<SceneType>> = std::iter::once(None).chain(SceneType::ALL.into_iter().map(Some)).collect();
+        let buckets = [None, Some("1"), Some("2"), Some("3+")];
+        for (&mode, _) in &self.passes {
+            for t in &types {
+                for b in buckets {
+                    for (k, kname) in STOPS {
+                        let s = self
+                            .scores(mode, k, |e| t.is_none_or(|t| self.scene_type(e) == t) && b.is_none_or(|b| bucket(self.instances(e)) == b))
+                            .unwrap_or_default();
+                        if s.episodes == 0 {
+                            continue;
+                        }
+                        let kname = if kname == "∞" { "inf" } else { kname };
+                        writeln!(
+                            out,
+                            "{},{},{},{},{},{},{},{:.3},{:.3},{:.4}",
+                            self.label,
+                            self.split,
+                            mode.name(),
+                            t.map_or("all", |t| t.name()),
+                            b.unwrap_or("all"),
+                            kname,
+                            s.episodes,
+                            s.sr,
+                            s.spl,
+                            s.dts
+                        )
+                        .unwrap();
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Several evaluations side by side, as T4.2 (first stop) with ∞ columns added.
+pub fn compare(rows: &[(String, Scores, Scores)]) -> String {
+    let mut md = String::from("| method | SR (%) | SPL (%) | DTS (m) | SR ∞ (%) | SPL ∞ (%) |\n|---|---:|---:|---:|---:|---:|\n");
+    for (label, first, inf) in rows {
+        writeln!(md, "| {label} | {:.1} | {:.1} | {:.3} | {:.1} | {:.1} |", first.sr, first.spl, first.dts, inf.sr, inf.spl).unwrap();
+    }
+    md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use worker::metrics::Stop;
+    use worker::program::Hand;
+    use worker::scene::Category;
+
+    fn program(id: u64, t: SceneType, instances: u32) -> Program {
+        Program {
+            id,
+            scene: "FloorPlan1".into(),
+            scene_type: t,
+            target: Category::Cup,
+            target_object: 0,
+            target_pos: [0.0; 3],
+            instances,
+            human_pos: [0.0; 3],
+            human_yaw: 0.0,
+            robot_pos: [0.0; 3],
+            robot_yaw: 0.0,
+            geodesic: 2.0,
+            robot_human_distance: 1.0,
+            gesture_accuracy: 0.5,
+            hand: Hand::Right,
+            style: 0,
+            seed: id,
+        }
+    }
+
+    fn result(program: u64, success: bool) -> EpisodeResult {
+        EpisodeResult {
+            program,
+            worker: 0,
+            env: 0,
+            generation: 0,
+            steps: 9,
+            success,
+            collisions: 0,
+            num_stops: 1,
+            path_length: 2.0,
+            start_geodesic: 2.0,
+            final_distance: if success { 0.5 } else { 3.0 },
+            total_reward: 0.0,
+            intervention_steps: 0,
+            stops: vec![Stop { step: 9, success, distance: if success { 0.5 } else { 3.0 }, path_length: 2.0 }],
+        }
+    }
+
+    #[test]
+    fn tables_split_by_type_and_instances() {
+        let programs = vec![program(0, SceneType::Kitchen, 1), program(1, SceneType::Bedroom, 3), program(2, SceneType::Bedroom, 2)];
+        let mut passes = BTreeMap::new();
+        passes.insert(EvalMode::Normal, vec![result(0, true), result(1, false), result(2, true)]);
+        passes.insert(EvalMode::Blind, vec![result(0, false), result(1, false), result(2, false)]);
+        let e = Evaluation { label: "x".into(), split: "test", programs: &programs, passes, dts_threshold: 1.5 };
+        let k = e.scores(EvalMode::Normal, Some(1), |r| e.scene_type(r) == SceneType::Kitchen).unwrap();
+        assert_eq!((k.episodes, k.sr, k.spl), (1, 100.0, 100.0));
+        let b = e.scores(EvalMode::Normal, Some(1), |r| bucket(e.instances(r)) == "3+").unwrap();
+        assert_eq!((b.episodes, b.sr), (1, 0.0));
+        let md = e.markdown();
+        assert!(md.contains("| Kitchen | 1 | 100.0") && md.contains("## Blind mode") && md.contains("| 3+ | 1 | 0.0"), "{md}");
+        let csv = e.csv();
+        assert!(csv.lines().any(|l| l.starts_with("x,test,blind,all,all,1,3,0.000")), "{csv}");
+    }
+}

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# The README's main command: installs what is missing (idempotent), builds, makes the default
+# dataset if there is none, then trains the embedded default configuration (tiny CPU +Both)
+# on the farm and evaluates its last checkpoint on the validation split.
+# Extra arguments go to `orchestrator up` (e.g. --workers 4, --seconds 600).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+source "${GESTHOR_DEPS:-$HOME/.cache/gesthor}/env.sh"
+cargo build --release --workspace --locked
+ORCH=target/release/orchestrator
+DATA="${GESTHOR_DATASET:-data/gond}"
+if [ ! -f "$DATA/manifest.json" ]; then
+  "$ORCH" dataset build --out "$DATA"
+fi
+RUN="${GESTHOR_RUN_DIR:-runs/default}"
+"$ORCH" up --run-dir "$RUN" "$@"
+"$ORCH" eval --checkpoint "$RUN" --split val --max-programs 500

@@ -1,0 +1,186 @@
+//! Navigation metrics (§4.4.1): success rate (SR), success weighted by path length (SPL,
+//! Anderson et al.) and distance to success (DTS), at 1, 2, 3 and unlimited stops.
+//!
+//! Episodes run with unlimited stops; the metric "at k stops" reads the episode as if it had
+//! ended at its k-th stop: success only if it happened by the k-th stop, SPL from the path
+//! length at that stop, DTS from the distance where the episode would have ended (the k-th
+//! stop, or the end of the episode if it stopped fewer times).
+
+use serde::{Deserialize, Serialize};
+
+use shm_schema::{EnvRecord, SUMMARY_STOPS};
+
+/// One finished episode, as the learner records it (`episodes.jsonl`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeResult {
+    /// Program index within the split.
+    pub program: u64,
+    pub worker: u32,
+    pub env: u32,
+    pub generation: u32,
+    pub steps: u32,
+    pub success: bool,
+    pub collisions: u32,
+    pub num_stops: u32,
+    pub path_length: f32,
+    /// l_i: geodesic distance from the start to the success region.
+    pub start_geodesic: f32,
+    pub final_distance: f32,
+    pub total_reward: f32,
+    pub intervention_steps: u32,
+    /// The first stops (up to 3): (step, success, distance, path length).
+    pub stops: Vec<Stop>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Stop {
+    pub step: u32,
+    pub success: bool,
+    pub distance: f32,
+    pub path_length: f32,
+}
+
+impl EpisodeResult {
+    /// From the record of an episode's final observation.
+    pub fn from_record(r: &EnvRecord, worker: u32, env: u32, generation: u32) -> EpisodeResult {
+        let s = &r.summary;
+        EpisodeResult {
+            program: r.program,
+            worker,
+            env,
+            generation,
+            steps: s.steps,
+            success: s.success != 0,
+            collisions: s.collisions,
+            num_stops: s.num_stops,
+            path_length: s.path_length,
+            start_geodesic: s.start_geodesic,
+            final_distance: s.final_distance,
+            total_reward: s.total_reward,
+            intervention_steps: s.intervention_steps,
+            stops: s
+                .stops
+                .iter()
+                .take((s.num_stops as usize).min(SUMMARY_STOPS))
+                .map(|st| Stop { step: st.step, success: st.success != 0, distance: st.distance, path_length: st.path_length })
+                .collect(),
+        }
+    }
+
+    /// (success, SPL, distance at the end) when at most `k` stops are allowed (None = ∞).
+    pub fn at_stops(&self, k: Option<usize>) -> (bool, f64, f64) {
+        let l = self.start_geodesic as f64;
+        let spl = |p: f64| if l <= 0.0 && p <= 0.0 { 1.0 } else { l / p.max(l) };
+        match k {
+            None => {
+                let spl = if self.success { spl(self.path_length as f64) } else { 0.0 };
+                (self.success, spl, self.final_distance as f64)
+            }
+            Some(k) => {
+                assert!(k >= 1 && k <= SUMMARY_STOPS, "metrics keep the first {SUMMARY_STOPS} stops");
+                match self.stops.iter().take(k).find(|s| s.success) {
+                    Some(s) => (true, spl(s.path_length as f64), s.distance as f64),
+                    None => {
+                        let d = self.stops.get(k - 1).map_or(self.final_distance, |s| s.distance);
+                        (false, 0.0, d as f64)
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// SR (%), SPL (%), DTS (m) over a set of episodes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Scores {
+    pub episodes: usize,
+    pub sr: f64,
+    pub spl: f64,
+    pub dts: f64,
+}
+
+/// Scores at `k` stops with DTS threshold `threshold` (DTS = max(0, d − threshold)).
+pub fn scores<'a>(episodes: impl IntoIterator<Item = &'a EpisodeResult>, k: Option<usize>, threshold: f64) -> Scores {
+    let (mut n, mut sr, mut spl, mut dts) = (0usize, 0.0, 0.0, 0.0);
+    for e in episodes {
+        let (s, p, d) = e.at_stops(k);
+        n += 1;
+        sr += s as u32 as f64;
+        spl += p;
+        dts += (d - threshold).max(0.0);
+    }
+    if n == 0 {
+        return Scores::default();
+    }
+    let n_f = n as f64;
+    Scores { episodes: n, sr: 100.0 * sr / n_f, spl: 100.0 * spl / n_f, dts: dts / n_f }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ep(success: bool, l: f32, p: f32, stops: Vec<Stop>, final_distance: f32) -> EpisodeResult {
+        EpisodeResult {
+            program: 0,
+            worker: 0,
+            env: 0,
+            generation: 0,
+            steps: 10,
+            success,
+            collisions: 0,
+            num_stops: stops.len() as u32,
+            path_length: p,
+            start_geodesic: l,
+            final_distance,
+            total_reward: 0.0,
+            intervention_steps: 0,
+            stops,
+        }
+    }
+
+    fn stop(success: bool, distance: f32, path_length: f32) -> Stop {
+        Stop { step: 1, success, distance, path_length }
+    }
+
+    #[test]
+    fn spl_of_optimal_double_and_failed_paths() {
+        let optimal = ep(true, 3.0, 3.0, vec![stop(true, 0.8, 3.0)], 0.8);
+        let double = ep(true, 3.0, 6.0, vec![stop(true, 0.8, 6.0)], 0.8);
+        let failed = ep(false, 3.0, 2.0, vec![], 2.5);
+        assert_eq!(optimal.at_stops(None).1, 1.0);
+        assert_eq!(double.at_stops(None).1, 0.5);
+        assert_eq!(failed.at_stops(None), (false, 0.0, 2.5));
+        // a path shorter than the geodesic (stopping early inside the region) caps at 1
+        assert_eq!(ep(true, 3.0, 2.5, vec![stop(true, 0.9, 2.5)], 0.9).at_stops(None).1, 1.0);
+    }
+
+    #[test]
+    fn k_stops_count_success_only_by_the_kth_stop() {
+        let e = ep(true, 2.0, 4.0, vec![stop(false, 2.4, 1.0), stop(false, 1.6, 2.5), stop(true, 0.7, 4.0)], 0.7);
+        assert!(!e.at_stops(Some(1)).0);
+        assert!(!e.at_stops(Some(2)).0);
+        assert!(e.at_stops(Some(3)).0);
+        assert!(e.at_stops(None).0);
+        assert_eq!(e.at_stops(Some(3)).1, 0.5);
+        // distance where a k-stop episode would have ended
+        assert_eq!(e.at_stops(Some(1)).2, 2.4f32 as f64);
+        assert_eq!(e.at_stops(Some(2)).2, 1.6f32 as f64);
+        // fewer stops than k: the end of the episode
+        let once = ep(false, 2.0, 3.0, vec![stop(false, 2.2, 1.0)], 1.9);
+        assert_eq!(once.at_stops(Some(3)).2, 1.9f32 as f64);
+    }
+
+    #[test]
+    fn dts_is_distance_beyond_the_threshold() {
+        let near = ep(false, 2.0, 1.0, vec![stop(false, 1.2, 1.0)], 1.2);
+        let far = ep(false, 2.0, 1.0, vec![stop(false, 4.0, 1.0)], 4.0);
+        let s = scores([&near], Some(1), 1.5);
+        assert_eq!(s.dts, 0.0);
+        let s = scores([&far], Some(1), 1.5);
+        assert!((s.dts - 2.5).abs() < 1e-6);
+        let s = scores([&near, &far], Some(1), 1.0);
+        assert!((s.dts - (0.2f32 as f64 + 3.0) / 2.0).abs() < 1e-6);
+        assert_eq!(s.sr, 0.0);
+    }
+}
