@@ -22,6 +22,7 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, OBS_MAGIC, ObsShape, ObsView, SCHEMA_VERSION, command};
+use worker::metrics::EpisodeResult;
 use worker::process;
 use worker::transport::TransportError;
 
@@ -157,69 +158,29 @@ pub struct Summary {
     pub workers: Vec<WorkerSummary>,
 }
 
-/// One line of `episodes.jsonl`: an episode's summary as the worker reported it.
+/// One line of `episodes.jsonl`: the episode as `worker::metrics` scores it, plus where it
+/// came from.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EpisodeLine {
-    pub worker: u32,
-    pub generation: u32,
-    pub env: usize,
+    #[serde(flatten)]
+    pub result: EpisodeResult,
     /// The env's episode counter in its worker process.
     pub episode: u64,
-    /// Program index within the run's split.
-    pub program: u64,
     pub terminated: bool,
     pub truncated: bool,
-    pub success: bool,
-    pub steps: u32,
-    pub collisions: u32,
-    pub num_stops: u32,
-    pub path_length: f32,
-    pub start_geodesic: f32,
-    pub final_distance: f32,
-    pub total_reward: f32,
-    pub intervention_steps: u32,
     pub target_category: u32,
     pub target_instances: u32,
-    /// The first stops (up to 3): step, success, distance, path length.
-    pub stops: Vec<StopLine>,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct StopLine {
-    pub step: u32,
-    pub success: bool,
-    pub distance: f32,
-    pub path_length: f32,
 }
 
 impl EpisodeLine {
     fn new(worker: u32, generation: u32, env: usize, r: &EnvRecord) -> EpisodeLine {
-        let s = &r.summary;
         EpisodeLine {
-            worker,
-            generation,
-            env,
+            result: EpisodeResult::from_record(r, worker, env as u32, generation),
             episode: r.episode,
-            program: r.program,
             terminated: r.terminated != 0,
             truncated: r.truncated != 0,
-            success: s.success != 0,
-            steps: s.steps,
-            collisions: s.collisions,
-            num_stops: s.num_stops,
-            path_length: s.path_length,
-            start_geodesic: s.start_geodesic,
-            final_distance: s.final_distance,
-            total_reward: s.total_reward,
-            intervention_steps: s.intervention_steps,
             target_category: r.target_category,
             target_instances: r.target_instances,
-            stops: s
-                .stops
-                .iter()
-                .take((s.num_stops as usize).min(s.stops.len()))
-                .map(|t| StopLine { step: t.step, success: t.success != 0, distance: t.distance, path_length: t.path_length })
-                .collect(),
         }
     }
 }
@@ -709,7 +670,10 @@ mod tests {
         assert_eq!(lines.len() as u64, s.totals.episodes);
         assert!(lines.len() > 50);
         // the synthetic task: even programs succeed
-        assert!(lines.iter().all(|l| l.success == (l.program % 2 == 0)));
+        assert!(lines.iter().all(|l| l.result.success == (l.result.program % 2 == 0)));
+        // eval reads the same lines as plain episode results
+        let first: EpisodeResult = serde_json::from_str(episodes.lines().next().unwrap()).unwrap();
+        assert_eq!(first, lines[0].result);
         let progress = std::fs::read_to_string(dir.path().join("farm.jsonl")).unwrap();
         let last: Progress = serde_json::from_str(progress.lines().last().unwrap()).unwrap();
         assert_eq!(last.stop_reason.as_deref(), Some("frame budget reached"));

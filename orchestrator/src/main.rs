@@ -1,1 +1,39 @@
-fn main() {}
+//! `orchestrator`: the command line of GesTHOR-RS. Each subcommand is one variant here and one
+//! module of the library; this file only parses and dispatches.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+use orchestrator::{bench, up};
+
+#[derive(Parser)]
+#[command(name = "orchestrator", version, about = "GesTHOR-RS: build the dataset, run the rollout farm, evaluate, benchmark")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Start a run: the learner and N worker processes, supervised; Ctrl-C stops it cleanly.
+    Up(up::UpArgs),
+    /// Throughput benchmarks.
+    #[command(subcommand)]
+    Bench(bench::BenchCmd),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Up(a) => up::run(a),
+        Command::Bench(c) => bench::run(c).map(|_| 0),
+    };
+    match result {
+        Ok(code) => ExitCode::from(code.clamp(0, 255) as u8),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}

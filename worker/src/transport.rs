@@ -232,6 +232,29 @@ pub fn end_run_domain(run_id: &str) -> Result<Vec<std::path::PathBuf>, Transport
     Ok(left)
 }
 
+/// Ends the iceoryx2 domains of GesTHOR runs that died without cleaning up (their
+/// orchestrator was killed): every run whose node-counter segment in `/dev/shm` is older than
+/// `min_age` and which has no live node. Returns the run ids cleaned.
+pub fn sweep_dead_runs(min_age: Duration) -> Vec<String> {
+    let marker = service::prefix("");
+    let Ok(rd) = std::fs::read_dir("/dev/shm") else { return vec![] };
+    let mut runs = std::collections::BTreeSet::new();
+    for e in rd.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(rest) = name.strip_prefix(marker.trim_end_matches('_')).and_then(|r| r.strip_prefix('_')) else { continue };
+        if !name.ends_with(".global_mgmt") {
+            continue;
+        }
+        let old = e.metadata().and_then(|m| m.modified()).ok().and_then(|t| t.elapsed().ok()).is_some_and(|a| a >= min_age);
+        if let Some(run) = rest.split('_').next().filter(|r| !r.is_empty())
+            && old
+        {
+            runs.insert(run.to_string());
+        }
+    }
+    runs.into_iter().filter(|run| matches!(clean_dead_nodes(run), Ok(c) if c.alive == 0) && end_run_domain(run).is_ok()).collect()
+}
+
 /// How a worker loop ended without error.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Exit {
