@@ -180,10 +180,11 @@ impl Run {
         kill(self.pid(), sig).unwrap();
     }
 
-    /// Processes started for this run (learner and workers): their command line names the run
-    /// directory.
+    /// Processes started for this run (learner and workers): their command line names the
+    /// run directory's config copy.
     pub fn processes(&self) -> Vec<(i32, String)> {
-        processes_mentioning(&self.dir.canonicalize().unwrap_or(self.dir.clone()).display().to_string())
+        let dir = self.dir.canonicalize().unwrap_or(self.dir.clone());
+        processes_mentioning(&dir.join("config.toml").display().to_string())
     }
 
     /// The pid of worker `k`'s current process.

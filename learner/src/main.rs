@@ -74,6 +74,9 @@ struct ServeArgs {
     /// Seconds between progress records.
     #[arg(long, default_value_t = 2.0)]
     report_every: f64,
+    /// Before the first batch, wait up to this many seconds for every worker to connect.
+    #[arg(long, default_value_t = 60.0)]
+    start_wait: f64,
 }
 
 fn make_policy(kind: PolicyKind, cfg: &RunConfig) -> anyhow::Result<Box<dyn Policy>> {
@@ -97,6 +100,7 @@ fn run_serve(a: ServeArgs) -> anyhow::Result<()> {
     opts.check = a.check;
     opts.batch_timeout = std::time::Duration::from_millis(a.batch_timeout_ms);
     opts.report_every = std::time::Duration::from_secs_f64(a.report_every.max(0.1));
+    opts.start_wait = std::time::Duration::from_secs_f64(a.start_wait.max(0.0));
     let summary = serve(&opts, policy.as_mut()).context("serving the farm")?;
     tracing::info!(
         "{}: {} frames, {} episodes in {:.1} s",

@@ -52,6 +52,10 @@ pub struct ServeOptions {
     pub report_every: Duration,
     /// How long to keep answering SHUTDOWN to stragglers when stopping.
     pub drain_timeout: Duration,
+    /// Before the first round, wait until every worker has sent its first observation, or
+    /// this long, whichever comes first (workers start at different speeds; a worker that
+    /// fails to start must not hold the run up for ever).
+    pub start_wait: Duration,
 }
 
 impl ServeOptions {
@@ -70,6 +74,7 @@ impl ServeOptions {
             check: false,
             report_every: Duration::from_secs(2),
             drain_timeout: Duration::from_secs(2),
+            start_wait: Duration::from_secs(60),
         }
     }
 }
@@ -300,6 +305,7 @@ pub fn serve(opts: &ServeOptions, policy: &mut dyn Policy) -> Result<Summary, Se
 impl Server<'_> {
     fn run(&mut self) -> Result<Stop, ServeError> {
         let mut round_start: Option<Instant> = None;
+        let mut started = false;
         loop {
             if let Some(sig) = process::termination_signal() {
                 return Ok(Stop::Signal(sig));
@@ -312,6 +318,15 @@ impl Server<'_> {
             self.collect()?;
             self.report(None)?;
             let any = self.slots.iter().any(|s| s.held.is_some());
+            if !started {
+                let seen = self.slots.iter().filter(|s| s.generation.is_some()).count();
+                started = seen == self.slots.len() || (seen > 0 && self.start.elapsed() >= self.opts.start_wait);
+                if !started {
+                    self.ports.wait(Duration::from_millis(50));
+                    continue;
+                }
+                tracing::info!("{seen} of {} workers connected; serving", self.slots.len());
+            }
             if any {
                 let first = *round_start.get_or_insert_with(Instant::now);
                 let waiting: Vec<usize> = (0..self.slots.len()).filter(|&k| self.slots[k].live() && self.slots[k].held.is_none()).collect();

@@ -254,13 +254,13 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
 
 pub fn run(a: BenchFarmArgs) -> anyhow::Result<()> {
     process::install_termination_handler()?;
-    up::sweep_dead_runs();
     anyhow::ensure!(!a.workers.is_empty() && a.workers.iter().all(|&n| n > 0), "--workers: give positive counts, e.g. 1,2,4");
     let mut cfg = match &a.config {
         Some(p) => RunConfig::load(p)?,
         None => RunConfig::from_toml(BENCH_CONFIG, "(embedded bench config)")?,
     };
     up::resolve_dataset(&mut cfg, a.synthetic)?;
+    up::sweep_dead_runs();
     let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-farm"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let config_path = out.join("config.toml");

@@ -118,7 +118,6 @@ pub fn sweep_dead_runs() {
 
 pub fn run(a: UpArgs) -> anyhow::Result<i32> {
     process::install_termination_handler()?;
-    sweep_dead_runs();
     let resume = a.resume.is_some();
     let (run_path, mut cfg) = match &a.resume {
         Some(dir) => {
@@ -133,6 +132,7 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
     };
     resolve_dataset(&mut cfg, a.synthetic)?;
     let (dir, config_path) = prepare_run(&run_path, &cfg, resume, a.workers, a.policy)?;
+    sweep_dead_runs();
     let mut spec = FarmSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, a.policy);
     spec.max_seconds = a.seconds;
     spec.max_frames = match (a.frames, a.seconds) {
