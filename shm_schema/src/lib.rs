@@ -491,6 +491,30 @@ mod tests {
     }
 
     #[test]
+    fn offsets_match_the_readme() {
+        use std::mem::offset_of;
+        assert_eq!(offset_of!(ObsHeader, step), 16);
+        assert_eq!(offset_of!(ObsHeader, finished), 44);
+        assert_eq!(offset_of!(ObsHeader, layout), 48);
+        assert_eq!(offset_of!(ObsLayout, total_len), 56);
+        assert_eq!(offset_of!(EnvRecord, reward), 32);
+        assert_eq!(offset_of!(EnvRecord, terminated), 36);
+        assert_eq!(offset_of!(EnvRecord, expert_action), 44);
+        assert_eq!(offset_of!(EnvRecord, stops), 48);
+        assert_eq!(offset_of!(EnvRecord, robot), 64);
+        assert_eq!(offset_of!(EnvRecord, geodesic), 92);
+        assert_eq!(offset_of!(EnvRecord, summary), 96);
+        assert_eq!(offset_of!(EpisodeSummary, stops), 40);
+        assert_eq!(offset_of!(ActionMsg, step), 16);
+        assert_eq!(offset_of!(ActionMsg, actions), 32);
+        // the README's examples
+        let l = ObsLayout::new(4, 224, 224);
+        assert_eq!((l.rgb_offset, l.depth_offset, l.gesture_offset, l.total_len), (768, 602880, 1004288, 1080320));
+        let l = ObsLayout::new(2, 64, 64);
+        assert_eq!((l.rgb_offset, l.depth_offset, l.gesture_offset, l.total_len), (384, 24960, 41344, 79360));
+    }
+
+    #[test]
     fn names_carry_the_run_id() {
         assert_ne!(service::obs("a", 0), service::obs("b", 0));
         assert_ne!(service::obs("a", 0), service::act("a", 0));
