@@ -8,9 +8,8 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
-use nalgebra::Point3;
 
-use worker::dataset::build::{BuildOptions, Synthesized, build};
+use worker::dataset::build::{BuildOptions, build, default_interventions, default_synth};
 use worker::dataset::{Dataset, Verify};
 use worker::gesture;
 use worker::program::{Hand, Program};
@@ -69,22 +68,6 @@ pub fn run(cmd: DatasetCmd) -> anyhow::Result<()> {
     }
 }
 
-/// The referencing synthesiser as the builder calls it.
-pub fn synth(seed: u64, human: Point3<f32>, yaw: f32, target: Point3<f32>) -> Synthesized {
-    let (motion, style) = gesture::referencing(seed, human, yaw, target);
-    let accuracy = gesture::accuracy(&motion, human, yaw, target, gesture::DEFAULT_RADIUS);
-    Synthesized {
-        motion: motion.as_flat().to_vec(),
-        hand: if style.side == worker::humanoid::Side::Right { Hand::Right } else { Hand::Left },
-        style: style.shape as u8,
-        accuracy,
-    }
-}
-
-pub fn interventions() -> Vec<(String, Vec<f32>)> {
-    (0..gesture::INTERVENTIONS).map(|i| (gesture::INTERVENTION_NAMES[i].to_string(), gesture::intervention(i).as_flat().to_vec())).collect()
-}
-
 fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
     let splits = a
         .splits
@@ -107,7 +90,7 @@ fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
         .collect();
     let t = Instant::now();
     let manifest = pool.install(|| {
-        build(&a.out, &opts, a.force, &synth, &interventions(), &|s, done, _| {
+        build(&a.out, &opts, a.force, &default_synth, &default_interventions(), &|s, done, _| {
             if let Some(b) = bars.get(&s) {
                 b.set_position(done);
             }

@@ -29,6 +29,13 @@ pub struct Intrinsics {
 }
 
 impl Intrinsics {
+    /// The resolution at which geometric visibility is judged for navigation (success regions,
+    /// the expert, dataset constraints), whatever the run renders: the dissertation's 224².
+    /// Datasets thus do not depend on a run's frame size.
+    pub fn reference(fov_deg: f32) -> Intrinsics {
+        Intrinsics { width: 224, height: 224, fov_deg }
+    }
+
     pub fn tan_half_fov_y(&self) -> f32 {
         (self.fov_deg.to_radians() / 2.0).tan()
     }

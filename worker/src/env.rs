@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use half::f16;
-use nalgebra::{Point2, Point3, Vector2};
+use nalgebra::{Point3, Vector2};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
@@ -133,7 +133,7 @@ impl Env {
         let start_geodesic = goal.geodesic(&grid, pose.xz());
         let mut task = Task::new(cfg.task.clone());
         task.reset(goal.distance_2d(pose.xz()));
-        let k = Intrinsics { width: cfg.env.width, height: cfg.env.height, fov_deg: cfg.env.fov_deg };
+        let k = Intrinsics::reference(cfg.env.fov_deg);
         Ok(Env {
             cfg: cfg.clone(),
             k,
@@ -236,9 +236,11 @@ impl Env {
         self.visible_pixels
     }
 
-    /// The shortest-path expert's action from here.
-    pub fn expert(&self) -> Action {
-        expert_action(&self.grid, &self.physics, &self.cfg.env, &self.k, self.cfg.task.success_distance, &self.goal, &self.pose)
+    /// The shortest-path expert's action from here, trusting the rendered frame (when there
+    /// is one) on whether the target is in view.
+    pub fn expert(&self, rendered: bool) -> Action {
+        let seen = rendered.then_some(self.visible_pixels >= self.cfg.task.min_visible_pixels);
+        expert_action(&self.grid, &self.physics, &self.cfg.env, &self.k, self.cfg.task.success_distance, &self.goal, &self.pose, seen)
     }
 
     /// Geodesic distance from the robot to the success region now.
@@ -313,7 +315,7 @@ impl Env {
         r.gesture_kind = self.gesture_kind();
         r.gesture_index = self.intervention.0;
         r.idle = 0;
-        r.expert_action = if expert && !done { self.expert() as u8 } else { 255 };
+        r.expert_action = if expert && !done { self.expert(true) as u8 } else { 255 };
         r.stops = self.task.stats.stops.len() as u32;
         r.target_category = self.program.target.target_index().unwrap_or(0);
         r.target_instances = self.program.instances;
@@ -593,7 +595,8 @@ impl EnvPool {
         for (((i, rgb), depth), ids) in rgb.into_iter().enumerate().zip(depth).zip(self.ids.iter_mut()) {
             match (&self.envs[i], handles[i], &person[i]) {
                 (Slot::Running(e), Some(h), Some(parts)) => {
-                    views.push(View { scene: h, camera: e.camera(), dynamic: parts });
+                    let c = e.camera();
+                    views.push(View { scene: h, camera: crate::render::Camera { position: c.position, yaw_deg: c.yaw_deg, pitch_deg: c.pitch_deg }, dynamic: parts });
                     outs.push(ViewOut { rgb, depth, ids: Some(ids.as_mut_slice()) });
                     running.push(i);
                 }
@@ -656,5 +659,138 @@ mod tests {
         assert_eq!(gesture_kind(GestureSchedule::Both, &at(30.0), target, 90.0), GESTURE_REFERENCING);
         assert_eq!(gesture_kind(GestureSchedule::Referencing, &at(180.0), target, 90.0), GESTURE_REFERENCING);
         assert_eq!(gesture_kind(GestureSchedule::None, &at(180.0), target, 90.0), GESTURE_NONE);
+    }
+}
+
+#[cfg(test)]
+mod pool_tests {
+    use super::*;
+    use crate::config::Method;
+    use crate::dataset::build::{BuildOptions, build, default_interventions, default_synth};
+    use std::path::Path;
+    use std::sync::OnceLock;
+
+    /// One small dataset shared by the tests of this module (val: 2 programs per room).
+    fn dataset() -> &'static Path {
+        static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+        DIR.get_or_init(|| {
+            let d = tempfile::tempdir().unwrap();
+            let opts = BuildOptions { seed: 5, val_per_room: 2, splits: vec![Split::Val], ..Default::default() };
+            build(d.path(), &opts, false, &default_synth, &default_interventions(), &|_, _, _| {}).unwrap();
+            d
+        })
+        .path()
+    }
+
+    fn config(method: Method, envs: usize) -> RunConfig {
+        let mut cfg = RunConfig::from_toml(&format!("[run]\nmethod = \"{}\"\nsplit = \"val\"\n", serde_json::to_value(method).unwrap().as_str().unwrap()), "test").unwrap();
+        cfg.run.dataset = dataset().to_path_buf();
+        cfg.env.envs_per_worker = envs;
+        cfg.env.width = 64;
+        cfg.env.height = 64;
+        cfg
+    }
+
+    fn pool(cfg: &RunConfig, programs: ProgramSource) -> Option<EnvPool> {
+        let spec = PoolSpec { worker_id: 0, generation: 0, programs, expert_hints: true };
+        match EnvPool::new(cfg, spec) {
+            Ok(p) => Some(p),
+            Err(e) if format!("{e:#}").contains("adapter") => {
+                eprintln!("skipped: no wgpu adapter ({e:#})");
+                None
+            }
+            Err(e) => panic!("{e:#}"),
+        }
+    }
+
+    fn records(buf: &AlignedBuf, n: usize) -> Vec<EnvRecord> {
+        let b = buf.as_slice();
+        (0..n).map(|i| {
+            let o = i * std::mem::size_of::<EnvRecord>();
+            // SAFETY: the buffer is aligned and holds n records at offset 0.
+            unsafe { std::ptr::read(b[o..].as_ptr() as *const EnvRecord) }
+        }).collect()
+    }
+
+    #[test]
+    fn expert_succeeds_with_rendered_visibility_and_records_are_consistent() {
+        let cfg = config(Method::Both, 3);
+        let programs: Vec<u64> = (0..12).collect();
+        let Some(mut pool) = pool(&cfg, ProgramSource::Sequence(programs.clone())) else { return };
+        let mut buf = AlignedBuf::new(pool.layout().total_len as usize);
+        pool.reset(buf.as_mut_slice()).unwrap();
+        let mut finished = Vec::new();
+        let mut last_step = vec![0u64; 3];
+        for _ in 0..3000 {
+            let recs = records(&buf, 3);
+            for (i, r) in recs.iter().enumerate() {
+                assert_eq!(r.env_step, last_step[i] + 1, "env {i} skipped or repeated an observation");
+                last_step[i] = r.env_step;
+                if r.idle == 1 {
+                    continue;
+                }
+                if r.episode_start == 1 {
+                    assert_eq!((r.episode_step, r.reward, r.last_action), (0, 0.0, 255));
+                }
+                if r.terminated == 1 || r.truncated == 1 {
+                    finished.push((r.program, r.success, r.summary));
+                }
+                assert!(r.target_instances >= 1 && (r.gesture_kind as u8) <= GESTURE_INTERVENTION);
+            }
+            if pool.finished() {
+                break;
+            }
+            let actions: Vec<u8> = recs.iter().map(|r| if r.expert_action == 255 { 0 } else { r.expert_action }).collect();
+            pool.step(&actions, buf.as_mut_slice()).unwrap();
+        }
+        assert!(pool.finished(), "the sequence never ran out");
+        let mut ran: Vec<u64> = finished.iter().map(|f| f.0).collect();
+        ran.sort();
+        assert_eq!(ran, programs, "every program exactly once");
+        for (p, success, s) in &finished {
+            assert!(*success == 1, "expert failed program {p}: {s:?}");
+            assert_eq!(s.num_stops, 1, "program {p}: the expert stops once");
+            assert!(s.path_length <= 1.3 * s.start_geodesic + 0.5, "program {p}: expert path {} for geodesic {}", s.path_length, s.start_geodesic);
+        }
+    }
+
+    #[test]
+    fn intervention_gesture_is_written_when_facing_away() {
+        let cfg = config(Method::Intervention, 2);
+        let Some(mut pool) = pool(&cfg, ProgramSource::Sample) else { return };
+        let mut buf = AlignedBuf::new(pool.layout().total_len as usize);
+        pool.reset(buf.as_mut_slice()).unwrap();
+        let l = pool.layout();
+        let mut saw = [false; 3];
+        for _ in 0..48 {
+            let recs = records(&buf, 2);
+            for (i, r) in recs.iter().enumerate() {
+                let env = pool.env(i).unwrap();
+                let expect = gesture_kind(GestureSchedule::Intervention, &env.pose, env.goal().center, 90.0);
+                assert_eq!(r.gesture_kind, expect);
+                saw[r.gesture_kind as usize] = true;
+                let o = (l.gesture_offset + i as u64 * l.gesture_stride) as usize;
+                let g = &buf.as_slice()[o..o + l.gesture_stride as usize];
+                assert_eq!(g.iter().any(|b| *b != 0), r.gesture_kind != GESTURE_NONE, "gesture bytes follow the kind");
+            }
+            pool.step(&[1, 2], buf.as_mut_slice()).unwrap(); // keep turning: faces every way
+        }
+        assert!(saw[GESTURE_NONE as usize] && saw[GESTURE_INTERVENTION as usize] && !saw[GESTURE_REFERENCING as usize]);
+    }
+
+    #[test]
+    fn same_seed_same_episode() {
+        let cfg = config(Method::Both, 2);
+        let run = || {
+            let mut pool = pool(&cfg, ProgramSource::Sample)?;
+            let mut buf = AlignedBuf::new(pool.layout().total_len as usize);
+            pool.reset(buf.as_mut_slice()).unwrap();
+            for t in 0..30u8 {
+                pool.step(&[t % 4, (t / 2) % 4], buf.as_mut_slice()).unwrap();
+            }
+            Some(buf.as_slice().to_vec())
+        };
+        let (Some(a), Some(b)) = (run(), run()) else { return };
+        assert!(a == b, "same seed and actions gave different observations");
     }
 }

@@ -6,13 +6,17 @@
 pub mod camera;
 pub mod config;
 pub mod dataset;
+pub mod env;
 pub mod farm;
 pub mod geometry;
+pub mod gesture;
+pub mod humanoid;
 pub mod metrics;
 pub mod nav;
 pub mod physics;
 pub mod process;
 pub mod program;
+pub mod render;
 pub mod robot;
 pub mod scene;
 pub mod task;

@@ -303,6 +303,11 @@ pub fn sees_goal(physics: &Physics, env: &EnvConfig, k: &Intrinsics, pose: &Robo
 /// The expert's next action: Stop when the target is near and seen; otherwise turn to (or step
 /// along) the heading whose step lowers the geodesic distance most; within the success distance,
 /// turn towards the nearest heading from which the target is seen.
+///
+/// `seen_now` is what the robot's rendered frame says about the target (None: judge it
+/// geometrically). A frame smaller than the reference resolution can miss a small target that
+/// geometry sees; the expert then steps closer, which makes it larger.
+#[allow(clippy::too_many_arguments)]
 pub fn expert_action(
     grid: &NavGrid,
     physics: &Physics,
@@ -311,14 +316,24 @@ pub fn expert_action(
     success_distance: f32,
     goal: &Goal,
     pose: &RobotPose,
+    seen_now: Option<bool>,
 ) -> Action {
     let here = pose.xz();
     if goal.distance_2d(here) < success_distance {
         let seen: Vec<f32> = visible_headings(physics, env, k, here, &goal.points, goal.id).collect();
-        if seen.iter().any(|&y| angle_diff_deg(pose.yaw, y).abs() < 1e-2) {
-            return Action::Stop;
+        let facing = seen.iter().any(|&y| angle_diff_deg(pose.yaw, y).abs() < 1e-2);
+        match (seen_now, facing) {
+            (Some(true), _) | (None, true) => return Action::Stop,
+            (Some(false), true) => {
+                let delta = heading(pose.yaw) * env.move_step;
+                let closer = goal.distance_2d(here + delta) < goal.distance_2d(here);
+                if closer && physics.move_is_free(here, delta) {
+                    return Action::MoveAhead;
+                }
+            }
+            _ => {}
         }
-        if let Some(y) = nearest(pose.yaw, seen.iter().copied()) {
+        if let Some(y) = nearest(pose.yaw, seen.iter().copied().filter(|&y| !facing || angle_diff_deg(pose.yaw, y).abs() > 1e-2)) {
             return turn_towards(pose.yaw, y);
         }
     }
@@ -442,7 +457,7 @@ mod tests {
             let mut pose = RobotPose { x: p.x, z: p.y, yaw: ((c * 7) % 24) as f32 * 15.0 };
             let mut ok = false;
             for _ in 0..100 {
-                let a = expert_action(&grid, &phys, &env, &k, 1.0, &goal, &pose);
+                let a = expert_action(&grid, &phys, &env, &k, 1.0, &goal, &pose, None);
                 if a == Action::Stop {
                     ok = goal.distance_2d(pose.xz()) < 1.0 && sees_goal(&phys, &env, &k, &pose, &goal);
                     break;

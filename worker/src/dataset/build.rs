@@ -46,6 +46,25 @@ pub struct Synthesized {
 /// Makes the referencing motion of a program: (seed, person feet position, person yaw, target).
 pub type Synth<'a> = dyn Fn(u64, Point3<f32>, f32, Point3<f32>) -> Synthesized + Sync + 'a;
 
+/// The referencing synthesiser of `gesture`, as the builder calls it.
+pub fn default_synth(seed: u64, human: Point3<f32>, yaw: f32, target: Point3<f32>) -> Synthesized {
+    let (motion, style) = crate::gesture::referencing(seed, human, yaw, target);
+    let accuracy = crate::gesture::accuracy(&motion, human, yaw, target, crate::gesture::DEFAULT_RADIUS);
+    Synthesized {
+        motion: motion.as_flat().to_vec(),
+        hand: if style.side == crate::humanoid::Side::Right { Hand::Right } else { Hand::Left },
+        style: style.shape as u8,
+        accuracy,
+    }
+}
+
+/// The 20 intervention gestures with their names, stored once per dataset.
+pub fn default_interventions() -> Vec<(String, Vec<f32>)> {
+    (0..crate::gesture::INTERVENTIONS)
+        .map(|i| (crate::gesture::INTERVENTION_NAMES[i].to_string(), crate::gesture::intervention(i).as_flat().to_vec()))
+        .collect()
+}
+
 /// What to build.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct BuildOptions {
@@ -106,7 +125,7 @@ impl RoomContext {
         let grid = NavGrid::build(&physics, &scene.room, GRID_STEP);
         let (label, largest) = grid.components();
         let main: Vec<Cell> = grid.free_cells().filter(|&c| Some(label[c]) == largest).collect();
-        let k = Intrinsics { width: env.width, height: env.height, fov_deg: env.fov_deg };
+        let k = Intrinsics::reference(env.fov_deg);
         let mut targets = BTreeMap::new();
         for (i, o) in scene.objects.iter().enumerate() {
             if !scene.scene_type.targets().contains(&o.category) {
@@ -162,7 +181,7 @@ impl RoomContext {
     pub fn human_sees(&self, pos: Point2<f32>, yaw: f32, target: usize) -> bool {
         let t = &self.targets[&target];
         let cam = Camera { position: Point3::new(pos.x, HUMAN_EYE_HEIGHT, pos.y), yaw_deg: yaw, pitch_deg: 0.0 };
-        let k = Intrinsics { width: 224, height: 224, fov_deg: 90.0 };
+        let k = Intrinsics::reference(90.0);
         visibility::visible(&self.physics, &cam, &k, &t.points, crate::scene::object_id(target))
     }
 }

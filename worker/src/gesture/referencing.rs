@@ -1,0 +1,463 @@
+//! Referencing gestures (§3.3): a person standing at a position and yaw points at a target.
+//!
+//! Like the recorded people, each gesture starts and ends in natural standing (breathing,
+//! sway), and the rest is drawn from the seed: the arm (by the side the target is on; either
+//! one for targets near straight ahead), the hand shape (index finger, open palm, two
+//! fingers), a straight or bent elbow, the timing of lead-in idle / rise / hold / return /
+//! trailing idle, a tremor while holding, an aiming error of a few degrees, a torso turn for
+//! targets far to the side, and when the eyes (head) go to the target and come back.
+//!
+//! The pointing pose is solved, not guessed: the upper arm is aimed analytically, then a few
+//! Levenberg–Marquardt steps over shoulder, arm and hand muscles put the pointing ray (index
+//! finger's last segment, or the hand for an open palm) through the aimed point, and two more
+//! put the face on the target.
+
+use nalgebra::{Point3, UnitQuaternion, Vector3};
+use rand::Rng;
+use rand_distr::{Distribution, Normal};
+use serde::{Deserialize, Serialize};
+
+use super::synth::{
+    ArmGoal, HandPose, INDEX_POINT, Idle, OPEN, STANDING, TWO_FINGER, Wobble, aim_bone, blend_hand, clamp_pose,
+    envelope, solve_arm, solve_gaze, to_hips_frame,
+};
+use super::{FRAMES, Motion};
+use crate::humanoid::muscles::idx;
+use crate::humanoid::{Bone, Finger, Humanoid, MUSCLES, Side, Skeleton, muscle_value};
+
+/// How the hand is shaped while pointing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum HandShape {
+    IndexPoint,
+    OpenPalm,
+    TwoFinger,
+}
+
+impl HandShape {
+    fn fingers(self) -> &'static HandPose {
+        match self {
+            HandShape::IndexPoint => &INDEX_POINT,
+            HandShape::OpenPalm => &OPEN,
+            HandShape::TwoFinger => &TWO_FINGER,
+        }
+    }
+
+    /// The bone whose ray is put through the target.
+    fn ray_bone(self, side: Side) -> Bone {
+        match self {
+            HandShape::OpenPalm => Bone::hand(side),
+            _ => Bone::finger(side, Finger::Index, 2),
+        }
+    }
+}
+
+/// What was drawn for one referencing gesture.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ReferencingStyle {
+    pub side: Side,
+    pub shape: HandShape,
+    /// Whether the elbow stays bent (pointing with the forearm) rather than nearly straight.
+    pub bent_elbow: bool,
+    /// Forearm Stretch during the hold (1 straight, 0 bent 80°).
+    pub forearm_stretch: f32,
+    /// Frames of lead-in idle, rise, hold and return; the rest is trailing idle.
+    pub lead: u32,
+    pub rise: u32,
+    pub hold: u32,
+    pub ret: u32,
+    /// First and last frame of looking at the target (`last` = 100: until the end).
+    pub gaze: (u32, u32),
+    /// Aiming error (sideways, up) in degrees.
+    pub aim_error_deg: [f32; 2],
+    /// Torso turn towards the target, degrees (+ right).
+    pub torso_turn_deg: f32,
+    /// Bearing of the target from the person (degrees, + right of straight ahead).
+    pub bearing_deg: f32,
+}
+
+const KEY_REFERENCING: u64 = 0x5EFE_2E4C;
+
+/// A referencing gesture of the default 1.70 m person at `human_pos` (floor point) facing
+/// `human_yaw` (degrees) towards `target`, drawn from `seed`.
+pub fn referencing(
+    seed: u64,
+    human_pos: Point3<f32>,
+    human_yaw: f32,
+    target: Point3<f32>,
+) -> (Motion, ReferencingStyle) {
+    referencing_with(Humanoid::standard(), seed, human_pos, human_yaw, target)
+}
+
+/// [`referencing`] for a given body (its proportions decide the exact arm angles).
+///
+/// Panics if a position or the yaw is not finite (a caller's bug, not a data error).
+pub fn referencing_with(
+    h: &Humanoid,
+    seed: u64,
+    human_pos: Point3<f32>,
+    human_yaw: f32,
+    target: Point3<f32>,
+) -> (Motion, ReferencingStyle) {
+    assert!(
+        human_pos.iter().chain(target.iter()).all(|v| v.is_finite()) && human_yaw.is_finite(),
+        "referencing gesture needs finite positions and yaw, got person {human_pos:?} yaw {human_yaw} target {target:?}"
+    );
+    let sk = h.skeleton();
+    let mut r = crate::util::rng(seed, &[KEY_REFERENCING]);
+
+    // This person's way of standing.
+    let mut base = STANDING;
+    let arm_down = r.random_range(-0.06..0.06f32);
+    let elbow = r.random_range(-0.08..0.06f32);
+    for side in Side::BOTH {
+        let a = side.arm_muscles();
+        base[a + idx::ARM_DOWN_UP] += arm_down + r.random_range(-0.02..0.02f32);
+        base[a + idx::FOREARM_STRETCH] += elbow;
+        base[side.leg_muscles() + idx::UPPER_LEG_IN_OUT] += r.random_range(-0.05..0.05f32);
+    }
+    base[idx::SPINE_FRONT_BACK] += r.random_range(-0.04..0.04f32);
+    let idle = Idle::new(&mut r);
+
+    let hips = sk.hips_height(&base);
+    let mut t_local = to_hips_frame(target, human_pos, human_yaw, hips);
+    // A target inside the body cannot be pointed at: treat it as half a metre further out.
+    let chest = Point3::new(0.0, 0.4 * h.height() / 1.7, 0.0);
+    if (t_local - chest).norm() < 0.4 {
+        let out = Vector3::new(t_local.x, 0.0, t_local.z);
+        let out = if out.norm() > 1e-3 { out.normalize() } else { Vector3::z() };
+        t_local += out * 0.5;
+    }
+    let bearing = t_local.x.atan2(t_local.z).to_degrees();
+
+    // Arm by the target's side; near straight ahead, mostly the right.
+    let side = if bearing > 12.0 {
+        Side::Right
+    } else if bearing < -12.0 {
+        Side::Left
+    } else if r.random_bool(0.65) {
+        Side::Right
+    } else {
+        Side::Left
+    };
+    let shape = match r.random_range(0.0..1.0f32) {
+        x if x < 0.55 => HandShape::IndexPoint,
+        x if x < 0.8 => HandShape::OpenPalm,
+        _ => HandShape::TwoFinger,
+    };
+    let bent = r.random_bool(if shape == HandShape::OpenPalm { 0.2 } else { 0.4 });
+    let stretch = if bent { r.random_range(0.2..0.55f32) } else { r.random_range(0.82..0.98f32) };
+    let torso_turn = bearing.signum() * ((bearing.abs() - 35.0).max(0.0) * r.random_range(0.35..0.6f32)).min(65.0);
+
+    // Timing (frames).
+    let mut lead = r.random_range(3..=30u32);
+    let rise = r.random_range(8..=20u32);
+    let mut hold = r.random_range(12..=50u32);
+    let ret = r.random_range(8..=22u32);
+    while lead + rise + hold + ret > 96 {
+        if hold > 12 {
+            hold -= 1;
+        } else {
+            lead -= 1;
+        }
+    }
+    let normal = |sd: f32| Normal::new(0.0f32, sd).expect("positive deviation");
+    let aim_err = [normal(2.5).sample(&mut r).clamp(-6.0, 6.0), normal(2.0).sample(&mut r).clamp(-5.0, 5.0)];
+
+    // The pointing pose.
+    let mut pose = base;
+    set_torso_turn(&mut pose, torso_turn);
+    blend_hand(&mut pose, side, shape.fingers(), 1.0);
+    let a = side.arm_muscles();
+    pose[a + idx::FOREARM_STRETCH] = stretch;
+    pose[a + idx::FOREARM_TWIST] = match shape {
+        HandShape::OpenPalm => r.random_range(0.3..0.7f32),
+        _ => r.random_range(-0.15..0.15f32),
+    };
+    let ua = Bone::upper_arm(side);
+    let shoulder = sk.chain(&pose, ua).0;
+    let to_target = t_local - shoulder;
+    // The aiming error is an angle seen from the pointing hand.
+    aim_bone(sk, &mut pose, ua, to_target);
+    let hand_at = sk.chain(&pose, shape.ray_bone(side)).0;
+    let from_hand = t_local - hand_at;
+    let aim = hand_at + perturb(from_hand.normalize(), aim_err) * from_hand.norm();
+    if bent {
+        // Upper arm lower than the aim by the elbow angle, then the twist that lifts the
+        // forearm onto the aim.
+        let aim_dir = (aim - shoulder).normalize();
+        let bend = (1.0 - stretch) * 80.0;
+        let axis = Vector3::y().cross(&aim_dir);
+        let axis = if axis.norm() > 1e-3 { axis.normalize() } else { Vector3::x() };
+        let down = UnitQuaternion::from_scaled_axis(axis * bend.to_radians()) * aim_dir;
+        aim_bone(sk, &mut pose, ua, down + Vector3::new(0.25 * side.sign(), 0.0, 0.0));
+        best_twist(sk, &mut pose, side, aim);
+    } else {
+        aim_bone(sk, &mut pose, ua, aim - shoulder);
+    }
+    let params = [
+        a + idx::ARM_DOWN_UP,
+        a + idx::ARM_FRONT_BACK,
+        a + idx::ARM_TWIST,
+        a + idx::HAND_DOWN_UP,
+        a + idx::HAND_IN_OUT,
+    ];
+    let stay = [0.02, 0.02, 0.05, 0.12, 0.12];
+    solve_arm(
+        sk,
+        &mut pose,
+        side,
+        &ArmGoal { ray: Some((shape.ray_bone(side), aim)), ..Default::default() },
+        &params,
+        &stay,
+        12,
+    );
+
+    // Where the face goes: at the target, from the standing and from the pointing posture.
+    let gaze_err = Vector3::new(normal(0.04).sample(&mut r), normal(0.03).sample(&mut r), 0.0) * to_target.norm();
+    let mut look_base = base;
+    solve_gaze(sk, &mut look_base, t_local + gaze_err, 6);
+    let mut look_hold = pose;
+    solve_gaze(sk, &mut look_hold, t_local + gaze_err, 6);
+    let gaze_on = if r.random_bool(0.3) { 0 } else { lead.saturating_sub(r.random_range(0..12)) };
+    let gaze_ramp = r.random_range(5..11) as f32;
+    let end = lead + rise + hold;
+    let gaze_off =
+        if r.random_bool(0.45) { FRAMES as u32 } else { (end + r.random_range(0..=ret + 10)).min(FRAMES as u32) };
+    let gaze_fall = r.random_range(6..13) as f32;
+
+    // Tremor while holding, a little overshoot-and-settle after the rise.
+    let tremor_amp = r.random_range(0.003..0.01f32);
+    let tremor = [
+        Wobble::new(&mut r, tremor_amp, 6.0),
+        Wobble::new(&mut r, tremor_amp, 6.0),
+        Wobble::new(&mut r, 2.0 * tremor_amp, 5.0),
+        Wobble::new(&mut r, 0.015, 0.6),
+    ];
+    let settle = r.random_range(0.0..0.03f32);
+
+    let head = [idx::NECK_NOD, idx::NECK_TURN, idx::HEAD_NOD, idx::HEAD_TURN, idx::NECK_TILT, idx::HEAD_TILT];
+    let torso = [idx::SPINE_TWIST, idx::CHEST_TWIST, idx::UPPER_CHEST_TWIST];
+    let f = side.finger_muscles();
+    let (lead_f, rise_f, hold_f, ret_f) = (lead as f32, rise as f32, hold as f32, ret as f32);
+    let mut motion = Motion::constant(&base);
+    for t in 0..FRAMES {
+        let x = t as f32;
+        let e_arm = envelope(x, lead_f, rise_f, lead_f + rise_f + hold_f, ret_f);
+        let e_hand = envelope(x, lead_f + 0.25 * rise_f, 0.7 * rise_f, lead_f + rise_f + hold_f - 2.0, 0.7 * ret_f);
+        // Looking at the target from the start means looking at it in frame 0 already.
+        let e_gaze =
+            envelope(x, gaze_on as f32, if gaze_on == 0 { 0.0 } else { gaze_ramp }, gaze_off as f32, gaze_fall);
+        let m = motion.frame_mut(t);
+        for k in 0..9 {
+            m[a + k] = base[a + k] + (pose[a + k] - base[a + k]) * e_arm;
+        }
+        for &i in &torso {
+            m[i] = base[i] + (pose[i] - base[i]) * e_arm;
+        }
+        for k in 0..20 {
+            m[f + k] = base[f + k] + (pose[f + k] - base[f + k]) * e_hand;
+        }
+        for &i in &head {
+            let look = look_base[i] + (look_hold[i] - look_base[i]) * e_arm;
+            m[i] = base[i] + (look - base[i]) * e_gaze;
+        }
+        // Overshoot just after the rise, settling during the hold; tremor while the arm is up.
+        let after_rise = x - (lead_f + rise_f);
+        if after_rise > -3.0 {
+            m[a + idx::ARM_DOWN_UP] += settle * (-(after_rise + 3.0) / 6.0).exp() * e_arm;
+        }
+        let held = e_arm * e_arm;
+        m[a + idx::ARM_DOWN_UP] += held * tremor[0].at(x);
+        m[a + idx::ARM_FRONT_BACK] += held * tremor[1].at(x);
+        m[a + idx::HAND_DOWN_UP] += held * tremor[2].at(x);
+        m[a + idx::ARM_TWIST] += held * tremor[3].at(x);
+        // The other arm moves a little with the body.
+        let o = side.other().arm_muscles();
+        m[o + idx::ARM_FRONT_BACK] -= 0.03 * e_arm;
+        m[o + idx::FOREARM_STRETCH] -= 0.05 * e_arm;
+        // Idle drift of the head is damped while the eyes are on the target.
+        let held_head = head.map(|i| m[i]);
+        idle.apply(m, x);
+        for (k, &i) in head.iter().enumerate() {
+            m[i] = held_head[k] + (m[i] - held_head[k]) * (1.0 - 0.7 * e_gaze);
+        }
+        clamp_pose(m);
+    }
+    let style = ReferencingStyle {
+        side,
+        shape,
+        bent_elbow: bent,
+        forearm_stretch: stretch,
+        lead,
+        rise,
+        hold,
+        ret,
+        gaze: (gaze_on, gaze_off),
+        aim_error_deg: aim_err,
+        torso_turn_deg: torso_turn,
+        bearing_deg: bearing,
+    };
+    (motion, style)
+}
+
+/// Turns spine, chest and upper chest together by `deg` (+ right).
+fn set_torso_turn(pose: &mut [f32; MUSCLES], deg: f32) {
+    for (i, share) in [(idx::SPINE_TWIST, 0.4), (idx::CHEST_TWIST, 0.35), (idx::UPPER_CHEST_TWIST, 0.25)] {
+        pose[i] += muscle_value(i, deg * share);
+        pose[i] = pose[i].clamp(-1.0, 1.0);
+    }
+}
+
+/// Rotates a unit direction by `err` degrees sideways (about up) and upwards.
+fn perturb(dir: Vector3<f32>, err: [f32; 2]) -> Vector3<f32> {
+    let side_axis = Vector3::y().cross(&dir);
+    let yaw = UnitQuaternion::from_scaled_axis(Vector3::y() * err[0].to_radians());
+    let pitch = if side_axis.norm() > 1e-3 {
+        UnitQuaternion::from_scaled_axis(side_axis.normalize() * -err[1].to_radians())
+    } else {
+        UnitQuaternion::identity()
+    };
+    (yaw * pitch * dir).normalize()
+}
+
+/// Picks the arm twist that best lays the forearm along the line from the elbow to `aim`.
+fn best_twist(sk: &Skeleton, pose: &mut [f32; MUSCLES], side: Side, aim: Point3<f32>) {
+    let i = side.arm_muscles() + idx::ARM_TWIST;
+    let la = Bone::lower_arm(side);
+    let tip = sk.bone_def(la).tip.normalize();
+    let mut best = (f32::MIN, pose[i]);
+    for k in 0..=12 {
+        let v = -1.0 + k as f32 / 6.0;
+        pose[i] = v;
+        let (o, q) = sk.chain(pose, la);
+        let score = (q * tip).dot(&(aim - o).normalize());
+        if score > best.0 {
+            best = (score, v);
+        }
+    }
+    pose[i] = best.1;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::heading;
+    use crate::gesture::accuracy::{DEFAULT_RADIUS, accuracy_with};
+    use crate::gesture::intervention::{INTERVENTIONS, intervention};
+
+    /// A random target around a person: 1–5 m away, within ±100° of their heading, 0–2 m high.
+    fn scenario(seed: u64) -> (Point3<f32>, f32, Point3<f32>) {
+        let mut r = crate::util::rng(seed, &[77]);
+        let pos = Point3::new(r.random_range(-3.0..3.0f32), 0.0, r.random_range(-3.0..3.0f32));
+        let yaw = r.random_range(0.0..360.0f32);
+        let bearing = r.random_range(-100.0..100.0f32);
+        let dist = r.random_range(1.0..5.0f32);
+        let h = heading(yaw + bearing) * dist;
+        (pos, yaw, Point3::new(pos.x + h.x, r.random_range(0.0..2.0f32), pos.z + h.y))
+    }
+
+    #[test]
+    fn same_seed_same_motion_different_seed_different() {
+        let (p, y, t) = scenario(1);
+        let (a, sa) = referencing(5, p, y, t);
+        let (b, sb) = referencing(5, p, y, t);
+        assert_eq!(a, b);
+        assert_eq!(sa, sb);
+        let (c, _) = referencing(6, p, y, t);
+        assert_ne!(a, c);
+    }
+
+    #[test]
+    fn the_arm_on_the_targets_side_rises_and_returns() {
+        let pos = Point3::origin();
+        for (bearing, side) in [(60.0f32, Side::Right), (-60.0, Side::Left)] {
+            let h = heading(bearing) * 3.0;
+            let (m, s) = referencing(3, pos, 0.0, Point3::new(h.x, 1.2, h.y));
+            assert_eq!(s.side, side);
+            let du = m.muscle(side.arm_muscles() + idx::ARM_DOWN_UP);
+            let mid = (s.lead + s.rise + s.hold / 2) as usize;
+            assert!(du[mid] > du[0] + 0.4, "{side:?}: {} → {}", du[0], du[mid]);
+            assert!((du[99] - du[0]).abs() < 0.1, "returns to rest");
+            assert!(m.as_flat().iter().all(|v| v.is_finite() && v.abs() <= 1.0));
+        }
+    }
+
+    /// During the hold the pointing ray passes close to the (deliberately missed) target.
+    #[test]
+    fn the_hold_pose_points_where_it_aims() {
+        let h = Humanoid::default();
+        let mut worst: f32 = 0.0;
+        for seed in 0..60 {
+            let (p, y, t) = scenario(seed);
+            let (m, s) = referencing(seed, p, y, t);
+            let frame = (s.lead + s.rise + s.hold / 2) as usize;
+            let pose = h.pose(m.frame(frame), p, y);
+            let (o, d) = pose.ray(s.shape.ray_bone(s.side));
+            let off = (t - o).normalize().dot(&d).clamp(-1.0, 1.0).acos().to_degrees();
+            let allowed = s.aim_error_deg[0].hypot(s.aim_error_deg[1]) + 5.0;
+            worst = worst.max(off - allowed + 5.0);
+            assert!(
+                off < allowed,
+                "seed {seed}: ray {off:.1}° off the target (aim error {:?}, style {s:?})",
+                s.aim_error_deg
+            );
+        }
+        eprintln!("largest pointing error beyond the drawn aiming error: {worst:.1}°");
+    }
+
+    /// Synthesized referencing gestures score high gesture accuracy towards their targets;
+    /// intervention gestures score low towards the same targets.
+    #[test]
+    fn referencing_scores_high_and_intervention_low() {
+        let h = Humanoid::default();
+        let n = 200;
+        let (mut refs, mut ints) = (0.0, 0.0);
+        for seed in 0..n {
+            let (p, y, t) = scenario(seed);
+            let (m, _) = referencing(seed, p, y, t);
+            refs += accuracy_with(&h, &m, p, y, t, DEFAULT_RADIUS);
+            let i = intervention(seed as usize % INTERVENTIONS);
+            ints += accuracy_with(&h, &i, p, y, t, DEFAULT_RADIUS);
+        }
+        let (refs, ints) = (refs / n as f32, ints / n as f32);
+        eprintln!("mean gesture accuracy over {n} random targets: referencing {refs:.3}, intervention {ints:.3}");
+        assert!(refs > 0.7, "referencing {refs}");
+        assert!(ints < 0.2, "intervention {ints}");
+    }
+
+    #[test]
+    fn odd_targets_still_give_valid_motions() {
+        let pos = Point3::new(1.0, 0.0, 1.0);
+        for t in [
+            pos,
+            Point3::new(1.0, 1.2, 1.0),
+            Point3::new(1.0, 5.0, 1.0),
+            Point3::new(101.0, 1.0, 1.0),
+            Point3::new(1.0, 0.0, 0.2),
+        ] {
+            for seed in 0..5 {
+                let (m, _) = referencing(seed, pos, 10.0, t);
+                assert!(m.as_flat().iter().all(|v| v.is_finite() && v.abs() <= 1.0), "target {t:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn styles_are_diverse() {
+        let mut shapes = std::collections::HashSet::new();
+        let (mut bent, mut left, mut turned) = (0, 0, 0);
+        for seed in 0..100 {
+            let (p, y, t) = scenario(seed);
+            let (_, s) = referencing(seed, p, y, t);
+            shapes.insert(s.shape);
+            bent += s.bent_elbow as u32;
+            left += (s.side == Side::Left) as u32;
+            turned += (s.torso_turn_deg.abs() > 5.0) as u32;
+        }
+        assert_eq!(shapes.len(), 3);
+        assert!(
+            (15..60).contains(&bent) && (25..75).contains(&left) && turned > 5,
+            "bent {bent} left {left} turned {turned}"
+        );
+    }
+}
