@@ -56,7 +56,9 @@ impl Policy for ExpertPolicy {
             .envs()
             .map(|(w, e, r)| match r.expert_action {
                 a if a < NUM_ACTIONS => Ok(a),
-                _ if r.idle == 1 => Ok(0),
+                // No expert from a final observation or an idle env: the worker ignores the
+                // action answered to those.
+                _ if r.idle != 0 || r.terminated != 0 || r.truncated != 0 => Ok(0),
                 a => anyhow::bail!("worker {w} env {e}: no expert action ({a}); the workers must run with --expert-hints"),
             })
             .collect()

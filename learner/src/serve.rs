@@ -83,9 +83,9 @@ impl ServeOptions {
 pub enum ServeError {
     #[error(transparent)]
     Transport(#[from] TransportError),
-    #[error("policy `{name}`: {source:#}")]
+    #[error("policy `{name}`")]
     Policy { name: String, source: anyhow::Error },
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io { path: String, source: std::io::Error },
     #[error("check failed: {0}")]
     Check(String),

@@ -22,6 +22,25 @@ pub trait Stepper {
     fn finished(&self) -> bool;
 }
 
+/// The simulator's pool of environments is the farm's real stepper.
+impl Stepper for crate::env::EnvPool {
+    fn num_envs(&self) -> usize {
+        crate::env::EnvPool::num_envs(self)
+    }
+    fn layout(&self) -> ObsLayout {
+        crate::env::EnvPool::layout(self)
+    }
+    fn reset(&mut self, payload: &mut [u8]) -> anyhow::Result<()> {
+        crate::env::EnvPool::reset(self, payload)
+    }
+    fn step(&mut self, actions: &[u8], payload: &mut [u8]) -> anyhow::Result<()> {
+        crate::env::EnvPool::step(self, actions, payload)
+    }
+    fn finished(&self) -> bool {
+        crate::env::EnvPool::finished(self)
+    }
+}
+
 /// Per-env state of the synthetic stepper.
 #[derive(Clone, Debug, Default)]
 struct SynthEnv {

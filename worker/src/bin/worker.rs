@@ -10,7 +10,11 @@ use clap::Parser;
 use nix::sys::signal::Signal;
 
 use worker::config::RunConfig;
+use worker::dataset::{Dataset, Verify};
+use worker::env::{EnvPool, PoolSpec, ProgramSource, eligible_programs};
 use worker::farm::{Stepper, SyntheticStepper};
+use worker::program::Program;
+use worker::render::{RenderConfig, Renderer, bench_views, benchmark_room};
 use worker::process;
 use worker::transport::{self, Exit, WorkerOptions};
 
@@ -58,18 +62,39 @@ fn build_stepper(cli: &Cli, cfg: &RunConfig) -> anyhow::Result<Box<dyn Stepper>>
     if cli.synthetic {
         return Ok(Box::new(SyntheticStepper::new(cli.worker_id, cfg.env.envs_per_worker, cfg.env.width, cfg.env.height, programs, cli.expert_hints)));
     }
-    anyhow::bail!("this build has no simulator environments yet (worker::env); run with --synthetic")
+    let spec = PoolSpec {
+        worker_id: cli.worker_id,
+        generation: cli.generation,
+        programs: programs.map(ProgramSource::Sequence).unwrap_or(ProgramSource::Sample),
+        expert_hints: cli.expert_hints,
+    };
+    let pool = EnvPool::new(cfg, spec)?;
+    tracing::info!("renderer: {}", pool.renderer_info());
+    Ok(Box::new(pool))
 }
 
-fn bench_render(_cfg: &RunConfig, _seconds: f64) -> anyhow::Result<f64> {
-    anyhow::bail!("this build has no renderer yet (worker::render)")
+/// Renders views of the run's first room (the benchmark room without a dataset), E per submit
+/// as the environments do, as fast as possible: the renderer-only ceiling of the farm.
+fn bench_render(cfg: &RunConfig, seconds: f64) -> anyhow::Result<(f64, String)> {
+    let e = cfg.env.envs_per_worker;
+    let rcfg = RenderConfig { width: cfg.env.width, height: cfg.env.height, fov_deg: cfg.env.fov_deg, max_views_per_submit: e.max(1) };
+    let mut renderer = Renderer::new(&rcfg).context("starting the renderer")?;
+    let room = Dataset::open(&cfg.run.dataset, Verify::Quick).ok().and_then(|ds| {
+        let first = *eligible_programs(&ds, cfg).ok()?.first()?;
+        let program = Program::from_record(first, &ds.require(cfg.run.split).ok()?.record(first as usize))?;
+        let id = program.scene_id();
+        Some((ds.scene(id).ok()?.parts(), id.name()))
+    });
+    let (parts, what) = room.unwrap_or_else(|| (benchmark_room().parts(), "the benchmark room".into()));
+    let views = bench_views(&mut renderer, &parts, e, seconds)?;
+    Ok((views, format!("{what}, {}x{}, {e} views per submit, {}", cfg.env.width, cfg.env.height, renderer.adapter_info())))
 }
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     let cfg = RunConfig::load(&cli.config)?;
     if let Some(seconds) = cli.bench_render {
-        let views = bench_render(&cfg, seconds)?;
-        println!("{views:.1} views/s");
+        let (views, what) = bench_render(&cfg, seconds)?;
+        println!("{views:.1} views/s ({what})");
         return Ok(ExitCode::SUCCESS);
     }
     let run_id = cli.run_id.clone().expect("clap requires --run-id");
