@@ -194,3 +194,36 @@ fn python_reads_one_frame_of_a_live_run() {
     run.wait(Duration::from_secs(5));
     assert_gone(&run);
 }
+
+/// Evaluation through the orchestrator's library (as `orchestrator eval` uses it): each worker
+/// runs exactly its list of programs, the learner stops once every worker reports `finished`,
+/// and `episodes.jsonl` holds each program exactly once.
+#[test]
+fn evaluation_runs_each_assigned_program_once_and_ends_by_itself() {
+    use orchestrator::farm::{Farm, FarmSpec, PolicyArg};
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg_path = tiny_config(tmp.path(), 2);
+    let mut cfg = worker::config::RunConfig::load(&cfg_path).unwrap();
+    orchestrator::up::resolve_dataset(&mut cfg, false).unwrap();
+    let (dir, config_path) = orchestrator::up::prepare_run(&tmp.path().join("eval"), &cfg, false, 2, PolicyArg::Expert).unwrap();
+    let mut spec = FarmSpec::new(&dir.path, &dir.run_id, &config_path, cfg, 2, PolicyArg::Expert);
+    spec.bin_dir = Some(bin_dir());
+    spec.programs = Some(vec![vec![0, 1, 2], vec![3, 4]]);
+    spec.check = true;
+    spec.max_seconds = Some(180.0);
+    let farm = Farm::start(spec).unwrap();
+    let out = farm.finish().unwrap();
+    assert!(out.learner.is_some_and(|e| e.success()), "{out:?}");
+    let p = out.progress.unwrap();
+    assert_eq!(p.stop_reason.as_deref(), Some("every worker finished its programs"));
+    let lines = std::fs::read_to_string(dir.path.join("episodes.jsonl")).unwrap();
+    let mut seen: Vec<(u64, u64)> = lines
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .map(|v| (v["worker"].as_u64().unwrap(), v["program"].as_u64().unwrap()))
+        .collect();
+    seen.sort();
+    assert_eq!(seen, vec![(0, 0), (0, 1), (0, 2), (1, 3), (1, 4)]);
+    assert!(out.leftovers.is_empty(), "{:?}", out.leftovers);
+}

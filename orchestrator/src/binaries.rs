@@ -9,8 +9,13 @@ pub const BIN_DIR_ENV: &str = "GESTHOR_BIN_DIR";
 
 /// The path of sibling program `name` (`worker`, `learner`), checked to exist.
 pub fn sibling(name: &str) -> anyhow::Result<PathBuf> {
-    let (dir, how) = match std::env::var_os(BIN_DIR_ENV) {
-        Some(d) => (PathBuf::from(d), format!("${BIN_DIR_ENV}")),
+    sibling_in(None, name)
+}
+
+/// Like [`sibling`], but from folder `dir` when one is given.
+pub fn sibling_in(dir: Option<&Path>, name: &str) -> anyhow::Result<PathBuf> {
+    let (dir, how) = match dir.map(Path::to_path_buf).or_else(|| std::env::var_os(BIN_DIR_ENV).map(PathBuf::from)) {
+        Some(d) => (d, format!("{BIN_DIR_ENV} or the caller's folder")),
         None => {
             let exe = std::env::current_exe()?;
             let dir = exe.parent().map(Path::to_path_buf).unwrap_or_default();

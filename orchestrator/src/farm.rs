@@ -71,6 +71,9 @@ pub struct FarmSpec {
     pub report_every: f64,
     /// Seconds from SIGINT to SIGTERM when stopping (SIGKILL follows at 4.5 s).
     pub grace: f64,
+    /// Folder of the `worker` and `learner` programs (default: next to this executable, or
+    /// `$GESTHOR_BIN_DIR`).
+    pub bin_dir: Option<PathBuf>,
 }
 
 impl FarmSpec {
@@ -91,6 +94,7 @@ impl FarmSpec {
             learner_args: vec![],
             report_every: 2.0,
             grace: 3.0,
+            bin_dir: None,
         }
     }
 }
@@ -172,8 +176,8 @@ pub struct Farm {
 impl Farm {
     /// Spawns the learner and the workers.
     pub fn start(spec: FarmSpec) -> anyhow::Result<Farm> {
-        let worker_bin = binaries::sibling("worker")?;
-        let learner_bin = binaries::sibling("learner")?;
+        let worker_bin = binaries::sibling_in(spec.bin_dir.as_deref(), "worker")?;
+        let learner_bin = binaries::sibling_in(spec.bin_dir.as_deref(), "learner")?;
         if spec.workers == 0 {
             anyhow::bail!("--workers must be at least 1");
         }
