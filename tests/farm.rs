@@ -227,3 +227,26 @@ fn evaluation_runs_each_assigned_program_once_and_ends_by_itself() {
     assert_eq!(seen, vec![(0, 0), (0, 1), (0, 2), (1, 3), (1, 4)]);
     assert!(out.leftovers.is_empty(), "{:?}", out.leftovers);
 }
+
+/// `kill -9` of the orchestrator itself: the parent-death signal takes every worker and the
+/// learner down with it.
+#[test]
+fn no_child_outlives_a_killed_orchestrator() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tiny_config(tmp.path(), 1);
+    let mut run = Run::start(&tmp.path().join("run"), &["--workers", "3", "--config", cfg.to_str().unwrap(), "--policy", "random", "--seconds", "300", "--report-every", "0.5"]);
+    run.wait_progress(Duration::from_secs(120), "frames from all 3 workers", |p| p["workers_seen"] == 3 && p["frames"].as_u64() > Some(0));
+    assert_eq!(run.processes().len(), 4);
+    run.signal(Signal::SIGKILL);
+    run.wait(Duration::from_secs(5));
+    let t0 = Instant::now();
+    while !run.processes().is_empty() {
+        assert!(t0.elapsed() < Duration::from_secs(5), "children outlived the orchestrator: {:?}", run.processes());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // Nobody was left to end the run's shared-memory domain: the next `orchestrator up`
+    // sweeps it; here the test does.
+    worker::transport::end_run_domain(&run.run_id()).unwrap();
+    assert!(shm_leftovers(&run.run_id()).is_empty());
+}
