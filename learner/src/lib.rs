@@ -1,7 +1,83 @@
-//! The learner of GesTHOR-RS: the policy server of the rollout farm (`serve`, over `transport`)
-//! and the policies it serves (`policy`).
+//! The GesTHOR-RS learner: the dissertation's policy network (§4.3.3) and PPO (§4.3.1–4.3.2,
+//! T4.1) on libtorch through tch.
+//!
+//! The farm calls, per step message of N envs (see [`obs`] for the step protocol):
+//! ```text
+//! let mut trainer = Trainer::new(&cfg, n_envs, device)?;      // or Trainer::resume(.., checkpoint)
+//! loop {
+//!     let out = trainer.step(&obs_batch)?;                     // feedback in, actions out
+//!     send(out.actions.actions);
+//!     if let Some(m) = out.update { log.append(&m)?; /* every K: checkpoint::save_in_dir */ }
+//! }
+//! ```
+//! Evaluation uses a [`Policy`] alone: `checkpoint::load_policy`, then `act_deterministic`.
+//!
+//! The farm side: [`serve`] is the policy server (batches the workers' observations, read in
+//! place from shared memory through [`transport`] and [`batch`]), and [`policy::FarmPolicy`] is
+//! what it asks of a policy.
 
 pub mod batch;
+pub mod bench;
+pub mod checkpoint;
+pub mod device;
+pub mod metrics;
+pub mod model;
+pub mod obs;
+pub mod optim;
 pub mod policy;
+pub mod ppo;
+pub mod pth;
+pub mod resnet;
+pub mod rollout;
 pub mod serve;
+pub mod smoke;
 pub mod transport;
+
+pub use checkpoint::CheckpointError;
+pub use metrics::{MetricsLog, UpdateMetrics};
+pub use model::{ActMode, Actions, NetSpec, Policy};
+pub use obs::{EnvStep, FrameView, GestureKind, GestureView, ObsBatch};
+pub use ppo::{StepOutput, Trainer};
+
+/// Everything the learner library can fail with; each names what to fix.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnerError {
+    #[error(transparent)]
+    Obs(#[from] obs::ObsError),
+    #[error(transparent)]
+    Model(#[from] model::ModelError),
+    #[error(transparent)]
+    Checkpoint(#[from] checkpoint::CheckpointError),
+    #[error(transparent)]
+    Device(#[from] device::NoCuda),
+    #[error(transparent)]
+    Metrics(#[from] metrics::MetricsError),
+}
+
+#[cfg(test)]
+mod config_files {
+    use worker::config::RunConfig;
+
+    /// Every TOML file under `configs/` parses and builds a network description.
+    #[test]
+    fn every_config_file_parses() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        let mut stack = vec![root.clone()];
+        let mut seen = 0;
+        while let Some(dir) = stack.pop() {
+            for entry in std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+                let p = entry.unwrap().path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else if p.extension().is_some_and(|e| e == "toml") {
+                    let cfg = RunConfig::load(&p).unwrap_or_else(|e| panic!("{e}"));
+                    let spec = crate::NetSpec::from_config(&cfg);
+                    assert!(spec.input_width() > 0, "{}", p.display());
+                    seen += 1;
+                }
+            }
+        }
+        // six methods × (faithful, tiny)
+        assert!(seen >= 12, "found only {seen} configs under {}", root.display());
+    }
+}

@@ -10,7 +10,7 @@ use crate::batch::ObsBatchView;
 pub const NUM_ACTIONS: u8 = 4;
 
 /// A policy served to the farm.
-pub trait Policy {
+pub trait FarmPolicy {
     /// Short name for logs.
     fn name(&self) -> &str;
     /// One action per env of `batch`, in the order of [`ObsBatchView::envs`].
@@ -32,7 +32,7 @@ impl RandomPolicy {
     }
 }
 
-impl Policy for RandomPolicy {
+impl FarmPolicy for RandomPolicy {
     fn name(&self) -> &str {
         "random"
     }
@@ -46,7 +46,7 @@ impl Policy for RandomPolicy {
 /// an upper reference for navigation, and a check that actions reach the right env.
 pub struct ExpertPolicy;
 
-impl Policy for ExpertPolicy {
+impl FarmPolicy for ExpertPolicy {
     fn name(&self) -> &str {
         "expert"
     }

@@ -27,7 +27,7 @@ use worker::process;
 use worker::transport::TransportError;
 
 use crate::batch::{ObsBatchView, WorkerObs};
-use crate::policy::{NUM_ACTIONS, Policy};
+use crate::policy::{FarmPolicy, NUM_ACTIONS};
 use crate::transport::{LearnerPorts, ObsSample};
 
 /// How to serve a run.
@@ -255,7 +255,7 @@ struct Server<'p> {
     opts: ServeOptions,
     shape: ObsShape,
     ports: LearnerPorts,
-    policy: &'p mut dyn Policy,
+    policy: &'p mut dyn FarmPolicy,
     slots: Vec<Slot>,
     totals: Counters,
     episodes: std::io::BufWriter<std::fs::File>,
@@ -269,7 +269,7 @@ struct Server<'p> {
 
 /// Serves `policy` to the run's workers until a budget is spent, the evaluation is done or a
 /// termination signal arrives; then answers every worker with SHUTDOWN and returns the summary.
-pub fn serve(opts: &ServeOptions, policy: &mut dyn Policy) -> Result<Summary, ServeError> {
+pub fn serve(opts: &ServeOptions, policy: &mut dyn FarmPolicy) -> Result<Summary, ServeError> {
     let shape = ObsShape::new(opts.envs_per_worker, opts.width, opts.height);
     if opts.envs_per_worker > MAX_ENVS {
         return Err(ServeError::Check(format!("{} envs per worker; at most {MAX_ENVS}", opts.envs_per_worker)));

@@ -1,12 +1,18 @@
-//! The orchestrator of GesTHOR-RS as a library: run directories, process supervision, the farm
-//! (learner + workers) and the commands built on it. `main.rs` maps subcommands onto these.
+//! The orchestrator of GesTHOR-RS as a library: what its commands draw and compute, run
+//! directories, process supervision and the farm (learner + workers), testable apart from the
+//! CLI in `main.rs`.
 //!
 //! A new subcommand is one module here (`pub mod eval;`) and one variant in `main.rs`.
 
 pub mod bench;
 pub mod bench_farm;
 pub mod binaries;
+pub mod dataset_cmd;
 pub mod farm;
+pub mod fonts;
+pub mod map;
+pub mod plot;
 pub mod run_dir;
 pub mod supervise;
+pub mod tables;
 pub mod up;

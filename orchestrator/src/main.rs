@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench, up};
+use orchestrator::{bench, dataset_cmd, up};
 
 #[derive(Parser)]
 #[command(name = "orchestrator", version, about = "GesTHOR-RS: build the dataset, run the rollout farm, evaluate, benchmark")]
@@ -16,6 +16,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Build GOND or draw its statistics.
+    #[command(subcommand)]
+    Dataset(dataset_cmd::DatasetCmd),
     /// Start a run: the learner and N worker processes, supervised; Ctrl-C stops it cleanly.
     Up(up::UpArgs),
     /// Throughput benchmarks.
@@ -26,6 +29,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Dataset(c) => dataset_cmd::run(c).map(|_| 0),
         Command::Up(a) => up::run(a),
         Command::Bench(c) => bench::run(c).map(|_| 0),
     };

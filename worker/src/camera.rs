@@ -4,7 +4,7 @@
 //! Frame: x right, y up, z forward (left-handed, as in Unity). At yaw 0 the camera looks along +z
 //! and +x is on the right of the image; pitch > 0 looks up. Pixel (0, 0) is the top-left corner.
 
-use nalgebra::{Matrix4, Point3, Vector3};
+use nalgebra::{Point3, Vector3};
 
 /// Near and far clip planes (metres).
 pub const NEAR: f32 = 0.02;
@@ -45,6 +45,11 @@ impl Intrinsics {
 }
 
 impl Camera {
+    /// A level camera (pitch 0).
+    pub fn new(position: Point3<f32>, yaw_deg: f32) -> Camera {
+        Camera { position, yaw_deg, pitch_deg: 0.0 }
+    }
+
     /// Unit vectors (right, up, forward) of the camera in world space.
     pub fn basis(&self) -> (Vector3<f32>, Vector3<f32>, Vector3<f32>) {
         let (y, p) = (self.yaw_deg.to_radians(), self.pitch_deg.to_radians());
@@ -88,31 +93,6 @@ impl Camera {
             None => false,
         }
     }
-
-    /// View matrix (world → eye, eye z forward) as used by the shader.
-    pub fn view_matrix(&self) -> Matrix4<f32> {
-        let (r, u, f) = self.basis();
-        let c = self.position.coords;
-        Matrix4::new(
-            r.x, r.y, r.z, -r.dot(&c),
-            u.x, u.y, u.z, -u.dot(&c),
-            f.x, f.y, f.z, -f.dot(&c),
-            0.0, 0.0, 0.0, 1.0,
-        )
-    }
-
-    /// Projection to wgpu clip space (x, y in [−1, 1], z in [0, 1], w = eye depth).
-    pub fn projection_matrix(k: &Intrinsics) -> Matrix4<f32> {
-        let (sx, sy) = (1.0 / k.tan_half_fov_x(), 1.0 / k.tan_half_fov_y());
-        let a = FAR / (FAR - NEAR);
-        let b = -NEAR * FAR / (FAR - NEAR);
-        Matrix4::new(
-            sx, 0.0, 0.0, 0.0,
-            0.0, sy, 0.0, 0.0,
-            0.0, 0.0, a, b,
-            0.0, 0.0, 1.0, 0.0,
-        )
-    }
 }
 
 #[cfg(test)]
@@ -148,20 +128,5 @@ mod tests {
         let (x, _, _) = cam(0.0).project(&K, &Point3::new(2.0, 1.5, 2.0)).unwrap();
         assert!((x - 224.0).abs() < 1e-3);
         assert!(!cam(0.0).in_view(&K, &Point3::new(0.0, 1.5, -1.0), 0.0));
-    }
-
-    #[test]
-    fn matrices_agree_with_project() {
-        let c = Camera { position: Point3::new(0.3, 1.5, -0.7), yaw_deg: 37.0, pitch_deg: -10.0 };
-        let m = Camera::projection_matrix(&K) * c.view_matrix();
-        let p = Point3::new(1.0, 0.8, 2.0);
-        let clip = m * p.to_homogeneous();
-        let (x, y, z) = c.project(&K, &p).unwrap();
-        let nx = clip.x / clip.w;
-        let ny = clip.y / clip.w;
-        assert!(((nx + 1.0) * 112.0 - x).abs() < 1e-3);
-        assert!(((1.0 - ny) * 112.0 - y).abs() < 1e-3);
-        assert!((clip.w - z).abs() < 1e-4);
-        assert!((0.0..=1.0).contains(&(clip.z / clip.w)));
     }
 }

@@ -236,7 +236,10 @@ pub struct PpoConfig {
     pub max_grad_norm: f64,
     pub value_coef: f64,
     pub entropy_coef: f64,
-    /// Use bf16 autocast on CUDA.
+    /// Clip the value loss around the rollout's values with `clip` (as CleanRL's `clip_vloss`).
+    pub clip_value_loss: bool,
+    /// On CUDA, run the frozen ResNet-18 in bf16 and keep its features in bf16 (the trained
+    /// layers stay f32).
     pub mixed_precision: bool,
 }
 
@@ -253,6 +256,7 @@ impl Default for PpoConfig {
             max_grad_norm: 0.5,
             value_coef: 0.5,
             entropy_coef: 0.01,
+            clip_value_loss: true,
             mixed_precision: true,
         }
     }

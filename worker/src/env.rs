@@ -595,8 +595,7 @@ impl EnvPool {
         for (((i, rgb), depth), ids) in rgb.into_iter().enumerate().zip(depth).zip(self.ids.iter_mut()) {
             match (&self.envs[i], handles[i], &person[i]) {
                 (Slot::Running(e), Some(h), Some(parts)) => {
-                    let c = e.camera();
-                    views.push(View { scene: h, camera: crate::render::Camera { position: c.position, yaw_deg: c.yaw_deg, pitch_deg: c.pitch_deg }, dynamic: parts });
+                    views.push(View { scene: h, camera: e.camera(), dynamic: parts });
                     outs.push(ViewOut { rgb, depth, ids: Some(ids.as_mut_slice()) });
                     running.push(i);
                 }

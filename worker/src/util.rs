@@ -6,6 +6,10 @@ use std::path::Path;
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::SeedableRng;
 
+/// DejaVu Sans (Bitstream Vera licence, `worker/assets/DejaVuSans-LICENSE.txt`), compiled in so
+/// that plots and maps draw the same text on machines without system fonts.
+pub const FONT_TTF: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+
 /// A random stream for `key` under the run's `seed`. The same (seed, key) always gives the
 /// same stream, whatever thread or order asks for it; different keys give independent streams.
 pub fn rng(seed: u64, key: &[u64]) -> ChaCha8Rng {

@@ -15,14 +15,8 @@ use crate::scene::{Category, Object, Room, Scene, SceneType, Surface};
 /// depend on the room generator.
 pub fn benchmark_room() -> Scene {
     use Category::*;
-    let o = |category, position: [f32; 3], yaw: f32, size: [f32; 3], color: [f32; 3], style: u32, on: Option<usize>| Object {
-        category,
-        position,
-        yaw,
-        size,
-        color,
-        style,
-        on,
+    let o = |category, position: [f32; 3], yaw: f32, size: [f32; 3], color: [f32; 3], style: u32, on: Option<usize>| {
+        Object { category, position, yaw, size, color, style, on }
     };
     let wood = [0.55, 0.38, 0.22];
     let dark_wood = [0.36, 0.22, 0.12];
@@ -43,13 +37,13 @@ pub fn benchmark_room() -> Scene {
         o(TvStand, [-1.5, stand_h / 2.0, 2.29], 180.0, [1.4, stand_h, 0.42], dark_wood, 0, None), // 11
         o(Television, [-1.5, stand_h + 0.3, 2.3], 180.0, [1.0, 0.6, 0.09], [0.05, 0.05, 0.06], 1, Some(11)), // 12
         o(TissueBox, [-0.95, stand_h + 0.06, 2.3], 180.0, [0.22, 0.12, 0.12], [0.30, 0.55, 0.80], 0, Some(11)), // 13
-        o(Shelf, [-2.82, 0.75, 0.8], 90.0, [0.9, 1.5, 0.35], wood, 0, None), // 14
+        o(Shelf, [-2.82, 0.75, 0.8], 90.0, [0.9, 1.5, 0.35], wood, 0, None),            // 14
         o(Door, [2.4, 1.04, 2.47], 180.0, [0.9, 2.08, 0.05], [0.90, 0.90, 0.88], 0, None), // 15
         o(DiningTable, [1.0, dining_h / 2.0, 1.1], 0.0, [1.4, dining_h, 0.85], wood, 0, None), // 16
-        o(Chair, [0.65, 0.46, 0.4], 0.0, [0.46, 0.92, 0.5], wood, 0, None), // 17
-        o(Chair, [1.35, 0.46, 0.4], 0.0, [0.46, 0.92, 0.5], wood, 1, None), // 18
-        o(Chair, [0.65, 0.46, 1.8], 180.0, [0.46, 0.92, 0.5], wood, 1, None), // 19
-        o(Chair, [1.35, 0.46, 1.8], 180.0, [0.46, 0.92, 0.5], wood, 0, None), // 20
+        o(Chair, [0.65, 0.46, 0.4], 0.0, [0.46, 0.92, 0.5], wood, 0, None),             // 17
+        o(Chair, [1.35, 0.46, 0.4], 0.0, [0.46, 0.92, 0.5], wood, 1, None),             // 18
+        o(Chair, [0.65, 0.46, 1.8], 180.0, [0.46, 0.92, 0.5], wood, 1, None),           // 19
+        o(Chair, [1.35, 0.46, 1.8], 180.0, [0.46, 0.92, 0.5], wood, 0, None),           // 20
         o(Plate, [0.75, dining_h + 0.014, 1.1], 0.0, [0.25, 0.028, 0.25], [0.95, 0.95, 0.93], 0, Some(16)), // 21
         o(Plate, [1.25, dining_h + 0.014, 1.1], 0.0, [0.25, 0.028, 0.25], [0.75, 0.85, 0.90], 0, Some(16)), // 22
         o(Fork, [0.55, dining_h + 0.007, 1.1], 90.0, [0.19, 0.014, 0.028], [0.75, 0.75, 0.78], 0, Some(16)), // 23
@@ -61,7 +55,7 @@ pub fn benchmark_room() -> Scene {
         o(Cup, [2.6, desk_h + 0.05, 1.3], 0.0, [0.09, 0.1, 0.09], [0.20, 0.40, 0.70], 0, Some(27)), // 29
         o(RemoteControl, [-0.2, coffee_h + 0.011, -1.1], 10.0, [0.05, 0.022, 0.18], [0.08, 0.08, 0.09], 0, Some(1)), // 30
         o(Newspaper, [0.25, coffee_h + 0.015, -0.95], -15.0, [0.3, 0.03, 0.22], [0.80, 0.79, 0.74], 0, Some(1)), // 31
-        o(Box, [2.6, 0.15, 2.0], 30.0, [0.4, 0.3, 0.35], [0.68, 0.50, 0.30], 0, None), // 32
+        o(Box, [2.6, 0.15, 2.0], 30.0, [0.4, 0.3, 0.35], [0.68, 0.50, 0.30], 0, None),                           // 32
     ];
     Scene {
         name: "BenchmarkLivingRoom".into(),
@@ -159,7 +153,12 @@ pub fn spread_cameras(parts: &[Part], count: usize) -> Vec<Camera> {
 /// figure as the dynamic part) per call, with colour, depth and id readback, for about
 /// `seconds` after a warm-up, and returns views per second. The renderer's own
 /// `views_per_submit` should be at least as large, else each call is split into chunks.
-pub fn bench_views(renderer: &mut Renderer, parts: &[Part], views_per_submit: usize, seconds: f64) -> Result<f64, RenderError> {
+pub fn bench_views(
+    renderer: &mut Renderer,
+    parts: &[Part],
+    views_per_submit: usize,
+    seconds: f64,
+) -> Result<f64, RenderError> {
     let k = views_per_submit.max(1);
     let scene = renderer.upload_scene(parts);
     let cameras = spread_cameras(parts, k);

@@ -9,46 +9,12 @@
 use nalgebra::{Point3, Vector3};
 
 use super::RenderConfig;
-
-/// Near clipping plane (metres).
-pub const NEAR: f32 = 0.02;
-/// Far clipping plane (metres).
-pub const FAR: f32 = 20.0;
-/// Depth that maps to the largest depth value; farther (and empty) pixels saturate (§3.2.2).
-pub const MAX_DEPTH_M: f32 = 10.0;
-
-/// Where the camera is and where it looks.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Camera {
-    /// The eye point (the robot's camera sits 1.5 m above the floor).
-    pub position: Point3<f32>,
-    /// Degrees, clockwise from above; 0 looks along +z, 90 along +x.
-    pub yaw_deg: f32,
-    /// Degrees; positive looks up.
-    pub pitch_deg: f32,
-}
-
-impl Camera {
-    pub fn new(position: Point3<f32>, yaw_deg: f32) -> Camera {
-        Camera { position, yaw_deg, pitch_deg: 0.0 }
-    }
-
-    /// (right, up, forward), orthonormal, in world coordinates.
-    pub fn basis(&self) -> (Vector3<f32>, Vector3<f32>, Vector3<f32>) {
-        let (sy, cy) = self.yaw_deg.to_radians().sin_cos();
-        let (sp, cp) = self.pitch_deg.to_radians().sin_cos();
-        let forward = Vector3::new(sy * cp, sp, cy * cp);
-        let right = Vector3::new(cy, 0.0, -sy);
-        let up = Vector3::new(-sy * sp, cp, -cy * sp);
-        (right, up, forward)
-    }
-}
+pub use crate::camera::{Camera, FAR, MAX_DEPTH as MAX_DEPTH_M, NEAR};
 
 /// Scale factors of the projection: (x, y) multipliers of view x and y before the divide.
 pub fn projection_scale(cfg: &RenderConfig) -> (f32, f32) {
-    let sy = 1.0 / (cfg.fov_deg.to_radians() * 0.5).tan();
-    let sx = sy * cfg.height as f32 / cfg.width as f32;
-    (sx, sy)
+    let k = cfg.intrinsics();
+    (1.0 / k.tan_half_fov_x(), 1.0 / k.tan_half_fov_y())
 }
 
 /// Reversed-Z depth: clip z = A − B·z_view with w = z_view, so NDC z is 1 at the near plane
@@ -66,7 +32,7 @@ pub struct ViewUniform {
     pub right: [f32; 4],
     pub up: [f32; 4],
     pub forward: [f32; 4],
-    /// xyz = eye.
+    /// xyz = eye, w = the height of a pixel at 1 m depth (metres), for pattern anti-aliasing.
     pub eye: [f32; 4],
     /// (sx, sy, A, B) of `projection_scale` and `depth_coefficients`.
     pub proj: [f32; 4],
@@ -82,7 +48,7 @@ impl ViewUniform {
             right: [r.x, r.y, r.z, 0.0],
             up: [u.x, u.y, u.z, 0.0],
             forward: [f.x, f.y, f.z, 0.0],
-            eye: [e.x, e.y, e.z, 1.0],
+            eye: [e.x, e.y, e.z, 2.0 / (sy * cfg.height as f32)],
             proj: [sx, sy, a, b],
         }
     }
@@ -93,21 +59,53 @@ impl ViewUniform {
 /// [i, i+1) × [j, j+1). None when the point lies outside the view frustum. Uses the same
 /// math as the shader, so a point projected here lands on the pixel the renderer shades.
 pub fn project(camera: &Camera, cfg: &RenderConfig, point: Point3<f32>) -> Option<(f32, f32, f32)> {
-    let (r, u, f) = camera.basis();
-    let d = point - camera.position;
-    let (xv, yv, zv) = (d.dot(&r), d.dot(&u), d.dot(&f));
-    if !(NEAR..=FAR).contains(&zv) {
-        return None;
-    }
-    let (sx, sy) = projection_scale(cfg);
-    let (x_ndc, y_ndc) = (xv * sx / zv, yv * sy / zv);
+    let (px, py, zv) = camera.project(&cfg.intrinsics(), &point)?;
     let (w, h) = (cfg.width as f32, cfg.height as f32);
-    let px = (x_ndc + 1.0) * 0.5 * w;
-    let py = (1.0 - y_ndc) * 0.5 * h;
-    if px < 0.0 || px >= w || py < 0.0 || py >= h {
-        return None;
+    ((NEAR..=FAR).contains(&zv) && px >= 0.0 && px < w && py >= 0.0 && py < h).then_some((px, py, zv))
+}
+
+/// The view volume of a camera, for skipping parts that cannot appear in its image.
+#[derive(Clone, Copy, Debug)]
+pub struct Frustum {
+    eye: Vector3<f32>,
+    right: Vector3<f32>,
+    up: Vector3<f32>,
+    forward: Vector3<f32>,
+    /// Projection scales and 1/√(s² + 1), the length of the side planes' normals.
+    sx: f32,
+    sy: f32,
+    nx: f32,
+    ny: f32,
+}
+
+impl Frustum {
+    pub fn new(camera: &Camera, cfg: &RenderConfig) -> Frustum {
+        let (right, up, forward) = camera.basis();
+        let (sx, sy) = projection_scale(cfg);
+        Frustum {
+            eye: camera.position.coords,
+            right,
+            up,
+            forward,
+            sx,
+            sy,
+            nx: 1.0 / (sx * sx + 1.0).sqrt(),
+            ny: 1.0 / (sy * sy + 1.0).sqrt(),
+        }
     }
-    Some((px, py, zv))
+
+    /// Whether a sphere may show in the image. Conservative (a centimetre of slack on every
+    /// plane): it never drops a sphere the rasteriser would draw, so culling cannot change
+    /// a single pixel.
+    pub fn may_see_sphere(&self, center: [f32; 3], radius: f32) -> bool {
+        let d = Vector3::from(center) - self.eye;
+        let r = radius + 0.01;
+        let (x, y, z) = (d.dot(&self.right), d.dot(&self.up), d.dot(&self.forward));
+        z + r >= NEAR
+            && z - r <= FAR
+            && (x.abs() * self.sx - z) * self.nx <= r
+            && (y.abs() * self.sy - z) * self.ny <= r
+    }
 }
 
 /// Linear depth (metres) to the 16-bit value of the depth image: 0..10 m → 0..65535, clamped.
@@ -171,6 +169,41 @@ mod tests {
         let c = Camera { position: Point3::new(0.0, 1.5, 0.0), yaw_deg: 0.0, pitch_deg: 20.0 };
         let (_, py, _) = project(&c, &cfg(), Point3::new(0.0, 1.5, 2.0)).unwrap();
         assert!(py > 112.0);
+    }
+
+    #[test]
+    fn frustum_keeps_every_sphere_with_a_visible_point() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let c = RenderConfig { width: 160, height: 96, fov_deg: 75.0, max_views_per_submit: 1 };
+        let mut culled = 0;
+        for _ in 0..2000 {
+            let cam = Camera {
+                position: Point3::new(rng.random_range(-2.0..2.0), 1.5, rng.random_range(-2.0..2.0)),
+                yaw_deg: rng.random_range(0.0..360.0),
+                pitch_deg: rng.random_range(-30.0..30.0),
+            };
+            let f = Frustum::new(&cam, &c);
+            let center = [rng.random_range(-6.0..6.0), rng.random_range(-1.0..4.0), rng.random_range(-6.0..6.0)];
+            let radius = rng.random_range(0.01..1.0f32);
+            if f.may_see_sphere(center, radius) {
+                continue;
+            }
+            culled += 1;
+            for _ in 0..200 {
+                let v = Vector3::new(
+                    rng.random_range(-1.0..1.0f32),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                );
+                if v.norm() > 1.0 {
+                    continue;
+                }
+                let p = Point3::from(center) + v * radius;
+                assert!(project(&cam, &c, p).is_none(), "culled sphere {center:?} r {radius} has visible point {p:?}");
+            }
+        }
+        assert!(culled > 500, "{culled}");
     }
 
     #[test]

@@ -14,6 +14,14 @@ use crate::geometry::Shape;
 pub const SEGMENTS: u32 = 24;
 /// Latitude bands of the sphere.
 pub const SPHERE_RINGS: u32 = 12;
+/// Coarser tessellation for small round parts (legs, handles, fruit, hands): a few pixels
+/// across at the robot's distances, where 24 segments would only cost vertex work.
+pub const SMALL_SEGMENTS: u32 = 10;
+pub const SMALL_SPHERE_RINGS: u32 = 6;
+/// Round parts with a radius below this use the coarse meshes (metres).
+pub const SMALL_RADIUS: f32 = 0.08;
+/// Number of unit meshes: box, then fine cylinder, sphere, cone, then coarse ones.
+pub const MESH_COUNT: usize = 7;
 
 /// One vertex of a unit mesh: position and outward normal in the shape's own frame.
 #[repr(C)]
@@ -166,7 +174,11 @@ fn unit_sphere(segments: u32, rings: u32) -> Mesh {
             let centre = {
                 let v = |i: u16| m.vertices[i as usize].position;
                 let (pa, pb, pc, pd) = (v(a), v(b), v(c), v(d));
-                [(pa[0] + pb[0] + pc[0] + pd[0]) / 4.0, (pa[1] + pb[1] + pc[1] + pd[1]) / 4.0, (pa[2] + pb[2] + pc[2] + pd[2]) / 4.0]
+                [
+                    (pa[0] + pb[0] + pc[0] + pd[0]) / 4.0,
+                    (pa[1] + pb[1] + pc[1] + pd[1]) / 4.0,
+                    (pa[2] + pb[2] + pc[2] + pd[2]) / 4.0,
+                ]
             };
             // the bands touching a pole have one degenerate triangle each: skip it
             if r != 0 {
@@ -209,13 +221,21 @@ pub struct MeshRange {
     pub base_vertex: i32,
 }
 
-/// All four unit meshes concatenated, with each shape's range (indexed like `Shape::ALL`).
-pub fn all_unit_meshes() -> (Vec<Vertex>, Vec<u16>, [MeshRange; 4]) {
+/// All unit meshes concatenated, with each one's range (indexed by `mesh_index`).
+pub fn all_unit_meshes() -> (Vec<Vertex>, Vec<u16>, [MeshRange; MESH_COUNT]) {
     let mut vertices = Vec::new();
     let mut indices = Vec::new();
-    let mut ranges = [MeshRange::default(); 4];
-    for (i, shape) in Shape::ALL.into_iter().enumerate() {
-        let m = Mesh::unit(shape);
+    let mut ranges = [MeshRange::default(); MESH_COUNT];
+    let meshes = [
+        Mesh::unit(Shape::Box),
+        Mesh::unit(Shape::Cylinder),
+        Mesh::unit(Shape::Sphere),
+        Mesh::unit(Shape::Cone),
+        unit_cylinder(SMALL_SEGMENTS),
+        unit_sphere(SMALL_SEGMENTS, SMALL_SPHERE_RINGS),
+        unit_cone(SMALL_SEGMENTS),
+    ];
+    for (i, m) in meshes.iter().enumerate() {
         ranges[i] = MeshRange {
             first_index: indices.len() as u32,
             index_count: m.indices.len() as u32,
@@ -231,14 +251,16 @@ pub fn all_unit_meshes() -> (Vec<Vertex>, Vec<u16>, [MeshRange; 4]) {
     (vertices, indices, ranges)
 }
 
-/// Index of a shape in `Shape::ALL`.
-pub fn shape_index(shape: Shape) -> usize {
-    match shape {
-        Shape::Box => 0,
-        Shape::Cylinder => 1,
-        Shape::Sphere => 2,
-        Shape::Cone => 3,
-    }
+/// Which unit mesh draws a part: its shape, coarse for small round parts.
+pub fn mesh_index(part: &crate::geometry::Part) -> usize {
+    let h = part.half_extents;
+    let (fine, radius) = match part.shape {
+        Shape::Box => return 0,
+        Shape::Cylinder => (1, h.x.max(h.z)),
+        Shape::Sphere => (2, h.x.max(h.y).max(h.z)),
+        Shape::Cone => (3, h.x.max(h.z)),
+    };
+    if radius < SMALL_RADIUS { fine + 3 } else { fine }
 }
 
 #[cfg(test)]
@@ -296,6 +318,17 @@ mod tests {
                 assert!(dot(n, centroid) > 0.0, "{shape:?}: inward triangle");
             }
         }
+    }
+
+    #[test]
+    fn coarse_meshes_are_closed_too() {
+        assert_closed(&unit_cylinder(SMALL_SEGMENTS), "small cylinder");
+        assert_closed(&unit_sphere(SMALL_SEGMENTS, SMALL_SPHERE_RINGS), "small sphere");
+        assert_closed(&unit_cone(SMALL_SEGMENTS), "small cone");
+        let (v, i, r) = all_unit_meshes();
+        assert!(v.len() < u16::MAX as usize);
+        let last = r[MESH_COUNT - 1];
+        assert!((last.first_index + last.index_count) as usize <= i.len());
     }
 
     #[test]

@@ -4,71 +4,181 @@
 // Target 1 (R32Uint): depth16 << 16 | id, where depth16 = eye-space z in 0..10 m → 0..65535.
 // Packing both into one integer target keeps the GL backend happy (it cannot render R32Float)
 // and makes the readback one 4-byte word per pixel.
+//
+// Cost model: on a CPU rasteriser (lavapipe) every branch of a shader runs for every pixel
+// (masked), so the fragment stage is branch-free and tiny. Lighting, the material's look and
+// the display curve are evaluated per vertex; the fragment shader only adds the material's
+// pattern (one or two sines and an optional tile grid) and packs depth and id.
 
 struct ViewUniform {
     right: vec4<f32>,
     up: vec4<f32>,
     forward: vec4<f32>,
-    eye: vec4<f32>,
+    eye: vec4<f32>, // xyz eye, w = pixel height at 1 m depth (metres)
     proj: vec4<f32>, // sx, sy, A, B: clip z = A - B * z_view (reversed Z), w = z_view
 };
 
 @group(0) @binding(0) var<uniform> view: ViewUniform;
 
+// One part: model matrix columns (rotation × half extents) with the translation in w, the
+// linear colour, and id | material << 16. Scenes keep theirs in a static buffer; each view
+// draws the ones that survive frustum culling through an instance-rate index.
+struct Instance {
+    col0: vec4<f32>,
+    col1: vec4<f32>,
+    col2: vec4<f32>,
+    color: vec3<f32>,
+    tag: u32,
+};
+
+@group(1) @binding(0) var<storage, read> instances: array<Instance>;
+
 struct VertexIn {
     @location(0) position: vec3<f32>,
     @location(1) normal: vec3<f32>,
-    // model matrix columns (rotation × half extents), translation in w
-    @location(2) col0: vec4<f32>,
-    @location(3) col1: vec4<f32>,
-    @location(4) col2: vec4<f32>,
-    @location(5) color: vec3<f32>,
-    // id | material << 16
-    @location(6) tag: u32,
+    @location(2) instance: u32,
 };
 
 struct VertexOut {
     @builtin(position) clip: vec4<f32>,
-    @location(0) normal: vec3<f32>,
-    // position in the part's own frame, in metres, x along its longest side (patterns)
-    @location(1) local: vec3<f32>,
-    @location(2) world: vec3<f32>,
-    @location(3) @interpolate(flat) color: vec3<f32>,
+    // lit colour in display space, before the pattern
+    @location(0) color: vec3<f32>,
+    // (stripe phase, wobble phase, tile grid u, tile grid v): all linear in position
+    @location(1) pattern: vec4<f32>,
+    @location(2) z_view: f32,
+    // (stripe amplitude, wobble amplitude, pattern fade per metre of depth, grid darkening)
+    @location(3) @interpolate(flat) look: vec4<f32>,
     @location(4) @interpolate(flat) tag: u32,
 };
 
+const SUN_DIR: vec3<f32> = vec3<f32>(0.36, 0.80, -0.48);
+const SUN: vec3<f32> = vec3<f32>(0.55, 0.53, 0.50);
+const SKY: vec3<f32> = vec3<f32>(0.62, 0.64, 0.68);
+const GROUND: vec3<f32> = vec3<f32>(0.30, 0.28, 0.26);
+const TILE_PERIOD: f32 = 0.3;
+// grout half width in grid units (6 mm)
+const GROUT: f32 = 0.02;
+
+// How a material looks; indexed by geometry::Material.
+struct Look {
+    stripe: vec3<f32>,    // stripe frequency over the local position (x along the longest side)
+    wobble: vec3<f32>,    // frequency of the phase wobble
+    amp: vec2<f32>,       // stripe amplitude, wobble amplitude
+    grid: f32,            // tile grid darkening
+    sun: f32,             // scale of direct light
+    ambient: f32,         // scale of ambient light
+    emit: f32,            // share of the base colour that glows unlit
+    spec: f32,            // highlight strength
+    sky_mix: f32,         // reflection of the sky (glass)
+};
+
+fn look_of(material: u32) -> Look {
+    var l = Look(vec3<f32>(0.0), vec3<f32>(0.0), vec2<f32>(0.0), 0.0, 1.0, 1.0, 0.0, 0.0, 0.0);
+    switch material {
+        case 1u: { // wood: grain along the longest side, wavy
+            l.stripe = vec3<f32>(0.0, 60.0, 60.0);
+            l.wobble = vec3<f32>(4.0, 15.0, 0.0);
+            l.amp = vec2<f32>(0.08, 2.5);
+        }
+        case 2u: { // fabric: a coarse weave, soft light
+            l.stripe = vec3<f32>(120.0, 0.0, 0.0);
+            l.wobble = vec3<f32>(0.0, 120.0, 120.0);
+            l.amp = vec2<f32>(0.05, 1.5);
+            l.sun = 0.85;
+        }
+        case 3u: { // metal
+            l.spec = 0.5;
+            l.sun = 0.8;
+        }
+        case 4u: { // glass
+            l.sky_mix = 0.3;
+            l.spec = 0.7;
+        }
+        case 5u: { // tile: grout lines
+            l.grid = 0.3;
+            l.spec = 0.1;
+        }
+        case 6u: { // screen: dark, slightly glowing
+            l.sun = 0.4;
+            l.ambient = 0.4;
+            l.emit = 0.6;
+            l.spec = 0.25;
+        }
+        case 7u: { // paper: flat and bright
+            l.ambient = 1.08;
+        }
+        case 8u: { // skin: soft wrap-around light
+            l.sun = 0.75;
+            l.ambient = 1.1;
+        }
+        case 9u: { // emissive: unlit
+            l.sun = 0.0;
+            l.ambient = 0.0;
+            l.emit = 1.0;
+        }
+        default: {}
+    }
+    return l;
+}
+
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {
-    let a0 = v.col0.xyz;
-    let a1 = v.col1.xyz;
-    let a2 = v.col2.xyz;
-    let t = vec3<f32>(v.col0.w, v.col1.w, v.col2.w);
+    let inst = instances[v.instance];
+    let a0 = inst.col0.xyz;
+    let a1 = inst.col1.xyz;
+    let a2 = inst.col2.xyz;
+    let t = vec3<f32>(inst.col0.w, inst.col1.w, inst.col2.w);
     let world = a0 * v.position.x + a1 * v.position.y + a2 * v.position.z + t;
     // inverse transpose of (R·S) is R·S⁻¹: column i divided by its squared length
-    let l0 = dot(a0, a0);
-    let l1 = dot(a1, a1);
-    let l2 = dot(a2, a2);
-    let n = a0 * (v.normal.x / l0) + a1 * (v.normal.y / l1) + a2 * (v.normal.z / l2);
+    let l2 = vec3<f32>(dot(a0, a0), dot(a1, a1), dot(a2, a2));
+    let n = normalize(a0 * (v.normal.x / l2.x) + a1 * (v.normal.y / l2.y) + a2 * (v.normal.z / l2.z));
 
     let d = world - view.eye.xyz;
     let zv = dot(d, view.forward.xyz);
     var out: VertexOut;
     out.clip = vec4<f32>(dot(d, view.right.xyz) * view.proj.x, dot(d, view.up.xyz) * view.proj.y,
                          view.proj.z - zv * view.proj.w, zv);
-    out.normal = n;
-    // local position in metres, permuted so that x runs along the longest side (wood grain)
-    let h = sqrt(vec3<f32>(l0, l1, l2));
-    let p = v.position * h;
-    if h.y >= h.x && h.y >= h.z {
-        out.local = p.yxz;
-    } else if h.z >= h.x {
-        out.local = p.zyx;
-    } else {
-        out.local = p;
+    out.z_view = zv;
+
+    let material = inst.tag >> 16u;
+    let look = look_of(material);
+
+    // lighting: hemisphere ambient + sun + a Blinn highlight for shiny materials
+    let base = mix(inst.color, SKY, look.sky_mix);
+    let ambient = mix(GROUND, SKY, n.y * 0.5 + 0.5) * look.ambient;
+    let sun = SUN * (max(dot(n, SUN_DIR), 0.0) * look.sun);
+    let h = normalize(normalize(-d) + SUN_DIR);
+    let s = max(dot(n, h), 0.0);
+    let s4 = (s * s) * (s * s);
+    let highlight = look.spec * 0.5 * (s4 * s4) * (s4 * s4);
+    let lit = base * (ambient + sun) + inst.color * look.emit + vec3<f32>(highlight);
+    // linear → display (gamma 2.2, the sRGB curve within a few codes)
+    out.color = pow(clamp(lit, vec3<f32>(0.0), vec3<f32>(1.0)), vec3<f32>(1.0 / 2.2));
+
+    // pattern phases: in the part's frame (metres), permuted so x runs along its longest side
+    let he = sqrt(l2);
+    let p0 = v.position * he;
+    var p = p0;
+    if he.y >= he.x && he.y >= he.z {
+        p = p0.yxz;
+    } else if he.z >= he.x {
+        p = p0.zyx;
     }
-    out.world = world;
-    out.color = v.color;
-    out.tag = v.tag;
+    // tile grid in world metres on the two axes the face spans
+    let an = abs(n);
+    var g = world.xz;
+    if an.x > an.y && an.x > an.z {
+        g = world.zy;
+    } else if an.z > an.y {
+        g = world.xy;
+    }
+    out.pattern = vec4<f32>(dot(p, look.stripe), dot(p, look.wobble), g / TILE_PERIOD);
+    // Patterns finer than a few pixels alias into noise: fade them out with depth. Full
+    // strength while a stripe period spans 8+ pixels (grout: while a pixel is under 8 mm),
+    // gone by half that; `fade` is the slope of 2 − z·fade.
+    let stripe_per_metre = select(length(look.stripe) / 0.8, 1.0 / 0.008, look.grid > 0.0);
+    out.look = vec4<f32>(look.amp, stripe_per_metre * view.eye.w, look.grid);
+    out.tag = inst.tag;
     return out;
 }
 
@@ -77,99 +187,20 @@ struct FragmentOut {
     @location(1) info: u32,
 };
 
-const MATTE: u32 = 0u;
-const WOOD: u32 = 1u;
-const FABRIC: u32 = 2u;
-const METAL: u32 = 3u;
-const GLASS: u32 = 4u;
-const TILE: u32 = 5u;
-const SCREEN: u32 = 6u;
-const PAPER: u32 = 7u;
-const SKIN: u32 = 8u;
-const EMISSIVE: u32 = 9u;
-
-const SUN_DIR: vec3<f32> = vec3<f32>(0.36, 0.80, -0.48);
-const SUN: vec3<f32> = vec3<f32>(0.55, 0.53, 0.50);
-const SKY: vec3<f32> = vec3<f32>(0.62, 0.64, 0.68);
-const GROUND: vec3<f32> = vec3<f32>(0.30, 0.28, 0.26);
-
-// Darkens thin lines every `period` metres along the two axes a face spans.
-fn grid(p: vec3<f32>, n: vec3<f32>, period: f32, width: f32) -> f32 {
-    let f = abs(fract(p / period + 0.5) - 0.5) * period; // distance to the nearest line
-    let on_face = step(abs(n), vec3<f32>(0.7)); // ignore the axis the face looks along
-    let line = (1.0 - step(vec3<f32>(width), f)) * on_face;
-    return 1.0 - 0.35 * max(max(line.x, line.y), line.z);
+// A triangle wave with the period and range of sin(x), far cheaper per pixel.
+fn wave(x: f32) -> f32 {
+    return abs(fract(x * 0.15915494 + 0.25) - 0.5) * 4.0 - 1.0;
 }
 
 @fragment
 fn fs_main(in: VertexOut) -> FragmentOut {
-    let material = in.tag >> 16u;
-    let n = normalize(in.normal);
-    var base = in.color;
-    var sun = max(dot(n, SUN_DIR), 0.0);
-    var ambient = mix(GROUND, SKY, n.y * 0.5 + 0.5);
-    var emit = vec3<f32>(0.0);
-    var spec = 0.0;
-
-    switch material {
-        case WOOD: {
-            // grain along the part's longest side (local x), with a slow wobble
-            let p = in.local;
-            let g = sin((p.y + p.z) * 90.0 + sin(p.x * 4.0 + p.y * 20.0) * 3.0);
-            base = base * (0.9 + 0.1 * g);
-        }
-        case FABRIC: {
-            let p = in.local * 260.0;
-            let w = sin(p.x) * sin(p.y + p.z) + sin(p.z) * sin(p.y);
-            base = base * (0.93 + 0.05 * w);
-            sun = sun * 0.85;
-        }
-        case TILE: {
-            base = base * grid(in.world, n, 0.3, 0.006);
-            spec = 0.15;
-        }
-        case METAL: {
-            spec = 0.6;
-        }
-        case GLASS: {
-            base = mix(base, SKY, 0.3);
-            spec = 0.8;
-        }
-        case SCREEN: {
-            emit = base * 0.6;
-            base = base * 0.4;
-            spec = 0.3;
-        }
-        case PAPER: {
-            ambient = ambient * 1.08;
-        }
-        case SKIN: {
-            sun = sun * 0.7 + 0.15; // soft wrap-around light
-        }
-        case EMISSIVE: {
-            emit = base;
-            base = vec3<f32>(0.0);
-        }
-        default: {}
-    }
-
-    var lit = base * (ambient + SUN * sun) + emit;
-    if spec > 0.0 {
-        let to_eye = normalize(view.eye.xyz - in.world);
-        let h = normalize(to_eye + SUN_DIR);
-        let s = max(dot(n, h), 0.0);
-        let s2 = s * s;
-        let s4 = s2 * s2;
-        let s16 = s4 * s4 * s4 * s4;
-        lit = lit + vec3<f32>(spec * s16 * 0.5);
-    }
-    // linear → display (gamma 2.2, the sRGB curve within a few codes)
-    let display = pow(clamp(lit, vec3<f32>(0.0), vec3<f32>(1.0)), vec3<f32>(1.0 / 2.2));
-
-    let zv = dot(in.world - view.eye.xyz, view.forward.xyz);
-    let depth = u32(clamp(zv * 0.1, 0.0, 1.0) * 65535.0 + 0.5);
+    let fade = clamp(2.0 - in.z_view * in.look.z, 0.0, 1.0);
+    let stripe = 1.0 + in.look.x * fade * wave(in.pattern.x + in.look.y * wave(in.pattern.y));
+    let f = abs(fract(in.pattern.zw + 0.5) - 0.5);
+    let grout = 1.0 - select(0.0, in.look.w * fade, min(f.x, f.y) < GROUT);
+    let depth = u32(clamp(in.z_view * 0.1, 0.0, 1.0) * 65535.0 + 0.5);
     var out: FragmentOut;
-    out.color = vec4<f32>(display, 1.0);
+    out.color = vec4<f32>(in.color * (stripe * grout), 1.0);
     out.info = (depth << 16u) | (in.tag & 0xffffu);
     return out;
 }

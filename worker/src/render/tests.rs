@@ -39,12 +39,12 @@ impl Frame {
 
 fn render(r: &mut Renderer, views: &[View<'_>]) -> Vec<Frame> {
     let (w, h) = (r.config().width as usize, r.config().height as usize);
-    let mut frames: Vec<Frame> =
-        views.iter().map(|_| Frame { w, rgb: vec![7; w * h * 3], depth: vec![7; w * h], ids: vec![7; w * h] }).collect();
-    let mut outs: Vec<ViewOut> = frames
-        .iter_mut()
-        .map(|f| ViewOut { rgb: &mut f.rgb, depth: &mut f.depth, ids: Some(&mut f.ids) })
+    let mut frames: Vec<Frame> = views
+        .iter()
+        .map(|_| Frame { w, rgb: vec![7; w * h * 3], depth: vec![7; w * h], ids: vec![7; w * h] })
         .collect();
+    let mut outs: Vec<ViewOut> =
+        frames.iter_mut().map(|f| ViewOut { rgb: &mut f.rgb, depth: &mut f.depth, ids: Some(&mut f.ids) }).collect();
     r.render(views, &mut outs).unwrap();
     frames
 }
@@ -81,7 +81,10 @@ fn plus_x_is_on_the_right_and_yaw_90_looks_along_plus_x() {
     let ahead_x = r.upload_scene(&[red_box([3.0, 1.5, 0.0], 0.3, 9)]);
     let frames = render(
         &mut r,
-        &[View { scene: right, camera: eye(0.0), dynamic: &[] }, View { scene: ahead_x, camera: eye(90.0), dynamic: &[] }],
+        &[
+            View { scene: right, camera: eye(0.0), dynamic: &[] },
+            View { scene: ahead_x, camera: eye(90.0), dynamic: &[] },
+        ],
     );
     let f = &frames[0];
     let mut cols = (0..224 * 224).filter(|i| f.ids[*i] == 9).map(|i| i % 224);
@@ -147,6 +150,9 @@ fn a_batch_equals_the_same_views_one_by_one_and_repeats_exactly() {
     }
     let again = render(&mut r, &views);
     assert!(again == batch, "same input, different bytes");
+    r.set_frustum_culling(false);
+    assert!(render(&mut r, &views) == batch, "frustum culling changed the image");
+    r.set_frustum_culling(true);
     // the views are not trivially alike: they see different things
     assert!(batch[0] != batch[1]);
     assert!(batch.iter().all(|f| f.ids.iter().any(|&i| i >= crate::geometry::ID_FIRST_OBJECT)));
@@ -259,4 +265,10 @@ fn adapter_is_described() {
     let Some(r) = renderer(&cfg(16, 16, 1)) else { return };
     let s = r.adapter_info();
     assert!(s.contains("Vulkan") || s.contains("Gl"), "{s}");
+}
+
+#[test]
+fn a_renderer_can_move_to_another_thread() {
+    fn send<T: Send>() {}
+    send::<Renderer>();
 }

@@ -1,0 +1,174 @@
+//! Throughput figures of the learner (used by `learner bench` and the criterion bench): a policy
+//! forward for a batch of envs, and one PPO update on a stored rollout. Timings are measured,
+//! never asserted.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rand::Rng;
+use tch::{Device, nn};
+use worker::config::RunConfig;
+
+use crate::LearnerError;
+use crate::model::{Actions, Policy};
+use crate::obs::{EnvStep, GestureKind, OwnedObs};
+use crate::ppo::Trainer;
+
+/// The tiny CPU network of `configs/tiny/both.toml`: 64×64, small CNN, hidden 256, 1-layer GRU.
+pub fn tiny_config() -> RunConfig {
+    RunConfig::from_toml(
+        "[run]\nmethod = \"both\"\n[env]\nwidth = 64\nheight = 64\n\
+         [model]\nencoder = \"small_cnn\"\nhidden = 256\ngru_layers = 1\n",
+        "bench-tiny",
+    )
+    .expect("valid")
+}
+
+/// The dissertation's network (224², frozen ResNet-18, hidden 512, 2-layer GRU), with the given
+/// ResNet weights file.
+pub fn faithful_config(weights: &Path) -> RunConfig {
+    let mut c = RunConfig::from_toml("[run]\nmethod = \"both\"\n", "bench-faithful").expect("valid");
+    c.model.resnet_weights = Some(weights.to_path_buf());
+    c
+}
+
+/// Writes a randomly initialised torchvision-named ResNet-18 (timing does not depend on the
+/// values; ImageNet weights are the user's to supply).
+pub fn random_resnet_weights(dir: &Path) -> Result<PathBuf, LearnerError> {
+    let vs = nn::VarStore::new(Device::Cpu);
+    let _net = crate::resnet::Resnet18::new(&vs.root());
+    let path = dir.join("resnet18-random.safetensors");
+    vs.save(&path).map_err(|e| crate::model::ModelError::Config(format!("{}: {e}", path.display())))?;
+    Ok(path)
+}
+
+/// A random observation batch for `n` envs.
+pub fn random_obs(n: usize, side: usize, seed: u64) -> OwnedObs {
+    let mut rng = worker::util::rng(seed, &[]);
+    let mut o = OwnedObs::new(n, side, side);
+    o.rgb.iter_mut().for_each(|v| *v = rng.random());
+    o.depth.iter_mut().for_each(|v| *v = rng.random());
+    o.gesture.iter_mut().for_each(|v| *v = half::f16::from_f32(rng.random::<f32>() - 0.5));
+    for (i, e) in o.envs.iter_mut().enumerate() {
+        *e = EnvStep {
+            episode_start: true,
+            gesture: GestureKind::Referencing,
+            target: (i as i64 * 5) % crate::model::target_count(),
+            ..Default::default()
+        };
+    }
+    o
+}
+
+/// One measured figure.
+#[derive(Clone, Debug)]
+pub struct Figure {
+    pub name: String,
+    /// Median milliseconds per repetition.
+    pub ms: f64,
+    pub reps: usize,
+}
+
+impl std::fmt::Display for Figure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:<58} {:>10.2} ms  (median of {})", self.name, self.ms, self.reps)
+    }
+}
+
+fn median_ms(mut f: impl FnMut(), reps: usize) -> f64 {
+    f(); // warm-up
+    let mut t: Vec<f64> = (0..reps)
+        .map(|_| {
+            let s = Instant::now();
+            f();
+            s.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+/// Acting on one step of `batch` envs: frames in, actions out (the frozen trunk included).
+pub fn forward(name: &str, cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> Result<Figure, LearnerError> {
+    let mut p = Policy::new(cfg, batch, device)?;
+    let o = random_obs(batch, cfg.env.width as usize, 1);
+    let mut err = None;
+    let ms = median_ms(
+        || {
+            if let Err(e) = p.act(&o.batch()) {
+                err = Some(e);
+            }
+        },
+        reps,
+    );
+    if let Some(e) = err {
+        return Err(e.into());
+    }
+    Ok(Figure { name: format!("{name}: act, batch {batch}"), ms, reps })
+}
+
+/// Fills a trainer's rollout with `rollout × envs` steps of stored inputs (the same frames at
+/// every step: acting is not what is measured), episodes of about 30 steps.
+pub fn fill_rollout(t: &mut Trainer, seed: u64) -> Result<(), LearnerError> {
+    let n = t.rollout.envs;
+    let o = random_obs(n, t.cfg.env.width as usize, seed);
+    let (x, _) = t.policy.prepare(&o.batch())?;
+    let mut rng = worker::util::rng(seed, &[1]);
+    t.rollout.begin(t.policy.hidden());
+    for _ in 0..t.rollout.steps {
+        let starts: Vec<bool> = (0..n).map(|_| rng.random::<f32>() < 1.0 / 30.0).collect();
+        let acted = Actions {
+            actions: (0..n).map(|_| rng.random_range(0..4)).collect(),
+            log_probs: vec![(0.25f32).ln(); n],
+            values: (0..n).map(|_| rng.random::<f32>() - 0.5).collect(),
+        };
+        t.rollout.push(&x, &starts, &acted, &vec![true; n]);
+    }
+    for (i, r) in t.rollout.rewards.iter_mut().enumerate() {
+        *r = if i % 37 == 0 { 1.0 } else { -0.001 };
+    }
+    let steps = t.rollout.steps;
+    for i in 0..(steps - 1) * n {
+        t.rollout.ends[i] = t.rollout.starts[i + n];
+    }
+    Ok(())
+}
+
+/// One PPO update (4 epochs) on `rollout × envs` stored samples.
+pub fn update(name: &str, cfg: &RunConfig, envs: usize, device: Device, reps: usize) -> Result<Figure, LearnerError> {
+    let mut t = Trainer::new(cfg, envs, device)?;
+    fill_rollout(&mut t, 3)?;
+    let bootstrap = vec![0.0f32; envs];
+    let ms = median_ms(
+        || {
+            t.update(&bootstrap);
+            if device.is_cuda() {
+                tch::Cuda::synchronize(0);
+            }
+        },
+        reps,
+    );
+    let samples = t.rollout.steps * envs;
+    Ok(Figure {
+        name: format!("{name}: PPO update ({} epochs, {} minibatch), {samples} samples", t.hp.epochs, t.hp.minibatches),
+        ms,
+        reps,
+    })
+}
+
+/// Size in MiB of a rollout's stored inputs (what stays on the device).
+pub fn rollout_mib(t: &Trainer) -> f64 {
+    t.rollout
+        .inputs()
+        .map(|x| {
+            x.fields().iter().filter_map(|(_, v)| *v).map(|v| v.numel() * v.kind().elt_size_in_bytes()).sum::<usize>()
+        })
+        .unwrap_or(0) as f64
+        / (1024.0 * 1024.0)
+}
+
+/// One PPO update on whatever the trainer's rollout holds (for benches).
+pub fn update_once(t: &mut Trainer) -> crate::metrics::UpdateMetrics {
+    let bootstrap = vec![0.0f32; t.rollout.envs];
+    t.update(&bootstrap)
+}

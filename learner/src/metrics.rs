@@ -1,0 +1,243 @@
+//! Training metrics: one JSON line per PPO update (`metrics.jsonl`) and a PNG of the curves
+//! (`curves.png`), both in the run directory.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+use serde::{Deserialize, Serialize};
+
+
+/// What one PPO update reports.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct UpdateMetrics {
+    /// Updates done, this one included.
+    pub update: u64,
+    /// Environment frames in the rollouts learned from so far (drives the lr schedule).
+    pub frames: u64,
+    /// Frames per second since the previous update (acting and learning).
+    pub fps: f64,
+    /// Learning rate of this update.
+    pub lr: f64,
+    pub policy_loss: f64,
+    pub value_loss: f64,
+    pub entropy: f64,
+    pub approx_kl: f64,
+    pub clip_fraction: f64,
+    pub explained_variance: f64,
+    /// Mean global gradient norm before clipping.
+    pub grad_norm: f64,
+    /// Episodes that ended during this rollout, and their means.
+    pub episodes: u64,
+    pub episode_return: Option<f64>,
+    pub episode_length: Option<f64>,
+    pub success_rate: Option<f64>,
+    pub spl: Option<f64>,
+    /// Fraction of the rollout's steps learned from (the rest: final observations, lost messages).
+    pub valid_fraction: f64,
+    /// Truncations bootstrapped from the final observation, and those that could not be.
+    pub bootstrapped: u64,
+    pub truncated_without_final: u64,
+    pub lost_messages: u64,
+    /// Optimizer steps skipped because the gradient was not finite.
+    #[serde(default)]
+    pub skipped_steps: u64,
+    /// Seconds spent in the PPO epochs.
+    pub update_seconds: f64,
+}
+
+/// Episodes finished between two updates.
+#[derive(Clone, Debug, Default)]
+pub struct EpisodeStats {
+    pub count: u64,
+    sum_return: f64,
+    sum_length: f64,
+    successes: u64,
+    sum_spl: f64,
+}
+
+impl EpisodeStats {
+    pub fn add(&mut self, ret: f64, length: u32, success: bool, spl: f32) {
+        self.count += 1;
+        self.sum_return += ret;
+        self.sum_length += length as f64;
+        self.successes += success as u64;
+        self.sum_spl += if success { spl as f64 } else { 0.0 };
+    }
+
+    fn mean(&self, sum: f64) -> Option<f64> {
+        (self.count > 0).then(|| sum / self.count as f64)
+    }
+
+    pub fn success_rate(&self) -> Option<f64> {
+        self.mean(self.successes as f64)
+    }
+
+    /// Writes the means into `m` and starts over.
+    pub fn drain_into(&mut self, m: &mut UpdateMetrics) {
+        m.episodes = self.count;
+        m.episode_return = self.mean(self.sum_return);
+        m.episode_length = self.mean(self.sum_length);
+        m.success_rate = self.success_rate();
+        m.spl = self.mean(self.sum_spl);
+        *self = EpisodeStats::default();
+    }
+}
+
+/// `metrics.jsonl` of a run directory, appended one line per update.
+#[derive(Debug)]
+pub struct MetricsLog {
+    pub jsonl: PathBuf,
+    pub png: PathBuf,
+    pub rows: Vec<UpdateMetrics>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum MetricsError {
+    #[error("{file}: {message}")]
+    File { file: String, message: String },
+    #[error("plotting {file}: {message}")]
+    Plot { file: String, message: String },
+}
+
+impl MetricsLog {
+    /// Opens `dir/metrics.jsonl`, reading the rows already there (a resumed run appends).
+    pub fn open(dir: &Path) -> Result<MetricsLog, MetricsError> {
+        let jsonl = dir.join("metrics.jsonl");
+        let png = dir.join("curves.png");
+        let mut rows = Vec::new();
+        if let Ok(text) = std::fs::read_to_string(&jsonl) {
+            for (i, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+                let row = serde_json::from_str(line).map_err(|e| MetricsError::File {
+                    file: jsonl.display().to_string(),
+                    message: format!("line {}: {e}", i + 1),
+                })?;
+                rows.push(row);
+            }
+        }
+        Ok(MetricsLog { jsonl, png, rows })
+    }
+
+    pub fn append(&mut self, m: &UpdateMetrics) -> Result<(), MetricsError> {
+        let err =
+            |e: std::io::Error| MetricsError::File { file: self.jsonl.display().to_string(), message: e.to_string() };
+        if let Some(dir) = self.jsonl.parent() {
+            std::fs::create_dir_all(dir).map_err(err)?;
+        }
+        let mut f = std::fs::OpenOptions::new().create(true).append(true).open(&self.jsonl).map_err(err)?;
+        let line = serde_json::to_string(m).expect("metrics serialise");
+        writeln!(f, "{line}").map_err(err)?;
+        self.rows.push(m.clone());
+        Ok(())
+    }
+
+    /// Redraws `curves.png`.
+    pub fn plot(&self) -> Result<(), MetricsError> {
+        plot_curves(&self.rows, &self.png)
+    }
+}
+
+fn register_font() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, worker::util::FONT_TTF);
+    });
+}
+
+type Series = (&'static str, fn(&UpdateMetrics) -> Option<f64>);
+
+const PANELS: [Series; 8] = [
+    ("success rate", |m| m.success_rate),
+    ("SPL", |m| m.spl),
+    ("episode return", |m| m.episode_return),
+    ("frames / s", |m| Some(m.fps)),
+    ("policy loss", |m| Some(m.policy_loss)),
+    ("value loss", |m| Some(m.value_loss)),
+    ("entropy", |m| Some(m.entropy)),
+    ("approx KL", |m| Some(m.approx_kl)),
+];
+
+/// Eight panels against frames, written atomically as PNG.
+pub fn plot_curves(rows: &[UpdateMetrics], path: &Path) -> Result<(), MetricsError> {
+    register_font();
+    let (w, h) = (1600u32, 800u32);
+    let mut buf = vec![0u8; (w * h * 3) as usize];
+    let perr = |e: String| MetricsError::Plot { file: path.display().to_string(), message: e };
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| perr(e.to_string()))?;
+        let x_max = rows.iter().map(|r| r.frames).max().unwrap_or(1).max(1) as f64;
+        for (area, (title, get)) in root.split_evenly((2, 4)).iter().zip(PANELS) {
+            let pts: Vec<(f64, f64)> =
+                rows.iter().filter_map(|r| get(r).filter(|v| v.is_finite()).map(|v| (r.frames as f64, v))).collect();
+            let (lo, hi) = pts.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p.1), b.max(p.1)));
+            let (lo, hi) = if pts.is_empty() {
+                (0.0, 1.0)
+            } else if hi - lo < 1e-9 {
+                (lo - 0.5, hi + 0.5)
+            } else {
+                (lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
+            };
+            let mut chart = ChartBuilder::on(area)
+                .caption(title, ("sans-serif", 20))
+                .margin(8)
+                .x_label_area_size(28)
+                .y_label_area_size(56)
+                .build_cartesian_2d(0.0..x_max, lo..hi)
+                .map_err(|e| perr(e.to_string()))?;
+            chart
+                .configure_mesh()
+                .x_labels(4)
+                .y_labels(5)
+                .x_label_formatter(&|x| format_frames(*x))
+                .label_style(("sans-serif", 12))
+                .draw()
+                .map_err(|e| perr(e.to_string()))?;
+            chart.draw_series(LineSeries::new(pts, &BLUE)).map_err(|e| perr(e.to_string()))?;
+        }
+        root.present().map_err(|e| perr(e.to_string()))?;
+    }
+    let img = image::RgbImage::from_raw(w, h, buf).ok_or_else(|| perr("bad buffer".into()))?;
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| perr(e.to_string()))?;
+    worker::util::write_atomic(path, &png).map_err(|e| perr(e.to_string()))
+}
+
+fn format_frames(x: f64) -> String {
+    if x >= 1e6 {
+        format!("{:.1}M", x / 1e6)
+    } else if x >= 1e3 {
+        format!("{:.0}k", x / 1e3)
+    } else {
+        format!("{x:.0}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jsonl_round_trips_and_curves_are_drawn() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut log = MetricsLog::open(dir.path()).unwrap();
+        for u in 1..=5u64 {
+            let mut m = UpdateMetrics { update: u, frames: u * 1280, fps: 100.0, lr: 3e-4, ..Default::default() };
+            let mut ep = EpisodeStats::default();
+            if u > 1 {
+                ep.add(1.0, 20, true, 0.5);
+                ep.add(-0.1, 100, false, 0.0);
+            }
+            ep.drain_into(&mut m);
+            log.append(&m).unwrap();
+        }
+        let again = MetricsLog::open(dir.path()).unwrap();
+        assert_eq!(again.rows, log.rows);
+        assert_eq!(again.rows[0].success_rate, None);
+        assert_eq!(again.rows[1].success_rate, Some(0.5));
+        assert_eq!(again.rows[1].spl, Some(0.25));
+        again.plot().unwrap();
+        let png = image::open(&again.png).unwrap();
+        assert_eq!((png.width(), png.height()), (1600, 800));
+    }
+}

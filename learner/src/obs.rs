@@ -1,0 +1,346 @@
+//! What the learner reads from the environments at one step: the observation batch.
+//!
+//! One message per step for N environments. Frames and gestures are read *in place* from the
+//! buffers the caller hands over (shared memory, in the farm): a [`FrameView`] per group of
+//! environments (one worker's sample), turned into tensors with `from_blob` and copied once,
+//! straight into the rollout storage or onto the GPU. The small per-environment fields come as a
+//! slice of [`EnvStep`] in environment order.
+//!
+//! ## The step protocol (Gymnasium's terminated vs truncated, next-step autoreset)
+//! The message at step t carries, for each env, the *feedback* of the action sent at t−1
+//! (`reward`, `terminated`, `truncated`) and the observation o_t on which the next action is taken.
+//! - `terminated`: the episode ended by itself (success, stop limit). No bootstrap. The worker
+//!   has already reset: o_t is the first observation of a new episode (`episode_start`).
+//! - `truncated` (the 100-step limit): the worker does NOT reset yet. o_t is the *final*
+//!   observation of the cut episode (`episode_start` false). The learner bootstraps from V(o_t)
+//!   (adds γ·V(o_t) to the reward of t−1) and marks step t as not learnable; the worker ignores
+//!   the action it gets for o_t, resets, and sends the new episode's first observation with
+//!   `episode_start` and reward 0. This is Gymnasium's "next-step" autoreset, for truncations.
+//!   If both flags are set, `terminated` wins (the worker resets at once).
+//! - `lost`: the env's message was lost (its worker crashed or restarted). The feedback of t−1 is
+//!   unknown: t−1 and t are kept out of the loss, and the env's memory is reset at the next step.
+
+use half::f16;
+use tch::{Device, Kind, Tensor};
+
+/// Gesture clip length (frames) and width (Unity muscles), §4.3.3.
+pub const GESTURE_FRAMES: usize = 100;
+pub const GESTURE_FEATURES: usize = 95;
+
+/// Which gesture the robot sees now; `None` zeroes the gesture input.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[repr(u8)]
+pub enum GestureKind {
+    #[default]
+    None = 0,
+    Referencing = 1,
+    Intervention = 2,
+}
+
+impl GestureKind {
+    pub fn from_u8(v: u8) -> Option<GestureKind> {
+        match v {
+            0 => Some(GestureKind::None),
+            1 => Some(GestureKind::Referencing),
+            2 => Some(GestureKind::Intervention),
+            _ => None,
+        }
+    }
+}
+
+/// The small per-environment fields of one step message.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EnvStep {
+    /// Reward of the previous action (§4.3.2).
+    pub reward: f32,
+    /// The previous action ended the episode by itself (no bootstrap).
+    pub terminated: bool,
+    /// The previous action hit the step limit; the observation is the episode's final one.
+    pub truncated: bool,
+    /// The observation is the first of a new episode (the recurrent state is reset).
+    pub episode_start: bool,
+    /// The message of this env was lost (worker crash/restart); its fields are not read.
+    pub lost: bool,
+    /// Gesture shown with this observation.
+    pub gesture: GestureKind,
+    /// Target category, index into `worker::scene::Category::targets()`.
+    pub target: i64,
+    /// The person relative to the robot: dx, dz (metres, robot frame), yaw/360.
+    pub person_pose: [f32; 3],
+    /// Outcome of an episode that ended with the previous action (read when it ended).
+    pub success: bool,
+    pub spl: f32,
+}
+
+impl EnvStep {
+    /// The observation is the final one of an episode cut by the step limit: the learner
+    /// bootstraps from its value, and the env ignores the action taken on it (then resets).
+    pub fn is_final_observation(&self) -> bool {
+        self.truncated && !self.terminated && !self.episode_start && !self.lost
+    }
+}
+
+/// Gesture clips of a group of envs, `[E, 100, 95]`, as half or single floats.
+#[derive(Clone, Copy, Debug)]
+pub enum GestureView<'a> {
+    F16(&'a [f16]),
+    F32(&'a [f32]),
+}
+
+impl GestureView<'_> {
+    fn len(&self) -> usize {
+        match self {
+            GestureView::F16(s) => s.len(),
+            GestureView::F32(s) => s.len(),
+        }
+    }
+}
+
+/// Frames of a group of consecutive envs, read in place.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameView<'a> {
+    /// Number of envs in this group.
+    pub envs: usize,
+    /// RGB, `[E, H, W, 3]` u8.
+    pub rgb: &'a [u8],
+    /// Linear depth, `[E, H, W]` u16 (0..10 m → 0..65535).
+    pub depth: &'a [u16],
+    pub gesture: GestureView<'a>,
+}
+
+/// One step message for all N envs.
+#[derive(Clone, Debug)]
+pub struct ObsBatch<'a> {
+    pub height: usize,
+    pub width: usize,
+    /// Frame groups in env order; their `envs` sum to N.
+    pub frames: Vec<FrameView<'a>>,
+    /// Per env, length N.
+    pub envs: &'a [EnvStep],
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ObsError {
+    #[error("observation batch: {0}")]
+    Shape(String),
+    #[error("observation batch: env {env}: target category {target} is not in 0..{count}")]
+    Target { env: usize, target: i64, count: i64 },
+}
+
+impl ObsBatch<'_> {
+    pub fn n(&self) -> usize {
+        self.envs.len()
+    }
+
+    /// Checks every buffer against N, H and W, so that tensor views are never out of bounds.
+    pub fn validate(&self, expect_envs: usize, expect_hw: (usize, usize)) -> Result<(), ObsError> {
+        let n = self.n();
+        if n != expect_envs {
+            return Err(ObsError::Shape(format!("{n} envs, the policy was made for {expect_envs}")));
+        }
+        if (self.height, self.width) != expect_hw {
+            return Err(ObsError::Shape(format!(
+                "frames are {}x{}, the config says {}x{}",
+                self.width, self.height, expect_hw.1, expect_hw.0
+            )));
+        }
+        let total: usize = self.frames.iter().map(|f| f.envs).sum();
+        if total != n {
+            return Err(ObsError::Shape(format!("frame groups hold {total} envs, the batch has {n}")));
+        }
+        let px = self.height * self.width;
+        for (i, f) in self.frames.iter().enumerate() {
+            let checks = [
+                ("rgb", f.rgb.len(), f.envs * px * 3),
+                ("depth", f.depth.len(), f.envs * px),
+                ("gesture", f.gesture.len(), f.envs * GESTURE_FRAMES * GESTURE_FEATURES),
+            ];
+            for (what, got, want) in checks {
+                if got != want {
+                    return Err(ObsError::Shape(format!(
+                        "frame group {i}: {what} has {got} values, {} envs need {want}",
+                        f.envs
+                    )));
+                }
+            }
+        }
+        let count = crate::model::target_count();
+        for (env, e) in self.envs.iter().enumerate() {
+            if !e.lost && !(0..count).contains(&e.target) {
+                return Err(ObsError::Target { env, target: e.target, count });
+            }
+        }
+        Ok(())
+    }
+
+    /// RGB as one u8 tensor `[N, H, W, 3]` on `device` (see `gather` for when it is a copy).
+    pub(crate) fn rgb_tensor(&self, device: Device) -> Tensor {
+        // (may alias the batch's buffer, see `gather`)
+        let (h, w) = (self.height as i64, self.width as i64);
+        self.gather(device, |f| {
+            // SAFETY: `validate` checked the slice holds E*H*W*3 bytes; the tensor lives no longer
+            // than the batch's buffers (`Prepared<'a>`), or is copied (`to_device`, `cat`).
+            unsafe { Tensor::from_blob(f.rgb.as_ptr(), &[f.envs as i64, h, w, 3], &[], Kind::Uint8, Device::Cpu) }
+        })
+    }
+
+    /// Depth as raw 16-bit patterns in an Int16 tensor `[N, H, W]` (torch has no u16; the model
+    /// reinterprets the bits).
+    pub(crate) fn depth_tensor(&self, device: Device) -> Tensor {
+        let (h, w) = (self.height as i64, self.width as i64);
+        self.gather(device, |f| unsafe {
+            // SAFETY: as for rgb; u16 and i16 have the same size and alignment.
+            Tensor::from_blob(f.depth.as_ptr() as *const u8, &[f.envs as i64, h, w], &[], Kind::Int16, Device::Cpu)
+        })
+    }
+
+    /// Gestures `[N, 100, 95]` in half precision on `device`.
+    pub(crate) fn gesture_tensor(&self, device: Device) -> Tensor {
+        let shape = |e: usize| [e as i64, GESTURE_FRAMES as i64, GESTURE_FEATURES as i64];
+        let t = self.gather(device, |f| match f.gesture {
+            // SAFETY: as for rgb.
+            GestureView::F16(s) => unsafe {
+                Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Half, Device::Cpu)
+            },
+            GestureView::F32(s) => {
+                unsafe { Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Float, Device::Cpu) }
+                    .to_kind(Kind::Half)
+            }
+        });
+        t.to_kind(Kind::Half)
+    }
+
+    /// Per-env gesture mask (1 where a gesture is shown), `[N]` f32.
+    pub(crate) fn gesture_mask(&self, device: Device) -> Tensor {
+        let m: Vec<f32> =
+            self.envs.iter().map(|e| if e.gesture == GestureKind::None || e.lost { 0.0 } else { 1.0 }).collect();
+        Tensor::from_slice(&m).to_device(device)
+    }
+
+    pub(crate) fn target_tensor(&self, device: Device) -> Tensor {
+        let t: Vec<i64> = self.envs.iter().map(|e| if e.lost { 0 } else { e.target }).collect();
+        Tensor::from_slice(&t).to_device(device)
+    }
+
+    pub(crate) fn pose_tensor(&self, device: Device) -> Tensor {
+        let p: Vec<f32> = self.envs.iter().flat_map(|e| e.person_pose).collect();
+        Tensor::from_slice(&p).view([self.n() as i64, 3]).to_device(device)
+    }
+
+    /// One tensor for all groups: on the GPU a copy; on the CPU with one group, the caller's
+    /// buffer itself (no host copy) — hence [`crate::model::Prepared`] carries the batch's
+    /// lifetime.
+    fn gather(&self, device: Device, view: impl Fn(&FrameView) -> Tensor) -> Tensor {
+        let mut parts: Vec<Tensor> =
+            self.frames.iter().filter(|f| f.envs > 0).map(|f| view(f).to_device(device)).collect();
+        if parts.len() == 1 { parts.pop().unwrap() } else { Tensor::cat(&parts, 0) }
+    }
+}
+
+/// An observation batch that owns its buffers: for tests, the synthetic smoke task and benches.
+#[derive(Clone, Debug)]
+pub struct OwnedObs {
+    pub height: usize,
+    pub width: usize,
+    pub rgb: Vec<u8>,
+    pub depth: Vec<u16>,
+    pub gesture: Vec<f16>,
+    pub envs: Vec<EnvStep>,
+}
+
+impl OwnedObs {
+    /// All-zero frames and gestures for `n` envs, every env starting an episode.
+    pub fn new(n: usize, height: usize, width: usize) -> OwnedObs {
+        OwnedObs {
+            height,
+            width,
+            rgb: vec![0; n * height * width * 3],
+            depth: vec![0; n * height * width],
+            gesture: vec![f16::ZERO; n * GESTURE_FRAMES * GESTURE_FEATURES],
+            envs: vec![EnvStep { episode_start: true, ..Default::default() }; n],
+        }
+    }
+
+    pub fn n(&self) -> usize {
+        self.envs.len()
+    }
+
+    /// The batch, as one frame group.
+    pub fn batch(&self) -> ObsBatch<'_> {
+        ObsBatch {
+            height: self.height,
+            width: self.width,
+            frames: vec![FrameView {
+                envs: self.n(),
+                rgb: &self.rgb,
+                depth: &self.depth,
+                gesture: GestureView::F16(&self.gesture),
+            }],
+            envs: &self.envs,
+        }
+    }
+
+    /// The batch split into groups of `per_group` envs, as workers would send it.
+    pub fn batch_grouped(&self, per_group: usize) -> ObsBatch<'_> {
+        let px = self.height * self.width;
+        let g = GESTURE_FRAMES * GESTURE_FEATURES;
+        let mut frames = Vec::new();
+        let mut start = 0;
+        while start < self.n() {
+            let e = per_group.min(self.n() - start);
+            frames.push(FrameView {
+                envs: e,
+                rgb: &self.rgb[start * px * 3..(start + e) * px * 3],
+                depth: &self.depth[start * px..(start + e) * px],
+                gesture: GestureView::F16(&self.gesture[start * g..(start + e) * g]),
+            });
+            start += e;
+        }
+        ObsBatch { height: self.height, width: self.width, frames, envs: &self.envs }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn groups_gather_to_the_same_tensors_and_depth_bits_survive() {
+        let mut o = OwnedObs::new(5, 4, 6);
+        for (i, v) in o.rgb.iter_mut().enumerate() {
+            *v = (i % 251) as u8;
+        }
+        for (i, v) in o.depth.iter_mut().enumerate() {
+            *v = (i as u16).wrapping_mul(1031).wrapping_add(40000);
+        }
+        for (i, v) in o.gesture.iter_mut().enumerate() {
+            *v = f16::from_f32((i % 7) as f32 * 0.25);
+        }
+        let one = o.batch();
+        let many = o.batch_grouped(2);
+        one.validate(5, (4, 6)).unwrap();
+        many.validate(5, (4, 6)).unwrap();
+        assert!(one.rgb_tensor(Device::Cpu).equal(&many.rgb_tensor(Device::Cpu)));
+        assert!(one.gesture_tensor(Device::Cpu).equal(&many.gesture_tensor(Device::Cpu)));
+        let d = many.depth_tensor(Device::Cpu);
+        assert_eq!(d.size(), vec![5, 4, 6]);
+        // u16 patterns come back from the Int16 view
+        let back = crate::model::depth_unit(&d).view([-1]);
+        let got = back.double_value(&[7]);
+        assert!((got - o.depth[7] as f64 / 65535.0).abs() < 1e-6, "{got}");
+    }
+
+    #[test]
+    fn bad_sizes_and_targets_are_named() {
+        let mut o = OwnedObs::new(2, 4, 4);
+        o.rgb.pop();
+        let err = o.batch().validate(2, (4, 4)).unwrap_err().to_string();
+        assert!(err.contains("rgb"), "{err}");
+        let mut o = OwnedObs::new(2, 4, 4);
+        o.envs[1].target = 99;
+        let err = o.batch().validate(2, (4, 4)).unwrap_err().to_string();
+        assert!(err.contains("env 1") && err.contains("99"), "{err}");
+        let err = OwnedObs::new(3, 4, 4).batch().validate(2, (4, 4)).unwrap_err().to_string();
+        assert!(err.contains("3 envs"), "{err}");
+    }
+}

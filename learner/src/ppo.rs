@@ -1,0 +1,498 @@
+//! PPO (§4.3.1–§4.3.2, Algorithm 1, T4.1), readable top to bottom in the order it happens:
+//!
+//! 1. **collect** — every step message: record the feedback of the previous action, act, store
+//!    ([`Trainer::step`]);
+//! 2. **bootstrap** — when T steps are stored, the value of the next observation;
+//! 3. **GAE** — advantages and returns ([`gae`]);
+//! 4. **learn** — for each epoch, for each minibatch of whole envs (the GRU is re-run over their
+//!    full sequences from the stored initial memory): probability ratio, clipped policy loss,
+//!    value loss, entropy bonus, Adam step with the gradient norm clipped ([`Trainer::update`]).
+//!
+//! The learning rate decays linearly from 3e-4 to 0 over the run's frames (§4.3.2).
+
+use std::time::Instant;
+
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use tch::{Device, Kind, Tensor};
+use worker::config::RunConfig;
+
+use crate::LearnerError;
+use crate::metrics::{EpisodeStats, UpdateMetrics};
+use crate::model::{ActMode, Actions, Policy};
+use crate::obs::{EnvStep, ObsBatch};
+use crate::optim::Adam;
+use crate::rollout::{FeedbackCounts, Rollout, as_f32, flags};
+
+/// The hyperparameters, all in one place.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Hyper {
+    /// Steps per env per rollout (T4.1: rollout length 128).
+    pub rollout: usize,
+    /// Passes over each rollout (T4.1: update repeats 4).
+    pub epochs: usize,
+    /// Minibatches per epoch; each is a set of whole envs so the GRU sees full sequences.
+    pub minibatches: usize,
+    /// Adam learning rate at the start (T4.1: 0.0003) ...
+    pub lr: f64,
+    /// ... decayed linearly to 0 over this many frames (§4.3.2; §4.4.1 trains 5 million).
+    pub total_frames: u64,
+    /// Clipping parameter ε of Eq. 4.2 (T4.1: 0.2).
+    pub clip: f64,
+    /// Discount factor γ (T4.1: 0.99).
+    pub gamma: f64,
+    /// GAE parameter λ of Eq. 4.3 (T4.1: 0.99).
+    pub gae_lambda: f64,
+    /// Maximum gradient norm (§4.3.2: 0.5).
+    pub max_grad_norm: f64,
+    /// Weight of the value loss (not given in the dissertation; the usual 0.5).
+    pub value_coef: f64,
+    /// Weight of the entropy bonus (not given in the dissertation; 0.01).
+    pub entropy_coef: f64,
+    /// Clip the value loss around the old values with ε (as CleanRL's `clip_vloss`).
+    pub clip_value_loss: bool,
+    /// Adam's ε (1e-5, the usual choice for PPO; torch's default is 1e-8).
+    pub adam_eps: f64,
+}
+
+impl Hyper {
+    pub fn from_config(cfg: &RunConfig) -> Hyper {
+        let p = &cfg.ppo;
+        Hyper {
+            rollout: p.rollout,
+            epochs: p.epochs,
+            minibatches: p.minibatches,
+            lr: p.lr,
+            total_frames: cfg.run.total_frames,
+            clip: p.clip,
+            gamma: p.gamma,
+            gae_lambda: p.gae_lambda,
+            max_grad_norm: p.max_grad_norm,
+            value_coef: p.value_coef,
+            entropy_coef: p.entropy_coef,
+            clip_value_loss: p.clip_value_loss,
+            adam_eps: 1e-5,
+        }
+    }
+
+    /// The linearly annealed learning rate after `frames` frames.
+    pub fn lr_at(&self, frames: u64) -> f64 {
+        self.lr * (1.0 - frames as f64 / self.total_frames.max(1) as f64).max(0.0)
+    }
+}
+
+/// What [`Trainer::step`] gives back: the actions to send, and the update's metrics when this
+/// message completed a rollout.
+#[derive(Debug)]
+pub struct StepOutput {
+    pub actions: Actions,
+    pub update: Option<UpdateMetrics>,
+}
+
+/// The PPO agent being trained: policy, optimizer, rollout, counters.
+#[derive(Debug)]
+pub struct Trainer {
+    pub cfg: RunConfig,
+    pub hp: Hyper,
+    pub policy: Policy,
+    pub opt: Adam,
+    pub rollout: Rollout,
+    /// PPO updates done.
+    pub updates: u64,
+    /// Environment frames in the rollouts learned from (drives the lr schedule).
+    pub frames: u64,
+    /// Minibatch order; part of the checkpoint.
+    pub(crate) rng: ChaCha8Rng,
+    episodes: EpisodeStats,
+    ep_return: Vec<f64>,
+    ep_length: Vec<u32>,
+    /// The env's last stored step was a real action (its feedback counts for the episode).
+    last_real: Vec<bool>,
+    counts: FeedbackCounts,
+    last_update_at: Instant,
+}
+
+impl Trainer {
+    /// A fresh agent for `n_envs` envs.
+    pub fn new(cfg: &RunConfig, n_envs: usize, device: Device) -> Result<Trainer, LearnerError> {
+        Trainer::build(cfg, n_envs, device, true)
+    }
+
+    fn build(cfg: &RunConfig, n_envs: usize, device: Device, load_weights: bool) -> Result<Trainer, LearnerError> {
+        let policy = Policy::build(cfg, n_envs, device, load_weights)?;
+        let mut hp = Hyper::from_config(cfg);
+        if hp.minibatches > n_envs {
+            tracing::warn!("ppo.minibatches = {} > {n_envs} envs: using {n_envs}", hp.minibatches);
+            hp.minibatches = n_envs;
+        }
+        let opt = Adam::new(&policy.vs, hp.lr, hp.adam_eps);
+        let rollout = Rollout::new(hp.rollout, n_envs, policy.hidden());
+        Ok(Trainer {
+            rng: worker::util::rng(cfg.run.seed, &[0x7070_6f5f]),
+            cfg: cfg.clone(),
+            hp,
+            policy,
+            opt,
+            rollout,
+            updates: 0,
+            frames: 0,
+            episodes: EpisodeStats::default(),
+            ep_return: vec![0.0; n_envs],
+            ep_length: vec![0; n_envs],
+            last_real: vec![false; n_envs],
+            counts: FeedbackCounts::default(),
+            last_update_at: Instant::now(),
+        })
+    }
+
+    /// An agent continuing from a checkpoint: weights, Adam state, update and frame counts (so
+    /// the lr schedule continues), random streams. Episodes start afresh.
+    pub fn resume(
+        cfg: &RunConfig,
+        n_envs: usize,
+        device: Device,
+        checkpoint: &std::path::Path,
+    ) -> Result<Trainer, LearnerError> {
+        let mut t = Trainer::build(cfg, n_envs, device, false)?;
+        crate::checkpoint::load_trainer(checkpoint, &mut t)?;
+        Ok(t)
+    }
+
+    /// One step message in, actions out. When the message completes a rollout, the PPO update
+    /// runs first (the returned actions then come from the updated policy).
+    pub fn step(&mut self, obs: &ObsBatch) -> Result<StepOutput, LearnerError> {
+        let (x, starts) = self.policy.prepare(obs)?;
+        let mut fwd = self.policy.forward(&x, starts.clone());
+
+        // 1. The feedback of the previous action: reward, end of episode, truncation bootstrap.
+        let c = self.rollout.record_feedback(obs.envs, &fwd.values, self.hp.gamma as f32);
+        self.counts.bootstrapped += c.bootstrapped;
+        self.counts.truncated_without_final += c.truncated_without_final;
+        self.counts.lost += c.lost;
+        self.track_episodes(obs.envs);
+
+        // 2.–4. A full rollout: bootstrap from V(o_T) (the old policy's), learn, and act on o_T
+        //       with the new policy from the same memory.
+        let mut update = None;
+        if self.rollout.is_full() {
+            let bootstrap = fwd.values.clone();
+            update = Some(self.update(&bootstrap));
+            self.rollout.begin(self.policy.hidden());
+            fwd = self.policy.forward(&x, starts);
+        }
+
+        // 1. (cont.) Act and store. A final observation's action is ignored by the env.
+        let acted = self.policy.choose(&fwd, ActMode::Sample);
+        let valid: Vec<bool> = obs.envs.iter().map(|e| !e.lost && !e.is_final_observation()).collect();
+        self.rollout.push(&x, &fwd.starts, &acted, &valid);
+        self.last_real = valid;
+        self.policy.commit(fwd, obs);
+        Ok(StepOutput { actions: acted, update })
+    }
+
+    /// Episode returns, lengths and outcomes, from the feedback of real actions only.
+    fn track_episodes(&mut self, envs: &[EnvStep]) {
+        for (k, e) in envs.iter().enumerate() {
+            if !self.last_real[k] || e.lost {
+                if e.episode_start || e.lost {
+                    self.ep_return[k] = 0.0;
+                    self.ep_length[k] = 0;
+                }
+                continue;
+            }
+            self.ep_return[k] += e.reward as f64;
+            self.ep_length[k] += 1;
+            if e.terminated || e.truncated || e.episode_start {
+                if e.terminated || e.truncated {
+                    self.episodes.add(self.ep_return[k], self.ep_length[k], e.success, e.spl);
+                }
+                self.ep_return[k] = 0.0;
+                self.ep_length[k] = 0;
+            }
+        }
+    }
+
+    /// The PPO update on the full rollout; `bootstrap` is V(o_T) per env.
+    pub(crate) fn update(&mut self, bootstrap: &[f32]) -> UpdateMetrics {
+        let started = Instant::now();
+        let hp = self.hp.clone();
+        let r = &self.rollout;
+        let (t_len, n) = (r.steps, r.envs);
+
+        // Annealing the learning rate: 3e-4 → 0 linearly over the run's frames.
+        let lr = hp.lr_at(self.frames);
+        self.opt.lr = lr;
+        let mut m = UpdateMetrics { lr, ..Default::default() };
+        let valid_count = r.valid.iter().filter(|v| **v).count();
+        m.valid_fraction = valid_count as f64 / (t_len * n) as f64;
+
+        if !self.policy.spec.random() && valid_count > 0 {
+            // GAE (Eq. 4.3–4.5), on the host: T×N scalars.
+            let (advantages, returns) =
+                gae(&r.rewards, &r.values, &r.ends, bootstrap, n, hp.gamma as f32, hp.gae_lambda as f32);
+            m.explained_variance = explained_variance(&r.values, &returns, &r.valid);
+
+            let b_adv = r.to_device(&advantages);
+            let b_ret = r.to_device(&returns);
+            let b_logp = r.to_device(&r.log_probs);
+            let b_val = r.to_device(&r.values);
+            let b_act = r.to_device(&r.actions);
+            let b_valid = flags(r, &r.valid);
+            let b_keep = r.to_device(&as_f32(&r.starts).iter().map(|s| 1.0 - s).collect::<Vec<f32>>());
+            let inputs = r.inputs().expect("a full rollout has inputs");
+            let per_mb = n.div_ceil(hp.minibatches);
+            let mut envs: Vec<i64> = (0..n as i64).collect();
+            let mut sums = [0.0f64; 6];
+            let mut batches = 0.0;
+
+            for _epoch in 0..hp.epochs {
+                envs.shuffle(&mut self.rng);
+                for mb in envs.chunks(per_mb) {
+                    let idx = Tensor::from_slice(mb).to_device(r.device());
+                    let sel = |t: &Tensor| t.index_select(1, &idx);
+                    let any_start: Vec<bool> =
+                        (0..t_len).map(|t| mb.iter().any(|&k| r.starts[t * n + k as usize])).collect();
+                    let valid = sel(&b_valid);
+
+                    // Re-run the network over the minibatch's whole sequences.
+                    let (logits, values) = self.policy.net.evaluate(
+                        &inputs.map(sel),
+                        &r.h0.index_select(1, &idx),
+                        &sel(&b_keep),
+                        &any_start,
+                    );
+                    let logp_all = logits.log_softmax(-1, Kind::Float);
+                    let new_logp = logp_all.gather(-1, &sel(&b_act).unsqueeze(-1), false).squeeze_dim(-1);
+                    let entropy = -(logp_all.exp() * &logp_all).sum_dim_intlist(-1, false, Kind::Float);
+
+                    // Probability ratio r_t of Eq. 4.2, and how far the policy moved.
+                    let log_ratio = new_logp - sel(&b_logp);
+                    let ratio = log_ratio.exp();
+                    let (approx_kl, clip_fraction) = tch::no_grad(|| {
+                        let kl = masked_mean(&((&ratio - 1.0) - &log_ratio), &valid).double_value(&[]);
+                        let clipped = (&ratio - 1.0).abs().gt(hp.clip).to_kind(Kind::Float);
+                        (kl, masked_mean(&clipped, &valid).double_value(&[]))
+                    });
+
+                    // Advantages normalised over the minibatch's learnable steps.
+                    let adv = normalize_masked(&sel(&b_adv), &valid);
+                    let pg_loss = clipped_policy_loss(&ratio, &adv, &valid, hp.clip);
+                    let v_loss =
+                        value_loss(&values, &sel(&b_val), &sel(&b_ret), &valid, hp.clip_value_loss.then_some(hp.clip));
+                    let ent = masked_mean(&entropy, &valid);
+                    let loss = &pg_loss - hp.entropy_coef * &ent + hp.value_coef * &v_loss;
+
+                    self.opt.zero_grad();
+                    loss.backward();
+                    let grad_norm = self.opt.clip_grad_norm(hp.max_grad_norm);
+                    if grad_norm.is_finite() {
+                        self.opt.step();
+                    } else {
+                        // one bad minibatch must not poison every weight with NaN
+                        m.skipped_steps += 1;
+                        continue;
+                    }
+
+                    for (s, v) in sums.iter_mut().zip([
+                        pg_loss.double_value(&[]),
+                        v_loss.double_value(&[]),
+                        ent.double_value(&[]),
+                        approx_kl,
+                        clip_fraction,
+                        grad_norm,
+                    ]) {
+                        *s += v;
+                    }
+                    batches += 1.0;
+                }
+            }
+            let batches = f64::max(batches, 1.0);
+            m.policy_loss = sums[0] / batches;
+            m.value_loss = sums[1] / batches;
+            m.entropy = sums[2] / batches;
+            m.approx_kl = sums[3] / batches;
+            m.clip_fraction = sums[4] / batches;
+            m.grad_norm = sums[5] / batches;
+        }
+
+        self.frames += (t_len * n) as u64;
+        self.updates += 1;
+        m.update = self.updates;
+        m.frames = self.frames;
+        let now = Instant::now();
+        m.update_seconds = now.duration_since(started).as_secs_f64();
+        m.fps = (t_len * n) as f64 / now.duration_since(self.last_update_at).as_secs_f64().max(1e-9);
+        self.last_update_at = now;
+        self.episodes.drain_into(&mut m);
+        m.bootstrapped = std::mem::take(&mut self.counts.bootstrapped) as u64;
+        m.truncated_without_final = std::mem::take(&mut self.counts.truncated_without_final) as u64;
+        m.lost_messages = std::mem::take(&mut self.counts.lost) as u64;
+        m
+    }
+}
+
+/// Generalised advantage estimation over `[T, N]` host arrays (index `t * N + n`):
+/// δ_t = r_t + γ·V(s_{t+1})·(1 − end_t) − V(s_t),  A_t = δ_t + γλ·(1 − end_t)·A_{t+1}.
+/// `bootstrap[n]` is V of the observation after the last step. Truncations already carry γ·V of
+/// their final observation in `rewards`, and `ends` there, so one rule covers both endings.
+/// Returns (advantages, returns = advantages + values).
+pub fn gae(
+    rewards: &[f32],
+    values: &[f32],
+    ends: &[bool],
+    bootstrap: &[f32],
+    envs: usize,
+    gamma: f32,
+    lambda: f32,
+) -> (Vec<f32>, Vec<f32>) {
+    let steps = rewards.len() / envs;
+    let mut adv = vec![0.0f32; rewards.len()];
+    for n in 0..envs {
+        let mut last = 0.0f32;
+        for t in (0..steps).rev() {
+            let i = t * envs + n;
+            let next_value = if t + 1 == steps { bootstrap[n] } else { values[i + envs] };
+            let not_end = if ends[i] { 0.0 } else { 1.0 };
+            let delta = rewards[i] + gamma * next_value * not_end - values[i];
+            last = delta + gamma * lambda * not_end * last;
+            adv[i] = last;
+        }
+    }
+    let returns = adv.iter().zip(values).map(|(a, v)| a + v).collect();
+    (adv, returns)
+}
+
+/// Mean of `x` over the entries where `valid` is 1.
+pub fn masked_mean(x: &Tensor, valid: &Tensor) -> Tensor {
+    (x * valid).sum(Kind::Float) / valid.sum(Kind::Float).clamp_min(1.0)
+}
+
+fn normalize_masked(x: &Tensor, valid: &Tensor) -> Tensor {
+    let mean = masked_mean(x, valid);
+    let std = masked_mean(&(x - &mean).square(), valid).sqrt();
+    (x - mean) / (std + 1e-8)
+}
+
+/// The clipped surrogate of Eq. 4.2, as a loss to minimise:
+/// mean over valid steps of max(−A·r, −A·clip(r, 1−ε, 1+ε)).
+pub fn clipped_policy_loss(ratio: &Tensor, adv: &Tensor, valid: &Tensor, clip: f64) -> Tensor {
+    let unclipped = -adv * ratio;
+    let clipped = -adv * ratio.clamp(1.0 - clip, 1.0 + clip);
+    masked_mean(&unclipped.maximum(&clipped), valid)
+}
+
+/// ½·mean (V − R)², or with `clip`, ½·mean max((V − R)², (V_old + clip(V − V_old, ±ε) − R)²).
+pub fn value_loss(new: &Tensor, old: &Tensor, returns: &Tensor, valid: &Tensor, clip: Option<f64>) -> Tensor {
+    let unclipped = (new - returns).square();
+    let l = match clip {
+        Some(c) => {
+            let v_clipped = old + (new - old).clamp(-c, c);
+            unclipped.maximum(&(v_clipped - returns).square())
+        }
+        None => unclipped,
+    };
+    0.5 * masked_mean(&l, valid)
+}
+
+/// 1 − Var(R − V) / Var(R) over valid steps (1: the critic explains the returns; ≤ 0: not at all).
+pub fn explained_variance(values: &[f32], returns: &[f32], valid: &[bool]) -> f64 {
+    let pairs: Vec<(f64, f64)> =
+        values.iter().zip(returns).zip(valid).filter(|(_, v)| **v).map(|((v, r), _)| (*v as f64, *r as f64)).collect();
+    if pairs.len() < 2 {
+        return 0.0;
+    }
+    let var = |xs: &mut dyn Iterator<Item = f64>| {
+        let v: Vec<f64> = xs.collect();
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64
+    };
+    let var_r = var(&mut pairs.iter().map(|p| p.1));
+    if var_r < 1e-12 {
+        return 0.0;
+    }
+    1.0 - var(&mut pairs.iter().map(|p| p.1 - p.0)) / var_r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn t(v: &[f32]) -> Tensor {
+        Tensor::from_slice(v)
+    }
+
+    /// γ = λ = 0.5, one env, V = [1, 2, 3, 4], r = 1 everywhere, the episode ends after step 1,
+    /// V(next) = 8:
+    /// t3: δ = 1 + .5·8 − 4 = 1                       A = 1
+    /// t2: δ = 1 + .5·4 − 3 = 0                       A = 0 + .25·1 = 0.25
+    /// t1: ended: δ = 1 − 2 = −1                      A = −1
+    /// t0: δ = 1 + .5·2 − 1 = 1                       A = 1 + .25·(−1) = 0.75
+    #[test]
+    fn gae_by_hand_with_an_episode_end() {
+        let (a, r) = gae(&[1.0; 4], &[1.0, 2.0, 3.0, 4.0], &[false, true, false, false], &[8.0], 1, 0.5, 0.5);
+        assert_eq!(a, vec![0.75, -1.0, 0.25, 1.0]);
+        assert_eq!(r, vec![1.75, 1.0, 3.25, 5.0]);
+    }
+
+    /// The rollout's view of a truncation (γ·V(final obs) folded into the reward, `ends` set)
+    /// through GAE, with two envs interleaved: env 0 is truncated after step 0 with V(final) = 6,
+    /// env 1 terminates after step 0 (no bootstrap).
+    #[test]
+    fn gae_truncated_bootstraps_terminated_does_not() {
+        let gamma = 0.5;
+        // env 0: r0 = 0.5 + γ·6 = 3.5 (truncation), step 1 is the ignored final observation.
+        let rewards = [0.5 + gamma * 6.0, 1.0, 0.0, 0.0];
+        let values = [2.0, 2.0, 6.0, 0.5];
+        let ends = [true, true, true, false];
+        let (a, _) = gae(&rewards, &values, &ends, &[9.0, 4.0], 2, gamma, 1.0);
+        // env 0 t0: δ = 3.5 − 2 = 1.5 (= r + γ·V(final) − V), nothing flows back from t1
+        assert_eq!(a[0], 1.5);
+        // env 1 t0: terminated: δ = 1 − 2 = −1, V(s1) ignored
+        assert_eq!(a[1], -1.0);
+        // env 1 t1: δ = 0 + .5·4 − .5 = 1.5
+        assert_eq!(a[3], 1.5);
+    }
+
+    /// ratio [0.5, 1, 1.5, 1.5], A [1, −1, 1, −1], ε = 0.2:
+    /// max(−A·r, −A·clip(r)) = [max(−.5, −.8), max(1, 1), max(−1.5, −1.2), max(1.5, 1.2)]
+    ///                       = [−0.5, 1, −1.2, 1.5] → mean 0.2; without the last step −0.7/3.
+    #[test]
+    fn clipped_loss_by_hand() {
+        let ratio = t(&[0.5, 1.0, 1.5, 1.5]);
+        let adv = t(&[1.0, -1.0, 1.0, -1.0]);
+        let all = t(&[1.0; 4]);
+        let l = clipped_policy_loss(&ratio, &adv, &all, 0.2).double_value(&[]);
+        assert!((l - 0.2).abs() < 1e-6, "{l}");
+        let l = clipped_policy_loss(&ratio, &adv, &t(&[1.0, 1.0, 1.0, 0.0]), 0.2).double_value(&[]);
+        assert!((l + 0.7 / 3.0).abs() < 1e-6, "{l}");
+    }
+
+    /// old V [0, 0], new V [1, −0.1], R [2, 1], ε = 0.2:
+    /// (1−2)² = 1 vs clipped (0.2−2)² = 3.24 → 3.24; (−0.1−1)² = 1.21 (inside the clip)
+    /// → ½·(3.24 + 1.21)/2 = 1.1125; unclipped: ½·(1 + 1.21)/2 = 0.5525.
+    #[test]
+    fn value_loss_by_hand() {
+        let (new, old, ret, all) = (t(&[1.0, -0.1]), t(&[0.0, 0.0]), t(&[2.0, 1.0]), t(&[1.0, 1.0]));
+        let l = value_loss(&new, &old, &ret, &all, Some(0.2)).double_value(&[]);
+        assert!((l - 1.1125).abs() < 1e-6, "{l}");
+        let l = value_loss(&new, &old, &ret, &all, None).double_value(&[]);
+        assert!((l - 0.5525).abs() < 1e-6, "{l}");
+    }
+
+    #[test]
+    fn explained_variance_extremes() {
+        let r = [1.0, 2.0, 3.0];
+        assert!((explained_variance(&r, &r, &[true; 3]) - 1.0).abs() < 1e-9);
+        assert!(explained_variance(&[0.0; 3], &r, &[true; 3]).abs() < 1e-9);
+    }
+
+    #[test]
+    fn lr_decays_linearly_to_zero() {
+        let cfg = RunConfig::from_toml("[run]\nmethod = \"both\"\ntotal_frames = 1000\n", "x.toml").unwrap();
+        let hp = Hyper::from_config(&cfg);
+        assert_eq!(hp.lr_at(0), 3e-4);
+        assert!((hp.lr_at(250) - 2.25e-4).abs() < 1e-12);
+        assert_eq!(hp.lr_at(1000), 0.0);
+        assert_eq!(hp.lr_at(5000), 0.0);
+    }
+}
