@@ -33,21 +33,27 @@ pub fn serial() -> MutexGuard<'static, ()> {
     LOCK.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// A small dataset for the tests, built once per target folder with
-/// `orchestrator dataset build` (or `$GESTHOR_TEST_DATASET` when set).
+/// A small dataset for the tests, built once per build of the orchestrator with
+/// `orchestrator dataset build` (about a second) and cached beside the binaries
+/// (`target/release/gesthor-test-data/`), or `$GESTHOR_TEST_DATASET` when set.
 pub fn dataset() -> PathBuf {
     static DATA: OnceLock<PathBuf> = OnceLock::new();
     DATA.get_or_init(|| {
         if let Some(d) = std::env::var_os("GESTHOR_TEST_DATASET") {
             return PathBuf::from(d);
         }
-        let dir = bin_dir().join("gesthor-test-data").join("gond-farm-v1");
+        // Keyed on the orchestrator build, so a changed dataset format is never read stale.
+        let orch = bin("orchestrator");
+        let meta = std::fs::metadata(&orch).unwrap();
+        let stamp = meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map(|d| d.as_secs()).unwrap_or(0);
+        let root = bin_dir().join("gesthor-test-data");
+        let dir = root.join(format!("gond-{stamp}-{}", meta.len()));
         if dir.join("manifest.json").is_file() {
             return dir;
         }
         let tmp = dir.with_extension(format!("partial{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&tmp);
-        let out = Command::new(bin("orchestrator"))
+        let out = Command::new(&orch)
             .args(["dataset", "build", "--out"])
             .arg(&tmp)
             .args(["--train", "40", "--val-per-room", "1", "--test-per-room", "1", "--seed", "3"])
@@ -60,7 +66,14 @@ pub fn dataset() -> PathBuf {
             String::from_utf8_lossy(&out.stderr)
         );
         match std::fs::rename(&tmp, &dir) {
-            Ok(()) => {}
+            Ok(()) => {
+                // datasets of older builds are of no use any more
+                for e in std::fs::read_dir(&root).into_iter().flatten().flatten() {
+                    if e.path() != dir && e.file_name().to_string_lossy().starts_with("gond-") && !e.file_name().to_string_lossy().contains("partial") {
+                        let _ = std::fs::remove_dir_all(e.path());
+                    }
+                }
+            }
             // another test process got there first
             Err(_) if dir.join("manifest.json").is_file() => {
                 let _ = std::fs::remove_dir_all(&tmp);
