@@ -113,7 +113,7 @@ fn make_policy(kind: PolicyKind, cfg: &RunConfig) -> anyhow::Result<Box<dyn Farm
     Ok(match kind {
         PolicyKind::Random => Box::new(RandomPolicy::new(cfg.run.seed)),
         PolicyKind::Expert => Box::new(ExpertPolicy),
-        PolicyKind::Ppo => anyhow::bail!("--policy ppo: the PPO trainer is not part of this build"),
+        PolicyKind::Ppo => anyhow::bail!("--policy ppo: PPO is not wired into the policy server yet; use --policy random or expert"),
     })
 }
 
