@@ -9,14 +9,14 @@
 //! ## The step protocol (Gymnasium's terminated vs truncated, next-step autoreset)
 //! The message at step t carries, for each env, the *feedback* of the action sent at t−1
 //! (`reward`, `terminated`, `truncated`) and the observation o_t on which the next action is taken.
-//! - `terminated`: the episode ended by itself (success, stop limit). No bootstrap. The worker
-//!   has already reset: o_t is the first observation of a new episode (`episode_start`).
-//! - `truncated` (the 100-step limit): the worker does NOT reset yet. o_t is the *final*
-//!   observation of the cut episode (`episode_start` false). The learner bootstraps from V(o_t)
-//!   (adds γ·V(o_t) to the reward of t−1) and marks step t as not learnable; the worker ignores
-//!   the action it gets for o_t, resets, and sends the new episode's first observation with
-//!   `episode_start` and reward 0. This is Gymnasium's "next-step" autoreset, for truncations.
-//!   If both flags are set, `terminated` wins (the worker resets at once).
+//! When an episode ends, the worker sends its *final* observation (`episode_start` false, a flag
+//! set) and ignores the action it gets for it; the next message starts the new episode
+//! (`episode_start`, reward 0). Step t of a final observation is never learned from.
+//! - `terminated`: the episode ended by itself (success, stop limit): no bootstrap.
+//! - `truncated` (the 100-step limit): the learner bootstraps from V(o_t) (adds γ·V(o_t) to the
+//!   reward of t−1). If both flags are set, `terminated` wins.
+//! - An env may also reset at once on termination (o_t is then the new episode's first
+//!   observation, `episode_start` and `terminated` both set); that is handled the same way.
 //! - `lost`: the env's message was lost (its worker crashed or restarted). The feedback of t−1 is
 //!   unknown: t−1 and t are kept out of the loss, and the env's memory is reset at the next step.
 
@@ -73,9 +73,15 @@ pub struct EnvStep {
 }
 
 impl EnvStep {
-    /// The observation is the final one of an episode cut by the step limit: the learner
-    /// bootstraps from its value, and the env ignores the action taken on it (then resets).
+    /// The observation is the final one of an episode: the env ignores the action taken on it
+    /// (then resets), so the step is not learned from.
     pub fn is_final_observation(&self) -> bool {
+        (self.truncated || self.terminated) && !self.episode_start && !self.lost
+    }
+
+    /// The final observation of an episode cut by the step limit: its value bootstraps the
+    /// return of the step that led to it.
+    pub fn bootstraps(&self) -> bool {
         self.truncated && !self.terminated && !self.episode_start && !self.lost
     }
 }

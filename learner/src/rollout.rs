@@ -144,7 +144,7 @@ impl Rollout {
                 continue;
             }
             self.rewards[i] = e.reward;
-            if e.is_final_observation() {
+            if e.bootstraps() {
                 self.rewards[i] += gamma * values_now[k];
                 counts.bootstrapped += 1;
             } else if e.truncated && !e.terminated {
@@ -229,6 +229,28 @@ mod tests {
         assert_eq!(r.len(), 5);
         let stored = r.inputs().unwrap().target.as_ref().unwrap();
         assert_eq!(stored.size(), vec![6, 1]);
+    }
+
+    /// The farm's workers send the final observation of a terminated episode too (then reset):
+    /// that step is not learned from and nothing is bootstrapped.
+    #[test]
+    fn terminated_with_a_final_observation() {
+        let h0 = Tensor::zeros([1, 1, 4], (Kind::Float, Device::Cpu));
+        let mut r = Rollout::new(4, 1, &h0);
+        let step = |reward, terminated, start| EnvStep { reward, terminated, episode_start: start, ..Default::default() };
+        r.push(&no_inputs(), &[true], &acted(1, 1.0), &[true]);
+        // success: reward 1 for a0; o1 is the episode's final observation
+        let m = step(1.0, true, false);
+        assert!(m.is_final_observation() && !m.bootstraps());
+        assert_eq!(r.record_feedback(&[m], &[7.0], 0.5), FeedbackCounts::default());
+        r.push(&no_inputs(), &[false], &acted(1, 7.0), &[!m.is_final_observation()]);
+        // the reset: its action was ignored, reward 0
+        let m = step(0.0, false, true);
+        r.record_feedback(&[m], &[2.0], 0.5);
+        r.push(&no_inputs(), &[true], &acted(1, 2.0), &[true]);
+        assert_eq!(r.rewards[..2], [1.0, 0.0]);
+        assert_eq!(r.ends[..2], [true, true]);
+        assert_eq!(r.valid[..3], [true, false, true]);
     }
 
     #[test]

@@ -6,12 +6,14 @@
 
 pub mod bench;
 pub mod bench_farm;
+pub mod bench_sim;
 pub mod binaries;
 pub mod dataset_cmd;
 pub mod farm;
 pub mod fonts;
 pub mod map;
 pub mod plot;
+pub mod render_cmd;
 pub mod run_dir;
 pub mod supervise;
 pub mod tables;

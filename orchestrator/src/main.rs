@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench, dataset_cmd, up};
+use orchestrator::{bench, dataset_cmd, render_cmd, up};
 
 #[derive(Parser)]
 #[command(name = "orchestrator", version, about = "GesTHOR-RS: build the dataset, run the rollout farm, evaluate, benchmark")]
@@ -19,6 +19,8 @@ enum Command {
     /// Build GOND or draw its statistics.
     #[command(subcommand)]
     Dataset(dataset_cmd::DatasetCmd),
+    /// Render what the robot sees in a room, and a top-down map.
+    Render(render_cmd::RenderArgs),
     /// Start a run: the learner and N worker processes, supervised; Ctrl-C stops it cleanly.
     Up(up::UpArgs),
     /// Throughput benchmarks.
@@ -30,6 +32,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Dataset(c) => dataset_cmd::run(c).map(|_| 0),
+        Command::Render(a) => render_cmd::run(a).map(|_| 0),
         Command::Up(a) => up::run(a),
         Command::Bench(c) => bench::run(c).map(|_| 0),
     };

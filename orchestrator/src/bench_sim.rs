@@ -1,0 +1,138 @@
+//! `orchestrator bench sim`: the simulator's speed on this machine, in one process.
+//!
+//! 1. the renderer alone: 224×224 views per second at 1, 8 and 16 views per submit (RGB, depth
+//!    and ids read back), on a generated living room with the person in it;
+//! 2. physics + task without rendering: env steps per second with random actions (visibility
+//!    for Stop judged geometrically, as an env without a renderer does);
+//! 3. a single-process env loop with rendering: an `EnvPool` of 16 envs stepping random
+//!    actions, each step rendering all views in one submit into an observation buffer.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use clap::Args;
+use rand::Rng;
+
+use worker::config::RunConfig;
+use worker::dataset::build::{BuildOptions, build, default_interventions, default_synth};
+use worker::dataset::{Dataset, Verify};
+use worker::env::{AlignedBuf, Env, EnvPool, PoolSpec, ProgramSource, Rooms};
+use worker::gesture::Motion;
+use worker::humanoid::Humanoid;
+use worker::program::Program;
+use worker::render::{RenderConfig, Renderer, bench_views};
+use worker::robot::Action;
+use worker::scene::{SceneId, Split};
+
+#[derive(Args, Debug)]
+pub struct SimArgs {
+    /// Seconds per measurement.
+    #[arg(long, default_value_t = 3.0)]
+    pub seconds: f64,
+    /// Frame size for the rendering measurements.
+    #[arg(long, default_value_t = 224)]
+    pub size: u32,
+    /// Envs in the rendering env loop.
+    #[arg(long, default_value_t = 16)]
+    pub envs: usize,
+    /// Also write the table (Markdown) here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+pub fn run(a: SimArgs) -> anyhow::Result<()> {
+    let mut rows: Vec<(String, f64, &str)> = Vec::new();
+
+    // 1. renderer alone
+    let scene = worker::scene::generate::generate(SceneId::parse("FloorPlan201").unwrap(), 1);
+    let mut parts = scene.parts();
+    let person = Humanoid::seeded(1);
+    let pose = person.pose(&worker::gesture::STANDING, nalgebra::Point3::new(0.5, 0.0, 0.5), 180.0);
+    parts.extend(person.parts(&pose));
+    let mut info = String::new();
+    for vps in [1usize, 8, 16] {
+        let cfg = RenderConfig { width: a.size, height: a.size, fov_deg: 90.0, max_views_per_submit: vps };
+        let mut r = Renderer::new(&cfg)?;
+        info = r.adapter_info();
+        let v = bench_views(&mut r, &parts, vps, a.seconds)?;
+        eprintln!("render {vps:2} views/submit: {v:.0} views/s");
+        rows.push((format!("render {}×{}, {vps} views/submit", a.size, a.size), v, "views/s"));
+    }
+
+    // a small dataset for the env measurements
+    let dir = tempfile::tempdir()?;
+    let opts = BuildOptions { seed: 1, val_per_room: 2, splits: vec![Split::Val], ..Default::default() };
+    build(dir.path(), &opts, false, &default_synth, &default_interventions(), &|_, _, _| {})?;
+    let ds = Arc::new(Dataset::open(dir.path(), Verify::Quick)?);
+    let mut cfg = RunConfig::from_toml("[run]\nmethod = \"both\"\nsplit = \"val\"\n", "bench")?;
+    cfg.run.dataset = dir.path().to_path_buf();
+    cfg.env.width = a.size;
+    cfg.env.height = a.size;
+    cfg.env.envs_per_worker = a.envs;
+
+    // 2. physics + task, no rendering
+    let file = ds.require(Split::Val)?;
+    let mut rooms = Rooms::new(ds.clone(), &cfg);
+    let mut rng = worker::util::rng(1, &[7]);
+    let ivs = ds.interventions();
+    let iv = Arc::new(Motion::from_flat(&ivs.motion(0)).expect("intervention size"));
+    let next_env = |rng: &mut rand_chacha::ChaCha8Rng, rooms: &mut Rooms| -> anyhow::Result<Env> {
+        let i = rng.random_range(0..file.len());
+        let p = Program::from_record(i as u64, &file.record(i)).expect("valid record");
+        let room = rooms.get(p.scene_id())?;
+        let m = Motion::from_flat(&file.motion(i)).expect("motion size");
+        Env::new(&cfg, room, p, i as u64, m, (0, iv.clone()))
+    };
+    // warm the room cache so that the measurement is of stepping, not of loading rooms
+    for id in SceneId::of_split(Split::Val) {
+        rooms.get(id)?;
+    }
+    let mut env = next_env(&mut rng, &mut rooms)?;
+    let (mut steps, mut resets) = (0u64, 0u64);
+    let t = Instant::now();
+    while t.elapsed().as_secs_f64() < a.seconds {
+        env.update_visibility_geometric();
+        env.step(Action::ALL[rng.random_range(0..4)]);
+        steps += 1;
+        if env.is_done() {
+            env = next_env(&mut rng, &mut rooms)?;
+            resets += 1;
+        }
+    }
+    let v = steps as f64 / t.elapsed().as_secs_f64();
+    eprintln!("env steps without rendering: {v:.0} steps/s ({resets} episodes)");
+    rows.push(("env steps, physics + task + visibility rays, no rendering".into(), v, "steps/s"));
+
+    // 3. env loop with rendering
+    let spec = PoolSpec { worker_id: 0, generation: 0, programs: ProgramSource::Sample, expert_hints: false };
+    let mut pool = EnvPool::with_dataset(&cfg, spec, ds.clone())?;
+    let mut buf = AlignedBuf::new(pool.layout().total_len as usize);
+    pool.reset(buf.as_mut_slice())?;
+    let mut actions = vec![0u8; a.envs];
+    for _ in 0..3 {
+        pool.step(&actions, buf.as_mut_slice())?; // warm-up: first uploads of rooms
+    }
+    let t = Instant::now();
+    let mut frames = 0u64;
+    while t.elapsed().as_secs_f64() < a.seconds {
+        for x in actions.iter_mut() {
+            *x = rng.random_range(0..4);
+        }
+        pool.step(&actions, buf.as_mut_slice())?;
+        frames += a.envs as u64;
+    }
+    let v = frames as f64 / t.elapsed().as_secs_f64();
+    eprintln!("env loop with rendering: {v:.0} frames/s");
+    rows.push((format!("env loop with rendering, {} envs, {}×{} RGB-D", a.envs, a.size, a.size), v, "frames/s"));
+
+    let mut md = format!("Simulator benchmark ({info}), {:.0} s per row\n\n| measurement | rate | unit | ms each |\n|---|---:|---|---:|\n", a.seconds);
+    for (name, v, unit) in &rows {
+        md += &format!("| {name} | {v:.0} | {unit} | {:.3} |\n", 1000.0 / v);
+    }
+    println!("{md}");
+    if let Some(out) = a.out {
+        worker::util::write_atomic(&out, md.as_bytes())?;
+    }
+    Ok(())
+}
