@@ -15,6 +15,13 @@ pub trait FarmPolicy {
     fn name(&self) -> &str;
     /// One action per env of `batch`, in the order of [`ObsBatchView::envs`].
     fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>>;
+    /// Whether the server should gather every live worker into one batch before acting (a
+    /// network amortises its forward pass over the batch, and PPO's rollout wants every env at
+    /// every step). A policy that decides env by env answers each worker as soon as it sends,
+    /// so no worker waits for a slower one.
+    fn wants_full_batches(&self) -> bool {
+        true
+    }
     /// The run is ending; `checkpoint` says whether to save state first (Ctrl-C: yes).
     fn finish(&mut self, _checkpoint: bool) -> anyhow::Result<()> {
         Ok(())
@@ -40,6 +47,10 @@ impl FarmPolicy for RandomPolicy {
     fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>> {
         Ok((0..batch.num_envs()).map(|_| self.rng.random_range(0..NUM_ACTIONS)).collect())
     }
+
+    fn wants_full_batches(&self) -> bool {
+        false
+    }
 }
 
 /// Echoes the shortest-path expert's action the workers compute (`worker --expert-hints`):
@@ -49,6 +60,10 @@ pub struct ExpertPolicy;
 impl FarmPolicy for ExpertPolicy {
     fn name(&self) -> &str {
         "expert"
+    }
+
+    fn wants_full_batches(&self) -> bool {
+        false
     }
 
     fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>> {

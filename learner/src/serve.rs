@@ -5,6 +5,8 @@
 //! A round closes when every live worker has sent, or `batch_timeout` after its first
 //! observation arrived: a worker that misses the deadline is marked absent and no round waits
 //! for it again until it sends (so a dead worker costs one timeout, not one per round). A
+//! policy that decides env by env (random, expert) does not want full batches: each round then
+//! takes whoever has sent and answers at once, so no worker waits for a slower one. A
 //! worker restarted by the orchestrator announces `generation + 1`: its state is reset, and
 //! observations of older generations still in flight are dropped.
 //!
@@ -329,7 +331,11 @@ impl Server<'_> {
             }
             if any {
                 let first = *round_start.get_or_insert_with(Instant::now);
-                let waiting: Vec<usize> = (0..self.slots.len()).filter(|&k| self.slots[k].live() && self.slots[k].held.is_none()).collect();
+                let waiting: Vec<usize> = if self.policy.wants_full_batches() {
+                    (0..self.slots.len()).filter(|&k| self.slots[k].live() && self.slots[k].held.is_none()).collect()
+                } else {
+                    vec![] // answer whoever has sent, now
+                };
                 if waiting.is_empty() || first.elapsed() >= self.opts.batch_timeout {
                     for k in waiting {
                         tracing::warn!("worker {k} did not answer within {:?}; going on without it", self.opts.batch_timeout);

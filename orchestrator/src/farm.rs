@@ -311,18 +311,21 @@ impl Farm {
     }
 
     /// Environment for the workers' renderers. On a machine without a GPU the renderer is
-    /// Mesa's lavapipe, which by default rasterises on as many threads as there are cores, in
-    /// every worker: with several workers the processes already fill the cores, and the extra
-    /// threads only contend. Each worker gets its share of the cores instead (at least one
-    /// thread), unless `LP_NUM_THREADS` is set. (`orchestrator bench farm` on 2 cores, 224×224:
-    /// 2 workers 1578 frames/s with one thread each against 1415 with the default.) A GPU
-    /// driver ignores the variable.
+    /// Mesa's lavapipe, which by default rasterises on as many extra threads as there are
+    /// cores, in every worker. Once there are at least as many workers as cores, the processes
+    /// fill the cores by themselves and the extra threads only add hand-offs and contention:
+    /// each worker then rasterises in its own thread (`LP_NUM_THREADS=0`); with fewer workers
+    /// each gets its share of the cores. Measured with `orchestrator bench farm` (2 cores,
+    /// 224×224, random policy): 2 workers 1890–1930 frames/s in-thread against 1550–1770 with
+    /// one extra thread each; 20 workers 1690–1800 against 1490–1580. A user's `LP_NUM_THREADS`
+    /// wins; a GPU driver ignores the variable.
     fn renderer_env(&self) -> Vec<(&'static str, String)> {
         if std::env::var_os(LP_THREADS_ENV).is_some() {
             return vec![];
         }
         let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-        vec![(LP_THREADS_ENV, (cores / self.spec.workers).max(1).to_string())]
+        let share = cores / self.spec.workers;
+        vec![(LP_THREADS_ENV, if share <= 1 { 0 } else { share }.to_string())]
     }
 
     /// Reaps what ended, restarts crashed workers, escalates a stop. Call it often (every
