@@ -11,7 +11,12 @@
 //! }
 //! ```
 //! Evaluation uses a [`Policy`] alone: `checkpoint::load_policy`, then `act_deterministic`.
+//!
+//! The farm side: [`serve`] is the policy server (batches the workers' observations, read in
+//! place from shared memory through [`transport`] and [`batch`]), and [`policy::FarmPolicy`] is
+//! what it asks of a policy.
 
+pub mod batch;
 pub mod bench;
 pub mod checkpoint;
 pub mod device;
@@ -19,11 +24,14 @@ pub mod metrics;
 pub mod model;
 pub mod obs;
 pub mod optim;
+pub mod policy;
 pub mod ppo;
 pub mod pth;
 pub mod resnet;
 pub mod rollout;
+pub mod serve;
 pub mod smoke;
+pub mod transport;
 
 pub use checkpoint::CheckpointError;
 pub use metrics::{MetricsLog, UpdateMetrics};

@@ -1,14 +1,19 @@
-//! The `learner` process. Today: a device report, a self-contained smoke run (PPO on a synthetic
-//! in-process task, with metrics, curves and checkpoints), and throughput figures. Serving the
-//! worker farm over shared memory is added by the transport.
+//! The `learner` process: `serve` is the farm's policy server (started by `orchestrator up`: it
+//! batches the workers' observations from shared memory, runs the policy, answers); also a
+//! device report, a self-contained smoke run (PPO on a synthetic in-process task, with metrics,
+//! curves and checkpoints), and throughput figures.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, Result};
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use learner::policy::{ExpertPolicy, FarmPolicy, RandomPolicy};
+use learner::serve::{ServeOptions, serve};
 use learner::{bench, checkpoint, device, metrics::MetricsLog, smoke};
-use worker::config::Device as DeviceChoice;
+use nix::sys::signal::Signal;
+use worker::config::{Device as DeviceChoice, RunConfig};
+use worker::process;
 
 #[derive(Parser)]
 #[command(name = "learner", about = "GesTHOR-RS PPO learner (tch / libtorch)")]
@@ -22,6 +27,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Serve a policy to the run's workers over shared memory (started by `orchestrator up`).
+    Serve(ServeArgs),
     /// Which device torch sees, and how the CUDA backend was loaded.
     Info,
     /// Train on a synthetic "go where the gesture points" task in-process: shows learning end to end.
@@ -47,6 +54,95 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         reps: usize,
     },
+}
+
+/// Which policy answers the workers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum PolicyKind {
+    /// Uniformly random actions (seeded from the run seed).
+    Random,
+    /// The shortest-path expert's actions (workers need `--expert-hints`).
+    Expert,
+    /// The PPO agent: acts and learns.
+    Ppo,
+}
+
+#[derive(Args)]
+struct ServeArgs {
+    /// Run configuration (TOML).
+    #[arg(long)]
+    config: PathBuf,
+    /// Run id (names the shared-memory services).
+    #[arg(long)]
+    run_id: String,
+    /// Worker slots 0..N to serve.
+    #[arg(long)]
+    workers: usize,
+    /// Run directory: farm.jsonl, episodes.jsonl, farm_summary.json (and checkpoints).
+    #[arg(long)]
+    run_dir: PathBuf,
+    #[arg(long, value_enum, default_value_t = PolicyKind::Random)]
+    policy: PolicyKind,
+    /// Stop after this many frames.
+    #[arg(long)]
+    max_frames: Option<u64>,
+    /// Stop after this many seconds.
+    #[arg(long)]
+    max_seconds: Option<f64>,
+    /// Evaluation: stop when every worker has finished its programs.
+    #[arg(long)]
+    eval: bool,
+    /// Fail on any lost, duplicated or malformed message (tests).
+    #[arg(long)]
+    check: bool,
+    /// Continue from the run directory's latest checkpoint.
+    #[arg(long)]
+    resume: bool,
+    /// Close a batch this many milliseconds after its first observation even if workers are missing.
+    #[arg(long, default_value_t = 1000)]
+    batch_timeout_ms: u64,
+    /// Seconds between progress records.
+    #[arg(long, default_value_t = 2.0)]
+    report_every: f64,
+    /// Before the first batch, wait up to this many seconds for every worker to connect.
+    #[arg(long, default_value_t = 60.0)]
+    start_wait: f64,
+}
+
+fn make_policy(kind: PolicyKind, cfg: &RunConfig) -> anyhow::Result<Box<dyn FarmPolicy>> {
+    Ok(match kind {
+        PolicyKind::Random => Box::new(RandomPolicy::new(cfg.run.seed)),
+        PolicyKind::Expert => Box::new(ExpertPolicy),
+        PolicyKind::Ppo => anyhow::bail!("--policy ppo: PPO is not wired into the policy server yet; use --policy random or expert"),
+    })
+}
+
+fn run_serve(a: ServeArgs) -> anyhow::Result<()> {
+    // Ctrl-C (SIGINT) stops cleanly and checkpoints; the orchestrator's death counts as Ctrl-C.
+    process::install_termination_handler()?;
+    process::die_with_parent(Signal::SIGINT)?;
+    let cfg = RunConfig::load(&a.config)?;
+    let mut policy = make_policy(a.policy, &cfg)?;
+    if a.resume && a.policy != PolicyKind::Ppo {
+        tracing::info!("--resume: policy `{}` keeps no state; nothing to resume", policy.name());
+    }
+    let mut opts = ServeOptions::new(&a.run_id, a.workers, &a.run_dir, cfg.env.envs_per_worker, cfg.env.width, cfg.env.height);
+    opts.max_frames = a.max_frames;
+    opts.max_seconds = a.max_seconds;
+    opts.eval = a.eval;
+    opts.check = a.check;
+    opts.batch_timeout = std::time::Duration::from_millis(a.batch_timeout_ms);
+    opts.report_every = std::time::Duration::from_secs_f64(a.report_every.max(0.1));
+    opts.start_wait = std::time::Duration::from_secs_f64(a.start_wait.max(0.0));
+    let summary = serve(&opts, policy.as_mut()).context("serving the farm")?;
+    tracing::info!(
+        "{}: {} frames, {} episodes in {:.1} s",
+        summary.stop_reason,
+        summary.totals.frames,
+        summary.totals.episodes,
+        summary.seconds
+    );
+    Ok(())
 }
 
 fn parse_device(s: &str) -> Result<DeviceChoice, String> {
@@ -83,6 +179,7 @@ fn main() {
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     if let Err(e) = run(Cli::parse()) {
         eprintln!("learner: {e:#}");
@@ -94,6 +191,7 @@ fn run(cli: Cli) -> Result<()> {
     let dev = device::select(cli.device)?;
     device::configure(dev);
     match cli.command {
+        Command::Serve(a) => run_serve(a)?,
         Command::Info => println!("{}", device::report(dev)),
         Command::Smoke { updates, envs, run_dir, resume } => smoke_run(dev, updates, envs, run_dir, resume)?,
         Command::Bench { faithful, reps } => bench_run(dev, faithful, reps)?,

@@ -1,11 +1,21 @@
-//! The orchestrator's library side: what its commands draw and compute, testable apart from
-//! the CLI in `main.rs`.
+//! The orchestrator of GesTHOR-RS as a library: what its commands draw and compute, run
+//! directories, process supervision and the farm (learner + workers), testable apart from the
+//! CLI in `main.rs`.
+//!
+//! A new subcommand is one module here (`pub mod eval;`) and one variant in `main.rs`.
 
+pub mod bench;
+pub mod bench_farm;
 pub mod bench_sim;
+pub mod binaries;
 pub mod dataset_cmd;
+pub mod farm;
 pub mod fonts;
 pub mod map;
 pub mod plot;
 pub mod program_cmd;
 pub mod render_cmd;
+pub mod run_dir;
+pub mod supervise;
 pub mod tables;
+pub mod up;

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench_sim, dataset_cmd, program_cmd, render_cmd};
+use orchestrator::{bench, dataset_cmd, program_cmd, render_cmd, up};
 
 #[derive(Parser)]
 #[command(name = "orchestrator", version, about = "GesTHOR-RS: build the dataset, run the rollout farm, evaluate, benchmark")]
@@ -26,21 +26,25 @@ enum Command {
     Program(program_cmd::ProgramCmd),
     /// Render the person performing a program's gesture (robot view and from above, PNG + GIF).
     Replay(program_cmd::ReplayArgs),
-    /// The simulator's speed in one process.
-    BenchSim(bench_sim::SimArgs),
+    /// Start a run: the learner and N worker processes, supervised; Ctrl-C stops it cleanly.
+    Up(up::UpArgs),
+    /// Throughput benchmarks.
+    #[command(subcommand)]
+    Bench(bench::BenchCmd),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Dataset(c) => dataset_cmd::run(c),
-        Command::Render(a) => render_cmd::run(a),
-        Command::BenchSim(a) => bench_sim::run(a),
-        Command::Program(c) => program_cmd::run(c),
-        Command::Replay(a) => program_cmd::replay(a),
+        Command::Dataset(c) => dataset_cmd::run(c).map(|_| 0),
+        Command::Render(a) => render_cmd::run(a).map(|_| 0),
+        Command::Program(c) => program_cmd::run(c).map(|_| 0),
+        Command::Replay(a) => program_cmd::replay(a).map(|_| 0),
+        Command::Up(a) => up::run(a),
+        Command::Bench(c) => bench::run(c).map(|_| 0),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => ExitCode::from(code.clamp(0, 255) as u8),
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::from(1)

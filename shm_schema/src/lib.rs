@@ -221,11 +221,247 @@ impl ObsLayout {
 
 /// Service names; they carry the run id so that two runs on one host never meet.
 pub mod service {
+    /// Publish-subscribe, `[u8]` payload with user header [`super::ObsHeader`]: worker → learner.
     pub fn obs(run_id: &str, worker: u32) -> String {
         format!("gesthor/{run_id}/obs/{worker}")
     }
+    /// Publish-subscribe, [`super::ActionMsg`]: learner → worker.
     pub fn act(run_id: &str, worker: u32) -> String {
         format!("gesthor/{run_id}/act/{worker}")
+    }
+    /// Event: every worker notifies it after sending an observation, so that the learner can
+    /// sleep until one arrives instead of polling N subscribers.
+    pub fn obs_ready(run_id: &str) -> String {
+        format!("gesthor/{run_id}/obs_ready")
+    }
+    /// Event: the learner notifies worker `worker` after publishing its actions.
+    pub fn act_ready(run_id: &str, worker: u32) -> String {
+        format!("gesthor/{run_id}/act_ready/{worker}")
+    }
+    /// The iceoryx2 resource prefix of a run (iceoryx2's `global.prefix`): every file the run
+    /// creates in `/dev/shm` and `/tmp/iceoryx2` starts with it, so the run's leftovers can be
+    /// found, and cleaned, without touching anything else on the host. Characters that cannot
+    /// appear in a file name are replaced by `_`.
+    pub fn prefix(run_id: &str) -> String {
+        let id: String = run_id
+            .chars()
+            .take(48)
+            .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })
+            .collect();
+        format!("gesthor_{id}_")
+    }
+}
+
+/// Quality-of-service settings of the farm's services. Every process that creates or opens a
+/// service uses these values (iceoryx2 refuses to open a service whose overflow setting differs,
+/// and requires at least the buffer/history sizes asked for), including readers in other
+/// languages (`shm_schema/README.md`).
+pub mod qos {
+    /// A full subscriber buffer drops its oldest sample instead of blocking the sender.
+    pub const SAFE_OVERFLOW: bool = true;
+    /// Payload alignment of the observation service, so that records, depth and gesture
+    /// sections (64-byte aligned offsets) can be read in place as typed slices.
+    pub const OBS_PAYLOAD_ALIGNMENT: usize = 64;
+    /// The last observation is kept as history and handed to a subscriber that connects late
+    /// (part of the start handshake; a reader attaching to a live run gets a frame at once).
+    pub const OBS_HISTORY: usize = 1;
+    pub const OBS_SUBSCRIBER_BUFFER: usize = 2;
+    pub const OBS_SUBSCRIBER_MAX_BORROWED: usize = 2;
+    /// The learner and up to two readers (e.g. `tests/python/read_frame.py`).
+    pub const OBS_MAX_SUBSCRIBERS: usize = 3;
+    /// The worker, and the ports of a killed one until its stale resources are removed.
+    pub const OBS_MAX_PUBLISHERS: usize = 2;
+    pub const OBS_MAX_NODES: usize = 8;
+    /// Samples a worker may hold loaned at once (it writes one observation at a time).
+    pub const OBS_MAX_LOANED: usize = 1;
+    pub const ACT_HISTORY: usize = 0;
+    pub const ACT_SUBSCRIBER_BUFFER: usize = 2;
+    pub const ACT_SUBSCRIBER_MAX_BORROWED: usize = 2;
+    pub const ACT_MAX_SUBSCRIBERS: usize = 4;
+    pub const ACT_MAX_PUBLISHERS: usize = 2;
+    pub const ACT_MAX_NODES: usize = 8;
+    /// `act_ready/<k>`: the learner notifies, worker `k` listens (plus stale ports of killed ones).
+    pub const ACT_READY_MAX_NOTIFIERS: usize = 2;
+    pub const ACT_READY_MAX_LISTENERS: usize = 4;
+    pub const ACT_READY_MAX_NODES: usize = 8;
+    /// `obs_ready`: every worker notifies, the learner listens. Sized for `workers` live workers
+    /// plus as many killed ones whose ports are not yet cleaned up, plus a few spare.
+    pub fn obs_ready_max_notifiers(workers: usize) -> usize {
+        2 * workers + 4
+    }
+    pub fn obs_ready_max_nodes(workers: usize) -> usize {
+        2 * workers + 8
+    }
+    pub const OBS_READY_MAX_LISTENERS: usize = 4;
+}
+
+/// Why a payload cannot be viewed with a layout.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ViewError {
+    /// The payload is shorter than the layout's `total_len`.
+    TooShort { len: usize, need: usize },
+    /// The payload does not start on an 8-byte boundary (records need it).
+    Misaligned,
+    /// The layout does not match `ObsLayout::new(num_envs, width, height)`.
+    Layout,
+    TooManyEnvs(usize),
+}
+
+impl std::fmt::Display for ViewError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ViewError::TooShort { len, need } => write!(f, "payload is {len} bytes, the layout needs {need}"),
+            ViewError::Misaligned => write!(f, "payload is not 8-byte aligned"),
+            ViewError::Layout => write!(f, "layout does not match the env count and frame size"),
+            ViewError::TooManyEnvs(n) => write!(f, "{n} envs (at most {MAX_ENVS})"),
+        }
+    }
+}
+
+impl std::error::Error for ViewError {}
+
+/// The shape of one observation payload: how many envs, frame size, and the section offsets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ObsShape {
+    pub num_envs: usize,
+    pub width: usize,
+    pub height: usize,
+    pub layout: ObsLayout,
+}
+
+impl ObsShape {
+    pub fn new(num_envs: usize, width: u32, height: u32) -> ObsShape {
+        ObsShape { num_envs, width: width as usize, height: height as usize, layout: ObsLayout::new(num_envs as u32, width, height) }
+    }
+
+    /// The shape a received header announces, checked against the layout it carries.
+    pub fn of_header(h: &ObsHeader) -> Result<ObsShape, ViewError> {
+        if h.num_envs as usize > MAX_ENVS {
+            return Err(ViewError::TooManyEnvs(h.num_envs as usize));
+        }
+        let s = ObsShape::new(h.num_envs as usize, h.width, h.height);
+        if s.layout != h.layout || h.gesture_frames as usize != GESTURE_FRAMES || h.gesture_dims as usize != GESTURE_DIMS {
+            return Err(ViewError::Layout);
+        }
+        Ok(s)
+    }
+
+    fn pixels(&self) -> usize {
+        self.width * self.height
+    }
+
+    fn check(&self, ptr: *const u8, len: usize) -> Result<(), ViewError> {
+        if self.num_envs > MAX_ENVS {
+            return Err(ViewError::TooManyEnvs(self.num_envs));
+        }
+        let need = self.layout.total_len as usize;
+        if len < need {
+            return Err(ViewError::TooShort { len, need });
+        }
+        if (ptr as usize) % std::mem::align_of::<EnvRecord>() != 0 {
+            return Err(ViewError::Misaligned);
+        }
+        Ok(())
+    }
+}
+
+/// An observation payload read in place: typed slices over the bytes, no copy.
+#[derive(Debug, Clone, Copy)]
+pub struct ObsView<'a> {
+    shape: ObsShape,
+    payload: &'a [u8],
+}
+
+impl<'a> ObsView<'a> {
+    pub fn new(shape: ObsShape, payload: &'a [u8]) -> Result<ObsView<'a>, ViewError> {
+        shape.check(payload.as_ptr(), payload.len())?;
+        Ok(ObsView { shape, payload })
+    }
+
+    pub fn shape(&self) -> &ObsShape {
+        &self.shape
+    }
+
+    pub fn bytes(&self) -> &'a [u8] {
+        self.payload
+    }
+
+    pub fn records(&self) -> &'a [EnvRecord] {
+        let l = &self.shape.layout;
+        // SAFETY: `check` made sure the payload is long enough and 8-byte aligned, and every
+        // section offset is a multiple of 64; EnvRecord is repr(C) plain data valid for any bytes
+        // the schema defines (flags are u8, not bool).
+        unsafe { std::slice::from_raw_parts(self.payload.as_ptr().add(l.records_offset as usize) as *const EnvRecord, self.shape.num_envs) }
+    }
+
+    /// RGB of every env, `[E, H, W, 3]` u8, contiguous.
+    pub fn rgb_all(&self) -> &'a [u8] {
+        let l = &self.shape.layout;
+        let start = l.rgb_offset as usize;
+        &self.payload[start..start + self.shape.num_envs * self.shape.pixels() * 3]
+    }
+
+    pub fn rgb(&self, env: usize) -> &'a [u8] {
+        let n = self.shape.pixels() * 3;
+        &self.rgb_all()[env * n..(env + 1) * n]
+    }
+
+    /// Depth of every env, `[E, H, W]` u16 (0..10 m → 0..65535), contiguous.
+    pub fn depth_all(&self) -> &'a [u16] {
+        let l = &self.shape.layout;
+        // SAFETY: in bounds (checked length), 2-byte aligned (aligned base + 64-byte offset).
+        unsafe { std::slice::from_raw_parts(self.payload.as_ptr().add(l.depth_offset as usize) as *const u16, self.shape.num_envs * self.shape.pixels()) }
+    }
+
+    pub fn depth(&self, env: usize) -> &'a [u16] {
+        let n = self.shape.pixels();
+        &self.depth_all()[env * n..(env + 1) * n]
+    }
+
+    /// Gestures of every env, `[E, 100, 95]` IEEE f16 bit patterns, contiguous.
+    pub fn gesture_bits_all(&self) -> &'a [u16] {
+        let l = &self.shape.layout;
+        // SAFETY: as for depth.
+        unsafe { std::slice::from_raw_parts(self.payload.as_ptr().add(l.gesture_offset as usize) as *const u16, self.shape.num_envs * GESTURE_FRAMES * GESTURE_DIMS) }
+    }
+
+    pub fn gesture_bits(&self, env: usize) -> &'a [u16] {
+        let n = GESTURE_FRAMES * GESTURE_DIMS;
+        &self.gesture_bits_all()[env * n..(env + 1) * n]
+    }
+}
+
+/// The sections of an observation payload, borrowed mutably and apart, so that a writer can
+/// fill frames and records at the same time (what a worker does with a loaned sample).
+#[derive(Debug)]
+pub struct ObsSections<'a> {
+    pub records: &'a mut [EnvRecord],
+    /// `[E, H, W, 3]`.
+    pub rgb: &'a mut [u8],
+    /// `[E, H, W]`.
+    pub depth: &'a mut [u16],
+    /// `[E, 100, 95]` f16 bits.
+    pub gesture: &'a mut [u16],
+}
+
+impl<'a> ObsSections<'a> {
+    /// Splits `payload` into its sections. The bytes between sections (alignment padding) are
+    /// left as they are.
+    pub fn new(shape: &ObsShape, payload: &'a mut [u8]) -> Result<ObsSections<'a>, ViewError> {
+        shape.check(payload.as_ptr(), payload.len())?;
+        let l = &shape.layout;
+        let (e, px) = (shape.num_envs, shape.pixels());
+        let base = payload.as_mut_ptr();
+        // SAFETY: the four ranges are disjoint (ObsLayout::new places them one after another),
+        // within the checked length, and aligned for their element types.
+        unsafe {
+            Ok(ObsSections {
+                records: std::slice::from_raw_parts_mut(base.add(l.records_offset as usize) as *mut EnvRecord, e),
+                rgb: std::slice::from_raw_parts_mut(base.add(l.rgb_offset as usize), e * px * 3),
+                depth: std::slice::from_raw_parts_mut(base.add(l.depth_offset as usize) as *mut u16, e * px),
+                gesture: std::slice::from_raw_parts_mut(base.add(l.gesture_offset as usize) as *mut u16, e * GESTURE_FRAMES * GESTURE_DIMS),
+            })
+        }
     }
 }
 
@@ -255,8 +491,65 @@ mod tests {
     }
 
     #[test]
+    fn offsets_match_the_readme() {
+        use std::mem::offset_of;
+        assert_eq!(offset_of!(ObsHeader, step), 16);
+        assert_eq!(offset_of!(ObsHeader, finished), 44);
+        assert_eq!(offset_of!(ObsHeader, layout), 48);
+        assert_eq!(offset_of!(ObsLayout, total_len), 56);
+        assert_eq!(offset_of!(EnvRecord, reward), 32);
+        assert_eq!(offset_of!(EnvRecord, terminated), 36);
+        assert_eq!(offset_of!(EnvRecord, expert_action), 44);
+        assert_eq!(offset_of!(EnvRecord, stops), 48);
+        assert_eq!(offset_of!(EnvRecord, robot), 64);
+        assert_eq!(offset_of!(EnvRecord, geodesic), 92);
+        assert_eq!(offset_of!(EnvRecord, summary), 96);
+        assert_eq!(offset_of!(EpisodeSummary, stops), 40);
+        assert_eq!(offset_of!(ActionMsg, step), 16);
+        assert_eq!(offset_of!(ActionMsg, actions), 32);
+        // the README's examples
+        let l = ObsLayout::new(4, 224, 224);
+        assert_eq!((l.rgb_offset, l.depth_offset, l.gesture_offset, l.total_len), (768, 602880, 1004288, 1080320));
+        let l = ObsLayout::new(2, 64, 64);
+        assert_eq!((l.rgb_offset, l.depth_offset, l.gesture_offset, l.total_len), (384, 24960, 41344, 79360));
+    }
+
+    #[test]
     fn names_carry_the_run_id() {
         assert_ne!(service::obs("a", 0), service::obs("b", 0));
         assert_ne!(service::obs("a", 0), service::act("a", 0));
+        assert_ne!(service::prefix("a"), service::prefix("b"));
+        assert_eq!(service::prefix("run/1 x"), "gesthor_run_1_x_");
+    }
+
+    #[test]
+    fn sections_and_view_see_the_same_bytes() {
+        let shape = ObsShape::new(3, 20, 10);
+        let mut buf = vec![0u64; shape.layout.total_len as usize / 8 + 1];
+        // SAFETY: reinterpreting an owned u64 buffer as bytes.
+        let bytes = unsafe { std::slice::from_raw_parts_mut(buf.as_mut_ptr() as *mut u8, buf.len() * 8) };
+        {
+            let s = ObsSections::new(&shape, bytes).unwrap();
+            assert_eq!(s.rgb.len(), 3 * 200 * 3);
+            s.records[2].env_step = 7;
+            s.rgb[200 * 3 + 5] = 9;
+            s.depth[2 * 200] = 65535;
+            s.gesture[GESTURE_FRAMES * GESTURE_DIMS] = 0x3C00;
+        }
+        let v = ObsView::new(shape, bytes).unwrap();
+        assert_eq!(v.records()[2].env_step, 7);
+        assert_eq!(v.rgb(1)[5], 9);
+        assert_eq!(v.depth(2)[0], 65535);
+        assert_eq!(v.gesture_bits(1)[0], 0x3C00);
+        assert!(matches!(ObsView::new(shape, &bytes[..100]), Err(ViewError::TooShort { .. })));
+        assert_eq!(ObsView::new(shape, &bytes[1..]).unwrap_err(), ViewError::Misaligned);
+    }
+
+    #[test]
+    fn header_shape_must_match_its_layout() {
+        let mut h = ObsHeader { num_envs: 2, width: 64, height: 48, gesture_frames: 100, gesture_dims: 95, layout: ObsLayout::new(2, 64, 48), ..Default::default() };
+        assert!(ObsShape::of_header(&h).is_ok());
+        h.width = 65;
+        assert_eq!(ObsShape::of_header(&h).unwrap_err(), ViewError::Layout);
     }
 }

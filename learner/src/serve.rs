@@ -1,0 +1,750 @@
+//! The policy server: gathers one observation from every worker that answers, runs the policy
+//! on the whole batch, sends each worker its actions, and keeps the books (frames, episodes,
+//! message integrity) of the run.
+//!
+//! A round closes when every live worker has sent, or `batch_timeout` after its first
+//! observation arrived: a worker that misses the deadline is marked absent and no round waits
+//! for it again until it sends (so a dead worker costs one timeout, not one per round). A
+//! policy that decides env by env (random, expert) does not want full batches: each round then
+//! takes whoever has sent and answers at once, so no worker waits for a slower one. A
+//! worker restarted by the orchestrator announces `generation + 1`: its state is reset, and
+//! observations of older generations still in flight are dropped.
+//!
+//! Every observation is checked as it arrives: header magic, version, slot and layout; the
+//! message counter of its worker and the `env_step` counter of each of its envs must go up by
+//! exactly one within a generation. Violations are counted (`lost`, `duplicates`, `corrupt`)
+//! and, in check mode, fail the run.
+//!
+//! Files in the run directory: `farm.jsonl` (a progress record every `report_every`, and a
+//! final one), `episodes.jsonl` (one line per finished episode), `farm_summary.json` (at exit).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use serde::{Deserialize, Serialize};
+use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, OBS_MAGIC, ObsShape, ObsView, SCHEMA_VERSION, command};
+use worker::metrics::EpisodeResult;
+use worker::process;
+use worker::transport::TransportError;
+
+use crate::batch::{ObsBatchView, WorkerObs};
+use crate::policy::{FarmPolicy, NUM_ACTIONS};
+use crate::transport::{LearnerPorts, ObsSample};
+
+/// How to serve a run.
+#[derive(Clone, Debug)]
+pub struct ServeOptions {
+    pub run_id: String,
+    pub workers: usize,
+    pub run_dir: PathBuf,
+    /// What every worker's observations must look like (from the run config).
+    pub envs_per_worker: usize,
+    pub width: u32,
+    pub height: u32,
+    /// Close a round this long after its first observation even if some workers are missing.
+    pub batch_timeout: Duration,
+    /// Stop (SHUTDOWN to every worker) after this many frames.
+    pub max_frames: Option<u64>,
+    pub max_seconds: Option<f64>,
+    /// Evaluation: stop once every worker reports `finished`.
+    pub eval: bool,
+    /// Fail the run on any lost, duplicated or malformed message.
+    pub check: bool,
+    pub report_every: Duration,
+    /// How long to keep answering SHUTDOWN to stragglers when stopping.
+    pub drain_timeout: Duration,
+    /// Before the first round, wait until every worker has sent its first observation, or
+    /// this long, whichever comes first (workers start at different speeds; a worker that
+    /// fails to start must not hold the run up for ever).
+    pub start_wait: Duration,
+}
+
+impl ServeOptions {
+    pub fn new(run_id: &str, workers: usize, run_dir: &Path, envs_per_worker: usize, width: u32, height: u32) -> Self {
+        ServeOptions {
+            run_id: run_id.into(),
+            workers,
+            run_dir: run_dir.into(),
+            envs_per_worker,
+            width,
+            height,
+            batch_timeout: Duration::from_millis(1000),
+            max_frames: None,
+            max_seconds: None,
+            eval: false,
+            check: false,
+            report_every: Duration::from_secs(2),
+            drain_timeout: Duration::from_secs(2),
+            start_wait: Duration::from_secs(60),
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    #[error("policy `{name}`")]
+    Policy { name: String, source: anyhow::Error },
+    #[error("{path}")]
+    Io { path: String, source: std::io::Error },
+    #[error("check failed: {0}")]
+    Check(String),
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ServeError + '_ {
+    move |source| ServeError::Io { path: path.display().to_string(), source }
+}
+
+/// Running totals of a run.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Counters {
+    /// Env observations of envs that were running (idle envs of finished evaluations excluded).
+    pub frames: u64,
+    /// Observations (messages) accepted.
+    pub messages: u64,
+    pub rounds: u64,
+    pub episodes: u64,
+    pub successes: u64,
+    /// Workers that came back with a new generation.
+    pub restarts: u64,
+    /// Messages or env steps skipped within a generation.
+    pub lost: u64,
+    /// Messages or env steps seen twice (or going backwards) within a generation.
+    pub duplicates: u64,
+    /// Messages with a bad header or layout.
+    pub corrupt: u64,
+    /// Messages of an older generation, dropped.
+    pub stale: u64,
+    /// Sum and count of step round trips: action sent → the worker's next observation received.
+    pub latency_sum_s: f64,
+    pub latency_count: u64,
+    /// Time spent in the policy.
+    pub policy_sum_s: f64,
+}
+
+/// One line of `farm.jsonl`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Progress {
+    /// Seconds since the server started.
+    pub t: f64,
+    /// Frames per second over the last report window.
+    pub fps: f64,
+    /// Mean step round trip (ms) over the last window.
+    pub latency_ms: Option<f64>,
+    pub success_rate: Option<f64>,
+    /// Workers seen at least once / answering at the moment.
+    pub workers_seen: usize,
+    pub workers_live: usize,
+    #[serde(flatten)]
+    pub totals: Counters,
+    /// Set on the last line.
+    pub stop_reason: Option<String>,
+}
+
+/// Per-worker state at the end (`farm_summary.json`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct WorkerSummary {
+    pub worker: u32,
+    pub generation: Option<u32>,
+    /// Messages accepted from the current generation.
+    pub messages: u64,
+    pub frames: u64,
+    pub finished: bool,
+}
+
+/// What [`serve`] returns and writes to `farm_summary.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Summary {
+    pub run_id: String,
+    pub policy: String,
+    pub seconds: f64,
+    pub stop_reason: String,
+    pub totals: Counters,
+    pub workers: Vec<WorkerSummary>,
+}
+
+/// One line of `episodes.jsonl`: the episode as `worker::metrics` scores it, plus where it
+/// came from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeLine {
+    #[serde(flatten)]
+    pub result: EpisodeResult,
+    /// The env's episode counter in its worker process.
+    pub episode: u64,
+    pub terminated: bool,
+    pub truncated: bool,
+    pub target_category: u32,
+    pub target_instances: u32,
+}
+
+impl EpisodeLine {
+    fn new(worker: u32, generation: u32, env: usize, r: &EnvRecord) -> EpisodeLine {
+        EpisodeLine {
+            result: EpisodeResult::from_record(r, worker, env as u32, generation),
+            episode: r.episode,
+            terminated: r.terminated != 0,
+            truncated: r.truncated != 0,
+            target_category: r.target_category,
+            target_instances: r.target_instances,
+        }
+    }
+}
+
+/// The server's knowledge of one worker slot.
+#[derive(Debug)]
+struct Slot {
+    generation: Option<u32>,
+    /// The observation waiting for this round's answer.
+    held: Option<(ObsSample, bool)>,
+    /// The next generation's first message has not been acted on yet.
+    new_generation: bool,
+    last_step: Option<u64>,
+    /// The `env_step` each env must send next.
+    next_env_step: Vec<Option<u64>>,
+    absent: bool,
+    finished: bool,
+    shutdown_sent: bool,
+    sent_at: Option<Instant>,
+    messages: u64,
+    frames: u64,
+}
+
+impl Slot {
+    fn new() -> Slot {
+        Slot {
+            generation: None,
+            held: None,
+            new_generation: false,
+            last_step: None,
+            next_env_step: vec![],
+            absent: false,
+            finished: false,
+            shutdown_sent: false,
+            sent_at: None,
+            messages: 0,
+            frames: 0,
+        }
+    }
+
+    fn live(&self) -> bool {
+        self.generation.is_some() && !self.absent && !self.shutdown_sent
+    }
+}
+
+/// Why serving stopped.
+#[derive(Clone, Debug, PartialEq)]
+enum Stop {
+    Frames,
+    Seconds,
+    EvalDone,
+    Signal(nix::sys::signal::Signal),
+}
+
+impl Stop {
+    fn describe(&self) -> String {
+        match self {
+            Stop::Frames => "frame budget reached".into(),
+            Stop::Seconds => "time budget reached".into(),
+            Stop::EvalDone => "every worker finished its programs".into(),
+            Stop::Signal(s) => format!("stopped by {s}"),
+        }
+    }
+}
+
+struct Server<'p> {
+    opts: ServeOptions,
+    shape: ObsShape,
+    ports: LearnerPorts,
+    policy: &'p mut dyn FarmPolicy,
+    slots: Vec<Slot>,
+    totals: Counters,
+    episodes: std::io::BufWriter<std::fs::File>,
+    episodes_path: PathBuf,
+    progress: std::fs::File,
+    progress_path: PathBuf,
+    start: Instant,
+    last_report: (Instant, Counters),
+    problems: Vec<String>,
+}
+
+/// Serves `policy` to the run's workers until a budget is spent, the evaluation is done or a
+/// termination signal arrives; then answers every worker with SHUTDOWN and returns the summary.
+pub fn serve(opts: &ServeOptions, policy: &mut dyn FarmPolicy) -> Result<Summary, ServeError> {
+    let shape = ObsShape::new(opts.envs_per_worker, opts.width, opts.height);
+    if opts.envs_per_worker > MAX_ENVS {
+        return Err(ServeError::Check(format!("{} envs per worker; at most {MAX_ENVS}", opts.envs_per_worker)));
+    }
+    std::fs::create_dir_all(&opts.run_dir).map_err(io_err(&opts.run_dir))?;
+    let episodes_path = opts.run_dir.join("episodes.jsonl");
+    let progress_path = opts.run_dir.join("farm.jsonl");
+    let open_append = |p: &Path| std::fs::OpenOptions::new().create(true).append(true).open(p);
+    let episodes = std::io::BufWriter::new(open_append(&episodes_path).map_err(io_err(&episodes_path))?);
+    let progress = open_append(&progress_path).map_err(io_err(&progress_path))?;
+    let ports = LearnerPorts::open(&opts.run_id, opts.workers)?;
+    let now = Instant::now();
+    let mut server = Server {
+        opts: opts.clone(),
+        shape,
+        ports,
+        policy,
+        slots: (0..opts.workers).map(|_| Slot::new()).collect(),
+        totals: Counters::default(),
+        episodes,
+        episodes_path,
+        progress,
+        progress_path,
+        start: now,
+        last_report: (now, Counters::default()),
+        problems: vec![],
+    };
+    tracing::info!("serving policy `{}` to {} workers of run {}", server.policy.name(), opts.workers, opts.run_id);
+    let stop = server.run()?;
+    server.finish(stop)
+}
+
+impl Server<'_> {
+    fn run(&mut self) -> Result<Stop, ServeError> {
+        let mut round_start: Option<Instant> = None;
+        let mut started = false;
+        loop {
+            if let Some(sig) = process::termination_signal() {
+                return Ok(Stop::Signal(sig));
+            }
+            if let Some(s) = self.opts.max_seconds
+                && self.start.elapsed().as_secs_f64() >= s
+            {
+                return Ok(Stop::Seconds);
+            }
+            self.collect()?;
+            self.report(None)?;
+            let any = self.slots.iter().any(|s| s.held.is_some());
+            if !started {
+                let seen = self.slots.iter().filter(|s| s.generation.is_some()).count();
+                started = seen == self.slots.len() || (seen > 0 && self.start.elapsed() >= self.opts.start_wait);
+                if !started {
+                    self.ports.wait(Duration::from_millis(50));
+                    continue;
+                }
+                tracing::info!("{seen} of {} workers connected; serving", self.slots.len());
+            }
+            if any {
+                let first = *round_start.get_or_insert_with(Instant::now);
+                let waiting: Vec<usize> = if self.policy.wants_full_batches() {
+                    (0..self.slots.len()).filter(|&k| self.slots[k].live() && self.slots[k].held.is_none()).collect()
+                } else {
+                    vec![] // answer whoever has sent, now
+                };
+                if waiting.is_empty() || first.elapsed() >= self.opts.batch_timeout {
+                    for k in waiting {
+                        tracing::warn!("worker {k} did not answer within {:?}; going on without it", self.opts.batch_timeout);
+                        self.slots[k].absent = true;
+                    }
+                    round_start = None;
+                    if let Some(stop) = self.round()? {
+                        return Ok(stop);
+                    }
+                    continue;
+                }
+                let left = self.opts.batch_timeout.saturating_sub(first.elapsed());
+                self.ports.wait(left.min(Duration::from_millis(50)));
+            } else {
+                self.ports.wait(Duration::from_millis(50));
+            }
+        }
+    }
+
+    /// Takes every observation that arrived, checks it, and holds the newest per worker.
+    fn collect(&mut self) -> Result<(), ServeError> {
+        for k in 0..self.slots.len() {
+            while let Some(sample) = self.ports.receive(k)? {
+                self.accept(k, sample)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn problem(&mut self, what: String) -> Result<(), ServeError> {
+        tracing::warn!("{what}");
+        if self.problems.len() < 20 {
+            self.problems.push(what.clone());
+        }
+        if self.opts.check { Err(ServeError::Check(what)) } else { Ok(()) }
+    }
+
+    fn accept(&mut self, k: usize, sample: ObsSample) -> Result<(), ServeError> {
+        let h = *sample.user_header();
+        let view = ObsShape::of_header(&h).and_then(|s| ObsView::new(s, sample.payload()));
+        let bad = if h.magic != OBS_MAGIC || h.version != SCHEMA_VERSION {
+            Some(format!("magic {:#x} version {}", h.magic, h.version))
+        } else if h.worker_id as usize != k {
+            Some(format!("header says worker {}", h.worker_id))
+        } else {
+            match &view {
+                Err(e) => Some(e.to_string()),
+                Ok(v) if *v.shape() != self.shape => Some(format!(
+                    "{} envs of {}x{}, the run config says {} of {}x{}",
+                    v.shape().num_envs,
+                    v.shape().width,
+                    v.shape().height,
+                    self.shape.num_envs,
+                    self.shape.width,
+                    self.shape.height
+                )),
+                Ok(_) => None,
+            }
+        };
+        if let Some(why) = bad {
+            self.totals.corrupt += 1;
+            return self.problem(format!("worker {k}: malformed observation dropped: {why}"));
+        }
+        let view = view.expect("checked above");
+        let slot = &mut self.slots[k];
+        match slot.generation {
+            Some(g) if h.generation < g => {
+                self.totals.stale += 1;
+                return Ok(());
+            }
+            Some(g) if h.generation == g => {}
+            known => {
+                if let Some(g) = known {
+                    self.totals.restarts += 1;
+                    tracing::info!("worker {k} is back as generation {} (was {g})", h.generation);
+                }
+                let fresh = Slot::new();
+                *slot = Slot { generation: Some(h.generation), new_generation: true, next_env_step: vec![None; self.shape.num_envs], ..fresh };
+            }
+        }
+        // Message counter of this generation.
+        let mut issues = vec![];
+        if let Some(last) = slot.last_step {
+            if h.step <= last {
+                self.totals.duplicates += 1;
+                let why = format!("worker {k} generation {}: message {} again (last {last})", h.generation, h.step);
+                return self.problem(why);
+            }
+            if h.step > last + 1 {
+                self.totals.lost += h.step - last - 1;
+                issues.push(format!("worker {k} generation {}: messages {}..{} lost", h.generation, last + 1, h.step));
+            }
+        }
+        if slot.held.is_some() {
+            // A second observation before the first was answered: the worker broke lock-step.
+            self.totals.duplicates += 1;
+            issues.push(format!("worker {k}: observation {} arrived before the previous one was answered", h.step));
+        }
+        for (e, r) in view.records().iter().enumerate() {
+            if let Some(want) = slot.next_env_step[e]
+                && r.env_step != want
+            {
+                if r.env_step < want {
+                    self.totals.duplicates += 1;
+                } else {
+                    self.totals.lost += r.env_step - want;
+                }
+                issues.push(format!("worker {k} env {e}: env_step {} where {want} was due", r.env_step));
+            }
+            slot.next_env_step[e] = Some(r.env_step + 1);
+        }
+        if let Some(t) = slot.sent_at.take() {
+            self.totals.latency_sum_s += t.elapsed().as_secs_f64();
+            self.totals.latency_count += 1;
+        }
+        slot.last_step = Some(h.step);
+        slot.absent = false;
+        slot.finished = h.finished != 0;
+        slot.messages += 1;
+        let new_gen = std::mem::replace(&mut slot.new_generation, false);
+        slot.held = Some((sample, new_gen));
+        self.totals.messages += 1;
+        for why in issues {
+            self.problem(why)?;
+        }
+        Ok(())
+    }
+
+    /// Books the frames and finished episodes of one observation.
+    fn account(&mut self, k: usize, records: &[EnvRecord], generation: u32) -> Result<(), ServeError> {
+        for (e, r) in records.iter().enumerate() {
+            if r.idle != 0 {
+                continue;
+            }
+            self.totals.frames += 1;
+            self.slots[k].frames += 1;
+            if r.terminated != 0 || r.truncated != 0 {
+                self.totals.episodes += 1;
+                self.totals.successes += (r.summary.success != 0) as u64;
+                let line = serde_json::to_string(&EpisodeLine::new(k as u32, generation, e, r)).expect("serialisable");
+                writeln!(self.episodes, "{line}").map_err(io_err(&self.episodes_path))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Runs the policy on every held observation and answers each worker. Returns a stop
+    /// reason when this round ended the run (its answers were then SHUTDOWN).
+    fn round(&mut self) -> Result<Option<Stop>, ServeError> {
+        let held: Vec<(usize, ObsSample, bool)> =
+            (0..self.slots.len()).filter_map(|k| self.slots[k].held.take().map(|(s, g)| (k, s, g))).collect();
+        let missing: Vec<u32> = (0..self.slots.len()).filter(|&k| self.slots[k].generation.is_some() && !held.iter().any(|h| h.0 == k)).map(|k| k as u32).collect();
+        let parts: Vec<WorkerObs> = held
+            .iter()
+            .map(|(k, s, new_generation)| {
+                let header = s.user_header();
+                let view = ObsView::new(self.shape, s.payload()).expect("checked on arrival");
+                WorkerObs { worker: *k as u32, generation: header.generation, new_generation: *new_generation, header, view }
+            })
+            .collect();
+        let batch = ObsBatchView { width: self.shape.width, height: self.shape.height, parts, missing };
+        let t = Instant::now();
+        let actions = self.policy.act(&batch).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
+        self.totals.policy_sum_s += t.elapsed().as_secs_f64();
+        if actions.len() != batch.num_envs() || actions.iter().any(|&a| a >= NUM_ACTIONS) {
+            return Err(ServeError::Policy {
+                name: self.policy.name().into(),
+                source: anyhow::anyhow!("returned {} actions (values < {NUM_ACTIONS}) for {} envs", actions.len(), batch.num_envs()),
+            });
+        }
+        for p in &batch.parts {
+            self.account(p.worker as usize, p.records(), p.generation)?;
+        }
+        self.totals.rounds += 1;
+        let stop = if self.opts.max_frames.is_some_and(|m| self.totals.frames >= m) {
+            Some(Stop::Frames)
+        } else if self.opts.eval && self.slots.iter().all(|s| s.generation.is_some() && s.finished) {
+            Some(Stop::EvalDone)
+        } else {
+            None
+        };
+        let cmd = if stop.is_some() { command::SHUTDOWN } else { command::STEP };
+        let mut offset = 0;
+        for p in &batch.parts {
+            let n = p.num_envs();
+            let mut msg = ActionMsg {
+                magic: ACT_MAGIC,
+                worker_id: p.worker,
+                generation: p.generation,
+                command: cmd,
+                step: p.header.step,
+                num_envs: n as u32,
+                ..Default::default()
+            };
+            msg.actions[..n].copy_from_slice(&actions[offset..offset + n]);
+            offset += n;
+            let k = p.worker as usize;
+            self.ports.send(k, msg)?;
+            self.slots[k].sent_at = Some(Instant::now());
+            self.slots[k].shutdown_sent |= cmd == command::SHUTDOWN;
+        }
+        self.episodes.flush().map_err(io_err(&self.episodes_path))?;
+        // The samples go back to their workers' pools here.
+        drop(batch);
+        drop(held);
+        Ok(stop)
+    }
+
+    /// Answers SHUTDOWN to every worker that sends (or holds an answer) until all have been
+    /// told or are gone, or the drain timeout passes.
+    fn drain(&mut self) -> Result<(), ServeError> {
+        let until = Instant::now() + self.opts.drain_timeout;
+        loop {
+            self.collect()?;
+            for k in 0..self.slots.len() {
+                if let Some((s, _)) = self.slots[k].held.take() {
+                    let h = *s.user_header();
+                    let view = ObsView::new(self.shape, s.payload()).expect("checked on arrival");
+                    self.account(k, view.records(), h.generation)?;
+                    let msg = ActionMsg {
+                        magic: ACT_MAGIC,
+                        worker_id: k as u32,
+                        generation: h.generation,
+                        command: command::SHUTDOWN,
+                        step: h.step,
+                        num_envs: h.num_envs,
+                        ..Default::default()
+                    };
+                    self.ports.send(k, msg)?;
+                    self.slots[k].shutdown_sent = true;
+                }
+            }
+            let pending = (0..self.slots.len()).any(|k| self.slots[k].generation.is_some() && !self.slots[k].shutdown_sent && self.ports.worker_attached(k));
+            if !pending || Instant::now() >= until {
+                break;
+            }
+            self.ports.wait(Duration::from_millis(20));
+        }
+        self.episodes.flush().map_err(io_err(&self.episodes_path))
+    }
+
+    fn progress(&self, now: Instant, stop: Option<&Stop>) -> Progress {
+        let (t0, before) = &self.last_report;
+        let dt = now.duration_since(*t0).as_secs_f64().max(1e-9);
+        let dl = self.totals.latency_count - before.latency_count;
+        Progress {
+            t: now.duration_since(self.start).as_secs_f64(),
+            fps: (self.totals.frames - before.frames) as f64 / dt,
+            latency_ms: (dl > 0).then(|| 1000.0 * (self.totals.latency_sum_s - before.latency_sum_s) / dl as f64),
+            success_rate: (self.totals.episodes > 0).then(|| self.totals.successes as f64 / self.totals.episodes as f64),
+            workers_seen: self.slots.iter().filter(|s| s.generation.is_some()).count(),
+            workers_live: self.slots.iter().filter(|s| s.generation.is_some() && !s.absent).count(),
+            totals: self.totals.clone(),
+            stop_reason: stop.map(Stop::describe),
+        }
+    }
+
+    /// Appends a progress record (and prints a line) when one is due, or always at the end.
+    fn report(&mut self, stop: Option<&Stop>) -> Result<(), ServeError> {
+        let now = Instant::now();
+        if stop.is_none() && now.duration_since(self.last_report.0) < self.opts.report_every {
+            return Ok(());
+        }
+        let p = self.progress(now, stop);
+        let line = serde_json::to_string(&p).expect("serialisable");
+        writeln!(self.progress, "{line}").map_err(io_err(&self.progress_path))?;
+        eprintln!(
+            "[learner] {:>7.1} s  frames {:>9} ({:>7.1}/s)  episodes {:>6}  success {}  workers {}/{}  restarts {}  step {}",
+            p.t,
+            p.totals.frames,
+            p.fps,
+            p.totals.episodes,
+            p.success_rate.map(|s| format!("{:.3}", s)).unwrap_or_else(|| "-".into()),
+            p.workers_live,
+            self.slots.len(),
+            p.totals.restarts,
+            p.latency_ms.map(|l| format!("{l:.1} ms")).unwrap_or_else(|| "-".into()),
+        );
+        self.last_report = (now, self.totals.clone());
+        Ok(())
+    }
+
+    fn finish(mut self, stop: Stop) -> Result<Summary, ServeError> {
+        tracing::info!("{}; telling the workers to shut down", stop.describe());
+        self.drain()?;
+        let checkpoint = !matches!(stop, Stop::Signal(nix::sys::signal::Signal::SIGTERM));
+        self.policy.finish(checkpoint).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
+        self.report(Some(&stop))?;
+        let summary = Summary {
+            run_id: self.opts.run_id.clone(),
+            policy: self.policy.name().into(),
+            seconds: self.start.elapsed().as_secs_f64(),
+            stop_reason: stop.describe(),
+            totals: self.totals.clone(),
+            workers: self
+                .slots
+                .iter()
+                .enumerate()
+                .map(|(k, s)| WorkerSummary { worker: k as u32, generation: s.generation, messages: s.messages, frames: s.frames, finished: s.finished })
+                .collect(),
+        };
+        let path = self.opts.run_dir.join("farm_summary.json");
+        worker::util::write_atomic(&path, serde_json::to_string_pretty(&summary).expect("serialisable").as_bytes()).map_err(io_err(&path))?;
+        if self.opts.check {
+            let t = &self.totals;
+            if t.lost + t.duplicates + t.corrupt > 0 {
+                return Err(ServeError::Check(format!("{} lost, {} duplicated, {} malformed messages: {}", t.lost, t.duplicates, t.corrupt, self.problems.join("; "))));
+            }
+        }
+        Ok(summary)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::policy::{ExpertPolicy, RandomPolicy};
+    use worker::farm::SyntheticStepper;
+    use worker::transport::{self as wt, Exit, WorkerOptions};
+
+    fn spawn_workers(run: &str, n: u32, envs: usize, generation: u32) -> Vec<std::thread::JoinHandle<Result<Exit, TransportError>>> {
+        (0..n)
+            .map(|k| {
+                let opts = WorkerOptions::new(run, k, generation, 24, 16);
+                std::thread::spawn(move || {
+                    let mut s = SyntheticStepper::new(k, envs, 24, 16, None, true);
+                    wt::serve(&mut s, &opts)
+                })
+            })
+            .collect()
+    }
+
+    /// Two in-process workers (threads, synthetic envs) and the server: every message and env
+    /// step arrives exactly once, episodes are written, every worker is shut down.
+    #[test]
+    fn serves_synthetic_workers_without_loss_and_shuts_them_down() {
+        let run = format!("t{}-serve", std::process::id());
+        let dir = tempfile::tempdir().unwrap();
+        let workers = spawn_workers(&run, 2, 3, 0);
+        let mut opts = ServeOptions::new(&run, 2, dir.path(), 3, 24, 16);
+        opts.max_frames = Some(600);
+        opts.check = true;
+        let mut policy = ExpertPolicy;
+        let s = serve(&opts, &mut policy).unwrap();
+        for w in workers {
+            assert_eq!(w.join().unwrap().unwrap(), Exit::Shutdown);
+        }
+        assert!(s.totals.frames >= 600, "{s:?}");
+        assert_eq!((s.totals.lost, s.totals.duplicates, s.totals.corrupt), (0, 0, 0));
+        assert!(s.workers.iter().all(|w| w.generation == Some(0) && w.messages > 50));
+        let episodes = std::fs::read_to_string(dir.path().join("episodes.jsonl")).unwrap();
+        let lines: Vec<EpisodeLine> = episodes.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        assert_eq!(lines.len() as u64, s.totals.episodes);
+        assert!(lines.len() > 50);
+        // the synthetic task: even programs succeed
+        assert!(lines.iter().all(|l| l.result.success == (l.result.program % 2 == 0)));
+        // eval reads the same lines as plain episode results
+        let first: EpisodeResult = serde_json::from_str(episodes.lines().next().unwrap()).unwrap();
+        assert_eq!(first, lines[0].result);
+        let progress = std::fs::read_to_string(dir.path().join("farm.jsonl")).unwrap();
+        let last: Progress = serde_json::from_str(progress.lines().last().unwrap()).unwrap();
+        assert_eq!(last.stop_reason.as_deref(), Some("frame budget reached"));
+        assert!(dir.path().join("farm_summary.json").exists());
+        assert!(wt::end_run_domain(&run).unwrap().is_empty());
+    }
+
+    /// A worker slot that comes back with a new generation is taken as a restart; answers to
+    /// the old generation are never mixed in.
+    #[test]
+    fn a_new_generation_replaces_the_old_one() {
+        let run = format!("t{}-gen", std::process::id());
+        let dir = tempfile::tempdir().unwrap();
+        let mut opts = ServeOptions::new(&run, 1, dir.path(), 2, 24, 16);
+        opts.max_frames = Some(200);
+        opts.check = true;
+        opts.batch_timeout = Duration::from_millis(200);
+        let server = std::thread::spawn(move || serve(&opts, &mut RandomPolicy::new(3)));
+        // generation 0 runs a little, then generation 1 takes the slot over
+        let g0 = std::thread::spawn({
+            let run = run.clone();
+            move || {
+                let mut opts = WorkerOptions::new(&run, 0, 0, 24, 16);
+                opts.learner_check_after = Duration::from_millis(200);
+                let s = SyntheticStepper::new(0, 2, 24, 16, None, false);
+                // fails after a few steps, as if the process crashed mid-run
+                struct Crashing(SyntheticStepper, u32);
+                impl worker::farm::Stepper for Crashing {
+                    fn num_envs(&self) -> usize { self.0.num_envs() }
+                    fn layout(&self) -> shm_schema::ObsLayout { self.0.layout() }
+                    fn reset(&mut self, p: &mut [u8]) -> anyhow::Result<()> { self.0.reset(p) }
+                    fn step(&mut self, a: &[u8], p: &mut [u8]) -> anyhow::Result<()> {
+                        self.1 += 1;
+                        anyhow::ensure!(self.1 < 20, "crash");
+                        self.0.step(a, p)
+                    }
+                    fn finished(&self) -> bool { self.0.finished() }
+                }
+                wt::serve(&mut Crashing(s, 0), &opts)
+            }
+        });
+        assert!(g0.join().unwrap().is_err());
+        let g1 = spawn_workers(&run, 1, 2, 1);
+        let s = server.join().unwrap().unwrap();
+        for w in g1 {
+            assert_eq!(w.join().unwrap().unwrap(), Exit::Shutdown);
+        }
+        assert_eq!(s.totals.restarts, 1);
+        assert_eq!(s.workers[0].generation, Some(1));
+        assert_eq!((s.totals.lost, s.totals.duplicates, s.totals.corrupt), (0, 0, 0));
+        assert!(wt::end_run_domain(&run).unwrap().is_empty());
+    }
+}

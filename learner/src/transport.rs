@@ -1,0 +1,96 @@
+//! The learner's side of the farm over iceoryx2: one subscriber (observations) and one
+//! publisher (actions) per worker, a listener that wakes when any worker sent, and a notifier
+//! per worker to wake it when its actions are out. Services are opened with the same functions
+//! the workers use (`worker::transport`), so both sides agree on every setting.
+
+use std::time::Duration;
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+use shm_schema::{ActionMsg, ObsHeader, qos};
+use worker::transport::{self as wt, ActService, EventService, IpcService, ObsService, TransportError};
+
+/// An observation sample, held borrowed (in shared memory) until it is dropped.
+pub type ObsSample = Sample<IpcService, [u8], ObsHeader>;
+
+struct WorkerLink {
+    obs: ObsService,
+    _act: ActService,
+    subscriber: Subscriber<IpcService, [u8], ObsHeader>,
+    publisher: Publisher<IpcService, ActionMsg, ()>,
+    act_ready: Notifier<IpcService>,
+    _act_ready_service: EventService,
+}
+
+/// The learner's ports for `workers` workers of one run.
+pub struct LearnerPorts {
+    links: Vec<WorkerLink>,
+    obs_ready: Listener<IpcService>,
+    _obs_ready_service: EventService,
+    // Dropped last.
+    _node: Node<IpcService>,
+}
+
+fn ipc<E: std::fmt::Debug>(what: &str) -> impl FnOnce(E) -> TransportError + '_ {
+    move |e| TransportError::Ipc { what: what.into(), detail: format!("{e:?}") }
+}
+
+impl LearnerPorts {
+    /// Creates the run's `obs_ready` event (sized for `workers`), then subscribes to every
+    /// worker's observations and publishes its actions. Workers wait for exactly these ports
+    /// before they send anything (the start handshake).
+    pub fn open(run_id: &str, workers: usize) -> Result<LearnerPorts, TransportError> {
+        let node = wt::open_node(run_id, "learner")?;
+        let obs_ready_service = wt::create_obs_ready(&node, run_id, workers)?;
+        let obs_ready = obs_ready_service.listener_builder().create().map_err(ipc("creating the obs_ready listener"))?;
+        let mut links = Vec::with_capacity(workers);
+        for k in 0..workers as u32 {
+            let obs = wt::open_obs_service(&node, run_id, k)?;
+            let act = wt::open_act_service(&node, run_id, k)?;
+            let act_ready_service = wt::open_act_ready(&node, run_id, k)?;
+            let subscriber = obs
+                .subscriber_builder()
+                .buffer_size(qos::OBS_SUBSCRIBER_BUFFER)
+                .history_request(qos::OBS_HISTORY)
+                .create()
+                .map_err(ipc("creating an observation subscriber"))?;
+            let publisher = act.publisher_builder().create().map_err(ipc("creating an action publisher"))?;
+            let act_ready = act_ready_service.notifier_builder().create().map_err(ipc("creating an act_ready notifier"))?;
+            links.push(WorkerLink { obs, _act: act, subscriber, publisher, act_ready, _act_ready_service: act_ready_service });
+        }
+        Ok(LearnerPorts { links, obs_ready, _obs_ready_service: obs_ready_service, _node: node })
+    }
+
+    pub fn workers(&self) -> usize {
+        self.links.len()
+    }
+
+    /// The next observation worker `k` sent, if any (non-blocking).
+    pub fn receive(&self, k: usize) -> Result<Option<ObsSample>, TransportError> {
+        self.links[k].subscriber.receive().map_err(ipc("receiving an observation"))
+    }
+
+    /// Publishes `msg` to worker `k` and wakes it.
+    pub fn send(&self, k: usize, msg: ActionMsg) -> Result<(), TransportError> {
+        let link = &self.links[k];
+        link.publisher.send_copy(msg).map_err(ipc("sending actions"))?;
+        let _ = link.act_ready.notify();
+        Ok(())
+    }
+
+    /// Sleeps until some worker announces an observation, a signal arrives, or `timeout` passes.
+    pub fn wait(&self, timeout: Duration) {
+        // Errors here are interruptions (a signal); the caller's loop looks at the flags.
+        let _ = self.obs_ready.timed_wait(|_| {}, timeout);
+    }
+
+    /// Whether worker `k` currently has a publisher on its observation service (a live
+    /// process, or a killed one whose ports are not yet cleaned up).
+    pub fn worker_attached(&self, k: usize) -> bool {
+        self.links[k].obs.dynamic_config().number_of_publishers() > 0
+    }
+}

@@ -1,0 +1,22 @@
+//! `orchestrator bench ...`: throughput reports. One variant per benchmark.
+
+use clap::Subcommand;
+
+use crate::bench_farm::{self, BenchFarmArgs};
+use crate::bench_sim::{self, SimArgs};
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCmd {
+    /// Farm scaling: aggregate frames/s, CPU per worker and step latency for several worker
+    /// counts, against a renderer-only ceiling.
+    Farm(BenchFarmArgs),
+    /// The simulator's speed in one process: renderer, env steps, env loop with rendering.
+    Sim(SimArgs),
+}
+
+pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
+    match cmd {
+        BenchCmd::Farm(a) => bench_farm::run(a),
+        BenchCmd::Sim(a) => bench_sim::run(a),
+    }
+}

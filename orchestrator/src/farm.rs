@@ -1,0 +1,525 @@
+//! A running farm: one learner and N workers of one run, supervised.
+//!
+//! [`Farm::start`] spawns the learner, then the workers (they wait for the learner's ports).
+//! [`Farm::tick`] reaps children that ended and acts: a worker that crashed is restarted at once
+//! as generation + 1 (after the iceoryx2 resources it left are removed); a worker that exits 0
+//! was told to shut down and stays down; when the learner ends, the run ends. [`Farm::stop`]
+//! stops everything in order: SIGINT to the learner (it checkpoints and tells the workers to
+//! shut down) and SIGTERM to the workers, SIGTERM again after the grace period, SIGKILL just
+//! before the 5 s mark. [`Farm::finish`] then ends the run's iceoryx2 domain, so nothing of
+//! the run remains in `/dev/shm`.
+//!
+//! Used by `orchestrator up`, `orchestrator bench farm` and evaluation.
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use nix::sys::signal::Signal;
+use nix::unistd::Pid;
+use serde::Deserialize;
+use worker::config::RunConfig;
+use worker::transport;
+
+use crate::binaries;
+use crate::supervise::{self, Child, Ended};
+
+/// The policy the learner serves.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum PolicyArg {
+    /// PPO: act and learn.
+    Ppo,
+    /// Uniformly random actions.
+    Random,
+    /// The shortest-path expert (workers compute it).
+    Expert,
+}
+
+impl PolicyArg {
+    pub fn name(self) -> &'static str {
+        match self {
+            PolicyArg::Ppo => "ppo",
+            PolicyArg::Random => "random",
+            PolicyArg::Expert => "expert",
+        }
+    }
+}
+
+/// Everything a farm needs to start.
+#[derive(Clone, Debug)]
+pub struct FarmSpec {
+    pub run_dir: PathBuf,
+    pub run_id: String,
+    /// The config file the children read (the run directory's copy).
+    pub config_path: PathBuf,
+    pub cfg: RunConfig,
+    pub workers: usize,
+    pub policy: PolicyArg,
+    pub max_frames: Option<u64>,
+    pub max_seconds: Option<f64>,
+    /// Evaluation: the programs of each worker, in order; the learner stops when all are done.
+    pub programs: Option<Vec<Vec<u64>>>,
+    /// Fail on any lost, duplicated or malformed message.
+    pub check: bool,
+    /// Synthetic environments (farm plumbing only, no simulator).
+    pub synthetic: bool,
+    pub resume: bool,
+    /// Extra arguments for `learner serve` (e.g. a checkpoint to evaluate).
+    pub learner_args: Vec<OsString>,
+    /// Seconds between the learner's progress records.
+    pub report_every: f64,
+    /// Seconds from SIGINT to SIGTERM when stopping (SIGKILL follows at 4.5 s).
+    pub grace: f64,
+    /// Folder of the `worker` and `learner` programs (default: next to this executable, or
+    /// `$GESTHOR_BIN_DIR`).
+    pub bin_dir: Option<PathBuf>,
+}
+
+impl FarmSpec {
+    pub fn new(run_dir: &Path, run_id: &str, config_path: &Path, cfg: RunConfig, workers: usize, policy: PolicyArg) -> FarmSpec {
+        FarmSpec {
+            run_dir: run_dir.into(),
+            run_id: run_id.into(),
+            config_path: config_path.into(),
+            cfg,
+            workers,
+            policy,
+            max_frames: None,
+            max_seconds: None,
+            programs: None,
+            check: false,
+            synthetic: false,
+            resume: false,
+            learner_args: vec![],
+            report_every: 2.0,
+            grace: 3.0,
+            bin_dir: None,
+        }
+    }
+}
+
+/// The learner's latest progress record (`farm.jsonl`), the fields the orchestrator shows.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(default)]
+pub struct Progress {
+    pub t: f64,
+    pub fps: f64,
+    pub frames: u64,
+    pub episodes: u64,
+    pub success_rate: Option<f64>,
+    pub workers_seen: usize,
+    pub workers_live: usize,
+    pub restarts: u64,
+    pub latency_ms: Option<f64>,
+    pub latency_sum_s: f64,
+    pub latency_count: u64,
+    pub lost: u64,
+    pub duplicates: u64,
+    pub corrupt: u64,
+    pub stop_reason: Option<String>,
+}
+
+/// How a farm ended.
+#[derive(Debug)]
+pub struct FarmOutcome {
+    pub learner: Option<Ended>,
+    /// Workers restarted by the orchestrator.
+    pub restarts: u64,
+    /// The learner's last progress record.
+    pub progress: Option<Progress>,
+    /// Files of the run iceoryx2 did not remove by itself (deleted by the orchestrator).
+    pub leftovers: Vec<PathBuf>,
+    pub seconds: f64,
+    /// The run was stopped from outside (signal / [`Farm::stop`]) rather than ending by itself.
+    pub stopped: bool,
+}
+
+struct WorkerSlot {
+    child: Option<Child>,
+    generation: u32,
+    /// Consecutive failures within `QUICK_FAILURE` of starting.
+    quick_failures: u32,
+    /// Exited 0 (told to shut down).
+    done: bool,
+}
+
+/// Mesa llvmpipe/lavapipe's rasteriser thread count.
+const LP_THREADS_ENV: &str = "LP_NUM_THREADS";
+
+/// A failure this soon after start counts towards giving up on a worker slot.
+const QUICK_FAILURE: Duration = Duration::from_secs(10);
+const MAX_QUICK_FAILURES: u32 = 3;
+/// When stopping: SIGKILL whatever is left at this point.
+const KILL_AFTER: Duration = Duration::from_millis(4500);
+
+/// Whether the farm is still running.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FarmState {
+    Running,
+    /// Every child has ended.
+    Ended,
+}
+
+pub struct Farm {
+    spec: FarmSpec,
+    worker_bin: PathBuf,
+    learner_bin: PathBuf,
+    learner: Option<Child>,
+    learner_ended: Option<Ended>,
+    workers: Vec<WorkerSlot>,
+    restarts: u64,
+    started: Instant,
+    stopping: Option<Instant>,
+    stopped_from_outside: bool,
+    escalated_term: bool,
+    fatal: Option<anyhow::Error>,
+}
+
+impl Farm {
+    /// Spawns the learner and the workers.
+    pub fn start(spec: FarmSpec) -> anyhow::Result<Farm> {
+        let worker_bin = binaries::sibling_in(spec.bin_dir.as_deref(), "worker")?;
+        let learner_bin = binaries::sibling_in(spec.bin_dir.as_deref(), "learner")?;
+        if spec.workers == 0 {
+            anyhow::bail!("--workers must be at least 1");
+        }
+        if let Some(p) = &spec.programs {
+            anyhow::ensure!(p.len() == spec.workers, "{} program lists for {} workers", p.len(), spec.workers);
+        }
+        let mut farm = Farm {
+            workers: (0..spec.workers).map(|_| WorkerSlot { child: None, generation: 0, quick_failures: 0, done: false }).collect(),
+            spec,
+            worker_bin,
+            learner_bin,
+            learner: None,
+            learner_ended: None,
+            restarts: 0,
+            started: Instant::now(),
+            stopping: None,
+            stopped_from_outside: false,
+            escalated_term: false,
+            fatal: None,
+        };
+        // A previous run in this folder may have been killed: remove what it left.
+        let _ = transport::clean_dead_nodes(&farm.spec.run_id);
+        farm.spawn_learner()?;
+        for k in 0..farm.spec.workers {
+            if let Err(e) = farm.spawn_worker(k) {
+                farm.kill_now();
+                return Err(e);
+            }
+        }
+        Ok(farm)
+    }
+
+    pub fn spec(&self) -> &FarmSpec {
+        &self.spec
+    }
+
+    fn log_path(&self, name: &str) -> PathBuf {
+        self.spec.run_dir.join("logs").join(format!("{name}.log"))
+    }
+
+    fn spawn_learner(&mut self) -> anyhow::Result<()> {
+        let s = &self.spec;
+        let mut args: Vec<OsString> = vec![
+            "serve".into(),
+            "--config".into(),
+            s.config_path.clone().into(),
+            "--run-id".into(),
+            s.run_id.clone().into(),
+            "--workers".into(),
+            s.workers.to_string().into(),
+            "--run-dir".into(),
+            s.run_dir.clone().into(),
+            "--policy".into(),
+            s.policy.name().into(),
+            "--report-every".into(),
+            s.report_every.to_string().into(),
+        ];
+        if let Some(f) = s.max_frames {
+            args.extend(["--max-frames".into(), f.to_string().into()]);
+        }
+        if let Some(t) = s.max_seconds {
+            args.extend(["--max-seconds".into(), t.to_string().into()]);
+        }
+        if s.programs.is_some() {
+            args.push("--eval".into());
+        }
+        if s.check {
+            args.push("--check".into());
+        }
+        if s.resume {
+            args.push("--resume".into());
+        }
+        args.extend(s.learner_args.iter().cloned());
+        let log = self.log_path("learner");
+        append_line(&log, &format!("=== learner, run {} ===", s.run_id));
+        let child = supervise::spawn(&self.learner_bin, &args, &[], &log, Signal::SIGINT)
+            .with_context(|| format!("starting {}", self.learner_bin.display()))?;
+        self.learner = Some(child);
+        Ok(())
+    }
+
+    /// Programs worker `k` still has to run: its list minus those already recorded in
+    /// `episodes.jsonl` (by any generation).
+    fn remaining_programs(&self, k: usize) -> Option<Vec<u64>> {
+        let all = self.spec.programs.as_ref()?.get(k)?.clone();
+        let done: std::collections::HashSet<u64> = std::fs::read_to_string(self.spec.run_dir.join("episodes.jsonl"))
+            .unwrap_or_default()
+            .lines()
+            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+            .filter(|v| v["worker"].as_u64() == Some(k as u64))
+            .filter_map(|v| v["program"].as_u64())
+            .collect();
+        Some(all.into_iter().filter(|p| !done.contains(p)).collect())
+    }
+
+    fn spawn_worker(&mut self, k: usize) -> anyhow::Result<()> {
+        let g = self.workers[k].generation;
+        let s = &self.spec;
+        let mut args: Vec<OsString> = vec![
+            "--config".into(),
+            s.config_path.clone().into(),
+            "--run-id".into(),
+            s.run_id.clone().into(),
+            "--worker-id".into(),
+            k.to_string().into(),
+            "--generation".into(),
+            g.to_string().into(),
+        ];
+        if let Some(programs) = self.remaining_programs(k) {
+            let dir = s.run_dir.join("programs");
+            std::fs::create_dir_all(&dir)?;
+            let p = dir.join(format!("worker-{k}-g{g}.json"));
+            worker::util::write_atomic(&p, serde_json::to_string(&programs)?.as_bytes())?;
+            args.extend(["--programs".into(), p.into()]);
+        }
+        if s.policy == PolicyArg::Expert {
+            args.push("--expert-hints".into());
+        }
+        if s.synthetic {
+            args.push("--synthetic".into());
+        }
+        let log = self.log_path(&format!("worker-{k}"));
+        append_line(&log, &format!("=== worker {k}, generation {g} ==="));
+        let child = supervise::spawn(&self.worker_bin, &args, &self.renderer_env(), &log, Signal::SIGTERM)
+            .with_context(|| format!("starting {}", self.worker_bin.display()))?;
+        self.workers[k].child = Some(child);
+        Ok(())
+    }
+
+    /// Environment for the workers' renderers. On a machine without a GPU the renderer is
+    /// Mesa's lavapipe, which by default rasterises on as many extra threads as there are
+    /// cores, in every worker. Once there are at least as many workers as cores, the processes
+    /// fill the cores by themselves and the extra threads only add hand-offs and contention:
+    /// each worker then rasterises in its own thread (`LP_NUM_THREADS=0`); with fewer workers
+    /// each gets its share of the cores. Measured with `orchestrator bench farm` (2 cores,
+    /// 224×224, random policy): 2 workers 1890–1930 frames/s in-thread against 1550–1770 with
+    /// one extra thread each; 20 workers 1690–1800 against 1490–1580. A user's `LP_NUM_THREADS`
+    /// wins; a GPU driver ignores the variable.
+    fn renderer_env(&self) -> Vec<(&'static str, String)> {
+        if std::env::var_os(LP_THREADS_ENV).is_some() {
+            return vec![];
+        }
+        let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+        let share = cores / self.spec.workers;
+        vec![(LP_THREADS_ENV, if share <= 1 { 0 } else { share }.to_string())]
+    }
+
+    /// Reaps what ended, restarts crashed workers, escalates a stop. Call it often (every
+    /// few tens of milliseconds).
+    pub fn tick(&mut self) -> anyhow::Result<FarmState> {
+        if let Some(l) = &self.learner
+            && let Some(ended) = supervise::reap(l.pid)
+        {
+            self.learner = None;
+            self.learner_ended = Some(ended);
+            if !ended.success() && self.stopping.is_none() {
+                let log = self.log_path("learner");
+                self.fatal = Some(anyhow::anyhow!("the learner {ended}; last lines of {}:\n{}", log.display(), supervise::tail(&log, 15)));
+            }
+            if self.stopping.is_none() {
+                self.begin_stop();
+            }
+        }
+        let mut crashed = vec![];
+        for k in 0..self.workers.len() {
+            let Some(c) = &self.workers[k].child else { continue };
+            let Some(ended) = supervise::reap(c.pid) else { continue };
+            let ran = c.started.elapsed();
+            let pid = c.pid;
+            self.workers[k].child = None;
+            if self.stopping.is_some() {
+                continue;
+            }
+            if ended.success() {
+                self.workers[k].done = true;
+                continue;
+            }
+            let log = self.log_path(&format!("worker-{k}"));
+            let slot = &mut self.workers[k];
+            slot.quick_failures = if ran < QUICK_FAILURE { slot.quick_failures + 1 } else { 0 };
+            if slot.quick_failures >= MAX_QUICK_FAILURES {
+                self.fatal = Some(anyhow::anyhow!(
+                    "worker {k} failed {MAX_QUICK_FAILURES} times within {} s of starting (last: pid {pid} {ended}); last lines of {}:\n{}",
+                    QUICK_FAILURE.as_secs(),
+                    log.display(),
+                    supervise::tail(&log, 15)
+                ));
+                self.begin_stop();
+                break;
+            }
+            eprintln!("[up] worker {k} (pid {pid}, generation {}) {ended}; restarting it as generation {}", slot.generation, slot.generation + 1);
+            crashed.push(k);
+        }
+        if !crashed.is_empty() {
+            // The dead processes could not remove their ports and segments themselves.
+            if let Err(e) = transport::clean_dead_nodes(&self.spec.run_id) {
+                eprintln!("[up] cleaning up after dead workers: {e}");
+            }
+            for k in crashed {
+                self.workers[k].generation += 1;
+                self.restarts += 1;
+                if let Err(e) = self.spawn_worker(k) {
+                    self.fatal = Some(e.context(format!("restarting worker {k}")));
+                    self.begin_stop();
+                    break;
+                }
+            }
+        }
+        if let Some(t0) = self.stopping {
+            let el = t0.elapsed();
+            if el >= KILL_AFTER {
+                self.signal_all(Signal::SIGKILL);
+            } else if el >= Duration::from_secs_f64(self.spec.grace) && !self.escalated_term {
+                self.escalated_term = true;
+                self.signal_all(Signal::SIGTERM);
+            }
+        }
+        let alive = self.learner.is_some() || self.workers.iter().any(|w| w.child.is_some());
+        Ok(if alive { FarmState::Running } else { FarmState::Ended })
+    }
+
+    fn signal_all(&self, sig: Signal) {
+        if let Some(l) = &self.learner {
+            supervise::signal(l, sig);
+        }
+        for w in &self.workers {
+            if let Some(c) = &w.child {
+                supervise::signal(c, sig);
+            }
+        }
+    }
+
+    fn begin_stop(&mut self) {
+        if self.stopping.is_some() {
+            return;
+        }
+        self.stopping = Some(Instant::now());
+        if let Some(l) = &self.learner {
+            supervise::signal(l, Signal::SIGINT);
+        }
+        for w in &self.workers {
+            if let Some(c) = &w.child {
+                supervise::signal(c, Signal::SIGTERM);
+            }
+        }
+    }
+
+    /// Stops the run from outside (Ctrl-C): SIGINT to the learner so it checkpoints, SIGTERM
+    /// to the workers; [`Farm::tick`] escalates to SIGTERM and SIGKILL.
+    pub fn stop(&mut self) {
+        if self.stopping.is_none() {
+            self.stopped_from_outside = true;
+        }
+        self.begin_stop();
+    }
+
+    /// SIGKILL to every child now (a second Ctrl-C).
+    pub fn kill_now(&mut self) {
+        if self.stopping.is_none() {
+            self.stopping = Some(Instant::now());
+            self.stopped_from_outside = true;
+        }
+        self.signal_all(Signal::SIGKILL);
+    }
+
+    pub fn is_stopping(&self) -> bool {
+        self.stopping.is_some()
+    }
+
+    pub fn learner_pid(&self) -> Option<Pid> {
+        self.learner.as_ref().map(|c| c.pid)
+    }
+
+    /// The pid of each worker slot's current process.
+    pub fn worker_pids(&self) -> Vec<Option<Pid>> {
+        self.workers.iter().map(|w| w.child.as_ref().map(|c| c.pid)).collect()
+    }
+
+    pub fn generations(&self) -> Vec<u32> {
+        self.workers.iter().map(|w| w.generation).collect()
+    }
+
+    pub fn restarts(&self) -> u64 {
+        self.restarts
+    }
+
+    /// The learner's latest progress record.
+    pub fn progress(&self) -> Option<Progress> {
+        read_last_progress(&self.spec.run_dir)
+    }
+
+    /// Runs [`Farm::tick`] until every child has ended (stopping first if asked), then ends the
+    /// run's shared-memory domain.
+    pub fn finish(mut self) -> anyhow::Result<FarmOutcome> {
+        while self.tick()? == FarmState::Running {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let leftovers = transport::end_run_domain(&self.spec.run_id).context("cleaning up the run's shared memory")?;
+        if let Some(e) = self.fatal.take() {
+            return Err(e);
+        }
+        Ok(FarmOutcome {
+            learner: self.learner_ended,
+            restarts: self.restarts,
+            progress: read_last_progress(&self.spec.run_dir),
+            leftovers,
+            seconds: self.started.elapsed().as_secs_f64(),
+            stopped: self.stopped_from_outside,
+        })
+    }
+
+    /// An error that ended (or is ending) the run, if any.
+    pub fn failed(&self) -> bool {
+        self.fatal.is_some()
+    }
+}
+
+impl Drop for Farm {
+    fn drop(&mut self) {
+        // Never leave children behind, whatever path dropped the farm.
+        if self.learner.is_some() || self.workers.iter().any(|w| w.child.is_some()) {
+            self.signal_all(Signal::SIGKILL);
+            for c in self.learner.iter().chain(self.workers.iter().filter_map(|w| w.child.as_ref())) {
+                let _ = nix::sys::wait::waitpid(c.pid, None);
+            }
+            let _ = transport::end_run_domain(&self.spec.run_id);
+        }
+    }
+}
+
+fn append_line(path: &Path, line: &str) {
+    use std::io::Write;
+    if let Ok(mut f) = std::fs::OpenOptions::new().create(true).append(true).open(path) {
+        let _ = writeln!(f, "{line}");
+    }
+}
+
+/// The last complete record of `RUN/farm.jsonl`.
+pub fn read_last_progress(run_dir: &Path) -> Option<Progress> {
+    let text = std::fs::read_to_string(run_dir.join("farm.jsonl")).ok()?;
+    text.lines().rev().find_map(|l| serde_json::from_str(l).ok())
+}

@@ -1,0 +1,283 @@
+//! `orchestrator up`: start a run (learner + N workers), supervise it, show progress, stop it
+//! cleanly on Ctrl-C or SIGTERM.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use clap::Args;
+use worker::config::RunConfig;
+use worker::process;
+
+use crate::farm::{Farm, FarmSpec, FarmState, PolicyArg, Progress};
+use crate::run_dir::{self, RunDir};
+
+/// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.
+pub const DEFAULT_CONFIG: &str = r#"# Embedded default of `orchestrator up`: +Both on a CPU (small CNN, 64x64 frames).
+[run]
+method = "both"
+dataset = "data/gond"
+total_frames = 500000
+
+[env]
+envs_per_worker = 4
+width = 64
+height = 64
+
+[model]
+encoder = "small_cnn"
+hidden = 256
+gru_layers = 1
+"#;
+
+#[derive(Args, Debug)]
+pub struct UpArgs {
+    /// Worker processes (each steps the config's `env.envs_per_worker` environments).
+    #[arg(long, default_value_t = 4)]
+    pub workers: usize,
+    /// Run configuration (TOML); the embedded CPU default of +Both when omitted.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Run directory (default: runs/up-<UTC time>).
+    #[arg(long, conflicts_with = "resume")]
+    pub run_dir: Option<PathBuf>,
+    /// Continue the run in this directory (its config and latest checkpoint).
+    #[arg(long, value_name = "RUN_DIR")]
+    pub resume: Option<PathBuf>,
+    #[arg(long, value_enum, default_value_t = PolicyArg::Ppo)]
+    pub policy: PolicyArg,
+    /// Stop after this many frames (default: the config's run.total_frames).
+    #[arg(long, conflicts_with = "seconds")]
+    pub frames: Option<u64>,
+    /// Stop after this many seconds.
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Fail on any lost, duplicated or malformed message between workers and learner.
+    #[arg(long)]
+    pub check: bool,
+    /// Step synthetic environments instead of the simulator (tests the farm's plumbing only).
+    #[arg(long)]
+    pub synthetic: bool,
+    /// Seconds between the learner's progress records.
+    #[arg(long, default_value_t = 2.0)]
+    pub report_every: f64,
+}
+
+/// Loads the run configuration: `--config`, the run directory's copy when resuming, or the
+/// embedded default.
+pub fn load_config(path: Option<&Path>) -> anyhow::Result<RunConfig> {
+    Ok(match path {
+        Some(p) => RunConfig::load(p)?,
+        None => RunConfig::from_toml(DEFAULT_CONFIG, "(embedded default config)")?,
+    })
+}
+
+/// Makes the dataset path absolute (children may run elsewhere) and checks it is a dataset.
+pub fn resolve_dataset(cfg: &mut RunConfig, synthetic: bool) -> anyhow::Result<()> {
+    if cfg.run.dataset.is_relative() {
+        cfg.run.dataset = std::env::current_dir()?.join(&cfg.run.dataset);
+    }
+    let manifest = cfg.run.dataset.join("manifest.json");
+    if !synthetic && !manifest.is_file() {
+        anyhow::bail!(
+            "no dataset at {} (missing {}); build one with `orchestrator dataset build --out {}` or set run.dataset in the config",
+            cfg.run.dataset.display(),
+            manifest.display(),
+            cfg.run.dataset.display()
+        );
+    }
+    Ok(())
+}
+
+/// Creates and locks the run directory, writes the config copy and `run.json`.
+pub fn prepare_run(
+    run_dir: &Path,
+    cfg: &RunConfig,
+    resume: bool,
+    workers: usize,
+    policy: PolicyArg,
+) -> anyhow::Result<(RunDir, PathBuf)> {
+    let dir = RunDir::open(run_dir)?;
+    let config_path = dir.config_path();
+    if !resume {
+        worker::util::write_atomic(&config_path, cfg.to_toml().as_bytes()).with_context(|| format!("writing {}", config_path.display()))?;
+    }
+    dir.write_info(workers, policy.name())?;
+    Ok((dir, config_path))
+}
+
+/// Ends the shared-memory domains of runs whose orchestrator was killed (older than a minute,
+/// no live process).
+pub fn sweep_dead_runs() {
+    let swept = worker::transport::sweep_dead_runs(Duration::from_secs(60));
+    if !swept.is_empty() {
+        eprintln!("[up] removed the shared memory of {} dead run(s): {}", swept.len(), swept.join(", "));
+    }
+}
+
+pub fn run(a: UpArgs) -> anyhow::Result<i32> {
+    process::install_termination_handler()?;
+    let resume = a.resume.is_some();
+    let (run_path, mut cfg) = match &a.resume {
+        Some(dir) => {
+            let p = dir.join("config.toml");
+            anyhow::ensure!(p.is_file(), "--resume {}: no config.toml there (not a run directory)", dir.display());
+            if a.config.is_some() {
+                eprintln!("[up] --resume: using {} (the run's own config), not --config", p.display());
+            }
+            (dir.clone(), RunConfig::load(&p)?)
+        }
+        None => (a.run_dir.clone().unwrap_or_else(|| run_dir::default_path("up")), load_config(a.config.as_deref())?),
+    };
+    resolve_dataset(&mut cfg, a.synthetic)?;
+    let (dir, config_path) = prepare_run(&run_path, &cfg, resume, a.workers, a.policy)?;
+    sweep_dead_runs();
+    let mut spec = FarmSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, a.policy);
+    spec.max_seconds = a.seconds;
+    spec.max_frames = match (a.frames, a.seconds) {
+        (Some(f), _) => Some(f),
+        (None, Some(_)) => None,
+        (None, None) => Some(cfg.run.total_frames),
+    };
+    spec.check = a.check;
+    spec.synthetic = a.synthetic;
+    spec.resume = resume;
+    spec.report_every = a.report_every;
+    eprintln!(
+        "[up] run {} in {}: {} workers × {} envs ({}x{}), policy {}{}",
+        dir.run_id,
+        dir.path.display(),
+        a.workers,
+        cfg.env.envs_per_worker,
+        cfg.env.width,
+        cfg.env.height,
+        a.policy.name(),
+        if a.synthetic { ", synthetic envs" } else { "" }
+    );
+    let mut farm = Farm::start(spec)?;
+    let ui = Progressline::new();
+    let mut signals_seen = 0;
+    while farm.tick()? == FarmState::Running {
+        let n = process::termination_count();
+        if n > signals_seen {
+            signals_seen = n;
+            if n == 1 {
+                eprintln!("[up] {}: stopping every process (Ctrl-C again to kill at once)", process::termination_signal().map(|s| s.to_string()).unwrap_or_default());
+                farm.stop();
+            } else {
+                farm.kill_now();
+            }
+        }
+        ui.update(&farm);
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    ui.clear();
+    let stopped_by_signal = process::termination_signal();
+    let out = farm.finish()?;
+    if !out.leftovers.is_empty() {
+        eprintln!("[up] removed {} shared-memory file(s) the run left behind", out.leftovers.len());
+    }
+    if let Some(p) = &out.progress {
+        eprintln!(
+            "[up] {}: {} frames in {:.1} s ({:.1}/s), {} episodes, success {}, {} worker restart(s)",
+            p.stop_reason.as_deref().unwrap_or("ended"),
+            p.frames,
+            out.seconds,
+            p.frames as f64 / out.seconds.max(1e-9),
+            p.episodes,
+            p.success_rate.map(|s| format!("{:.1}%", 100.0 * s)).unwrap_or_else(|| "-".into()),
+            out.restarts
+        );
+    }
+    eprintln!("[up] results in {}", dir.path.display());
+    Ok(match (stopped_by_signal, out.learner) {
+        (Some(sig), _) => process::signal_exit_code(sig),
+        (None, Some(e)) if e.success() => 0,
+        (None, Some(e)) => {
+            eprintln!("[up] the learner {e}; see {}", dir.logs().join("learner.log").display());
+            1
+        }
+        (None, None) => 1,
+    })
+}
+
+/// The progress line: a spinner on a terminal, a plain line every 5 s otherwise.
+struct Progressline {
+    bar: Option<indicatif::ProgressBar>,
+    last: std::cell::Cell<Instant>,
+}
+
+impl Progressline {
+    fn new() -> Progressline {
+        let bar = std::io::stderr().is_terminal().then(|| {
+            let b = indicatif::ProgressBar::new_spinner();
+            b.enable_steady_tick(Duration::from_millis(200));
+            b
+        });
+        Progressline { bar, last: std::cell::Cell::new(Instant::now()) }
+    }
+
+    fn text(farm: &Farm, p: &Progress) -> String {
+        format!(
+            "frames {} ({:.1}/s)  episodes {}  success {}  workers {}/{}  restarts {}{}",
+            p.frames,
+            p.fps,
+            p.episodes,
+            p.success_rate.map(|s| format!("{:.1}%", 100.0 * s)).unwrap_or_else(|| "-".into()),
+            p.workers_live,
+            farm.spec().workers,
+            farm.restarts(),
+            p.latency_ms.map(|l| format!("  step {l:.1} ms")).unwrap_or_default()
+        )
+    }
+
+    fn update(&self, farm: &Farm) {
+        let every = if self.bar.is_some() { Duration::from_millis(500) } else { Duration::from_secs(5) };
+        if self.last.get().elapsed() < every {
+            return;
+        }
+        self.last.set(Instant::now());
+        let Some(p) = farm.progress() else { return };
+        let line = Self::text(farm, &p);
+        match &self.bar {
+            Some(b) => b.set_message(line),
+            None => eprintln!("[up] {:.0} s  {line}", p.t),
+        }
+    }
+
+    fn clear(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_embedded_default_config_is_valid() {
+        let c = load_config(None).unwrap();
+        assert_eq!(c.run.method, worker::config::Method::Both);
+    }
+
+    #[test]
+    fn a_missing_dataset_names_the_path_and_the_command() {
+        let mut c = load_config(None).unwrap();
+        c.run.dataset = PathBuf::from("/nonexistent/gond");
+        let e = resolve_dataset(&mut c, false).unwrap_err().to_string();
+        assert!(e.contains("/nonexistent/gond") && e.contains("orchestrator dataset build"), "{e}");
+        assert!(resolve_dataset(&mut c, true).is_ok());
+    }
+
+    #[test]
+    fn a_bad_config_names_the_field() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("bad.toml");
+        std::fs::write(&p, "[run]\nmethod = \"both\"\n[env]\nwidht = 3\n").unwrap();
+        let e = load_config(Some(&p)).unwrap_err().to_string();
+        assert!(e.contains("bad.toml") && e.contains("widht"), "{e}");
+    }
+}

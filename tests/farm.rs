@@ -1,0 +1,252 @@
+//! The rollout farm end to end: real `orchestrator up` runs with real workers (simulator
+//! environments, 64×64 frames) and the learner serving the random or expert policy.
+//!
+//! They need the binaries (`cargo build --release --workspace`) and build a small dataset once
+//! (`orchestrator dataset build`, cached under target/release/gesthor-test-data).
+
+use std::time::{Duration, Instant};
+
+use gesthor_tests::*;
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use serde_json::Value;
+
+fn u(v: &Value, k: &str) -> u64 {
+    v[k].as_u64().unwrap_or_else(|| panic!("no `{k}` in {v}"))
+}
+
+fn assert_clean_totals(s: &Value) {
+    let t = &s["totals"];
+    assert_eq!((u(t, "lost"), u(t, "duplicates"), u(t, "corrupt")), (0, 0, 0), "integrity: {t}");
+}
+
+fn assert_gone(run: &Run) {
+    let left = run.processes();
+    assert!(left.is_empty(), "processes of the run still alive: {left:?}");
+    let files = shm_leftovers(&run.run_id());
+    assert!(files.is_empty(), "shared-memory leftovers of run {}: {files:?}", run.run_id());
+}
+
+/// Four workers step 2000 frames: every message and every env step reaches the learner exactly
+/// once (the learner's check mode fails the run otherwise), episodes are recorded, and nothing
+/// of the run is left behind.
+#[test]
+fn four_workers_step_without_loss_or_duplicates() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tiny_config(tmp.path(), 2);
+    let mut run = Run::start(&tmp.path().join("run"), &["--workers", "4", "--config", cfg.to_str().unwrap(), "--policy", "random", "--frames", "2000", "--check"]);
+    let status = run.wait(Duration::from_secs(240));
+    assert!(status.success(), "{status}\n{}", run.diagnostics());
+    let s = run.summary();
+    assert_clean_totals(&s);
+    assert!(u(&s["totals"], "frames") >= 2000, "{s}");
+    let workers = s["workers"].as_array().unwrap();
+    assert_eq!(workers.len(), 4);
+    for w in workers {
+        assert_eq!(w["generation"].as_u64(), Some(0), "{w}");
+        assert!(u(w, "messages") > 10, "{w}");
+    }
+    let episodes = run.episodes();
+    assert_eq!(episodes.len() as u64, u(&s["totals"], "episodes"));
+    assert!(!episodes.is_empty(), "2000 random frames of 100-step episodes end some episodes");
+    assert!(episodes.iter().all(|e| e["steps"].as_u64().unwrap() <= 100));
+    assert_gone(&run);
+}
+
+/// `kill -9` of a worker mid-run: the run goes on, the slot comes back as generation 1, no
+/// malformed or out-of-order observation reaches the learner (check mode), and after the run
+/// no process and no shared-memory file of it remains.
+#[test]
+fn a_killed_worker_is_restarted_and_nothing_half_written_arrives() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tiny_config(tmp.path(), 2);
+    let mut run = Run::start(&tmp.path().join("run"), &["--workers", "3", "--config", cfg.to_str().unwrap(), "--policy", "random", "--seconds", "120", "--check", "--report-every", "0.5"]);
+    let p = run.wait_progress(Duration::from_secs(120), "frames from all 3 workers", |p| p["workers_seen"] == 3 && p["frames"].as_u64() > Some(200));
+    let victim = run.worker_pid(1).expect("worker 1 is running");
+    kill(Pid::from_raw(victim), Signal::SIGKILL).unwrap();
+    let killed_at = Instant::now();
+    let frames_then = u(&p, "frames");
+    let new_pid = loop {
+        if let Some(pid) = run.worker_pid(1).filter(|&p| p != victim) {
+            break pid;
+        }
+        assert!(killed_at.elapsed() < Duration::from_secs(2), "worker 1 not restarted within 2 s\n{}", run.diagnostics());
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_ne!(new_pid, victim);
+    run.wait_progress(Duration::from_secs(120), "the restarted worker back in the batches", |p| {
+        p["restarts"].as_u64() >= Some(1) && p["workers_live"] == 3 && p["frames"].as_u64() > Some(frames_then + 300)
+    });
+    run.signal(Signal::SIGINT);
+    let status = run.wait(Duration::from_secs(5));
+    assert_eq!(status.code(), Some(130), "{}", run.diagnostics());
+    let s = run.summary();
+    assert_clean_totals(&s);
+    assert!(u(&s["totals"], "restarts") >= 1, "{s}");
+    assert_eq!(s["workers"][1]["generation"].as_u64(), Some(1), "{s}");
+    assert_eq!(s["workers"][0]["generation"].as_u64(), Some(0), "{s}");
+    assert!(run.output().contains("restarting it as generation 1"), "{}", run.output());
+    assert_gone(&run);
+}
+
+/// Ctrl-C (SIGINT) to the orchestrator stops the learner and every worker within 5 s.
+#[test]
+fn sigint_stops_every_process_within_5_seconds() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tiny_config(tmp.path(), 2);
+    let mut run = Run::start(&tmp.path().join("run"), &["--workers", "4", "--config", cfg.to_str().unwrap(), "--policy", "expert", "--seconds", "300", "--report-every", "0.5"]);
+    run.wait_progress(Duration::from_secs(120), "frames from all 4 workers", |p| p["workers_seen"] == 4 && p["frames"].as_u64() > Some(0));
+    assert_eq!(run.processes().len(), 5, "learner + 4 workers: {:?}", run.processes());
+    let t0 = Instant::now();
+    run.signal(Signal::SIGINT);
+    let status = run.wait(Duration::from_secs(5));
+    let took = t0.elapsed();
+    assert_eq!(status.code(), Some(130), "{}", run.diagnostics());
+    assert!(took < Duration::from_secs(5), "took {took:?}");
+    assert_gone(&run);
+    // the learner stopped cleanly (it was not killed) and said why
+    let s = run.summary();
+    assert_eq!(s["stop_reason"], "stopped by SIGINT", "{s}");
+}
+
+/// Two runs with different run ids on one host at the same time: each sees only its own
+/// workers and messages.
+#[test]
+fn two_runs_on_one_host_do_not_interfere() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tiny_config(tmp.path(), 2);
+    let args = ["--workers", "2", "--config", cfg.to_str().unwrap(), "--policy", "random", "--frames", "800", "--check"];
+    let mut a = Run::start(&tmp.path().join("a"), &args);
+    let mut b = Run::start(&tmp.path().join("b"), &args);
+    let (sa, sb) = (a.wait(Duration::from_secs(240)), b.wait(Duration::from_secs(240)));
+    assert!(sa.success(), "{}", a.diagnostics());
+    assert!(sb.success(), "{}", b.diagnostics());
+    assert_ne!(a.run_id(), b.run_id());
+    for run in [&a, &b] {
+        let s = run.summary();
+        assert_clean_totals(&s);
+        assert_eq!(s["run_id"].as_str(), Some(run.run_id().as_str()));
+        assert_eq!(u(&s["totals"], "restarts"), 0);
+        let w = s["workers"].as_array().unwrap();
+        assert_eq!(w.len(), 2);
+        // frames of each run add up from its own two workers only
+        assert_eq!(w.iter().map(|w| u(w, "frames")).sum::<u64>(), u(&s["totals"], "frames"));
+        assert_gone(run);
+    }
+}
+
+/// A second live run cannot use the same run directory.
+#[test]
+fn a_live_run_directory_is_locked() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tiny_config(tmp.path(), 1);
+    let dir = tmp.path().join("run");
+    let mut first = Run::start(&dir, &["--workers", "1", "--config", cfg.to_str().unwrap(), "--policy", "random", "--seconds", "120", "--report-every", "0.5"]);
+    first.wait_progress(Duration::from_secs(120), "the first run going", |p| p["frames"].as_u64() > Some(0));
+    let out = std::process::Command::new(bin("orchestrator"))
+        .args(["up", "--workers", "1", "--policy", "random", "--seconds", "5", "--config", cfg.to_str().unwrap(), "--run-dir"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("in use by a live run"), "{err}");
+    first.signal(Signal::SIGINT);
+    first.wait(Duration::from_secs(5));
+    assert_gone(&first);
+}
+
+/// The Python reader (iceoryx2's own binding, numpy views, no copy) attaches to a live run,
+/// reads one observation and writes its RGB frame as a PNG.
+#[test]
+fn python_reads_one_frame_of_a_live_run() {
+    let mut python = match python_with_iceoryx2() {
+        Ok(p) => p,
+        Err(why) => {
+            eprintln!("skipping python_reads_one_frame_of_a_live_run: {why}");
+            return;
+        }
+    };
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tiny_config(tmp.path(), 2);
+    let mut run = Run::start(&tmp.path().join("run"), &["--workers", "2", "--config", cfg.to_str().unwrap(), "--policy", "random", "--seconds", "120", "--report-every", "0.5"]);
+    run.wait_progress(Duration::from_secs(120), "frames from both workers", |p| p["workers_seen"] == 2 && p["frames"].as_u64() > Some(0));
+    let png = tmp.path().join("frame.png");
+    let out = python
+        .arg(repo_root().join("tests/python/read_frame.py"))
+        .arg("--run-dir")
+        .arg(&run.dir)
+        .args(["--worker", "1", "--env", "1", "--out"])
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "read_frame.py failed: {}\n{}", String::from_utf8_lossy(&out.stderr), run.diagnostics());
+    let info: Value = serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).expect("one JSON line");
+    assert_eq!(info["worker_id"], 1);
+    assert_eq!((info["width"].as_u64(), info["height"].as_u64(), info["num_envs"].as_u64()), (Some(64), Some(64), Some(2)));
+    assert_eq!(png_size(&png), (64, 64));
+    run.signal(Signal::SIGINT);
+    run.wait(Duration::from_secs(5));
+    assert_gone(&run);
+}
+
+/// Evaluation through the orchestrator's library (as `orchestrator eval` uses it): each worker
+/// runs exactly its list of programs, the learner stops once every worker reports `finished`,
+/// and `episodes.jsonl` holds each program exactly once.
+#[test]
+fn evaluation_runs_each_assigned_program_once_and_ends_by_itself() {
+    use orchestrator::farm::{Farm, FarmSpec, PolicyArg};
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg_path = tiny_config(tmp.path(), 2);
+    let mut cfg = worker::config::RunConfig::load(&cfg_path).unwrap();
+    orchestrator::up::resolve_dataset(&mut cfg, false).unwrap();
+    let (dir, config_path) = orchestrator::up::prepare_run(&tmp.path().join("eval"), &cfg, false, 2, PolicyArg::Expert).unwrap();
+    let mut spec = FarmSpec::new(&dir.path, &dir.run_id, &config_path, cfg, 2, PolicyArg::Expert);
+    spec.bin_dir = Some(bin_dir());
+    spec.programs = Some(vec![vec![0, 1, 2], vec![3, 4]]);
+    spec.check = true;
+    spec.max_seconds = Some(180.0);
+    let farm = Farm::start(spec).unwrap();
+    let out = farm.finish().unwrap();
+    assert!(out.learner.is_some_and(|e| e.success()), "{out:?}");
+    let p = out.progress.unwrap();
+    assert_eq!(p.stop_reason.as_deref(), Some("every worker finished its programs"));
+    let lines = std::fs::read_to_string(dir.path.join("episodes.jsonl")).unwrap();
+    let mut seen: Vec<(u64, u64)> = lines
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap())
+        .map(|v| (v["worker"].as_u64().unwrap(), v["program"].as_u64().unwrap()))
+        .collect();
+    seen.sort();
+    assert_eq!(seen, vec![(0, 0), (0, 1), (0, 2), (1, 3), (1, 4)]);
+    assert!(out.leftovers.is_empty(), "{:?}", out.leftovers);
+}
+
+/// `kill -9` of the orchestrator itself: the parent-death signal takes every worker and the
+/// learner down with it.
+#[test]
+fn no_child_outlives_a_killed_orchestrator() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tiny_config(tmp.path(), 1);
+    let mut run = Run::start(&tmp.path().join("run"), &["--workers", "3", "--config", cfg.to_str().unwrap(), "--policy", "random", "--seconds", "300", "--report-every", "0.5"]);
+    run.wait_progress(Duration::from_secs(120), "frames from all 3 workers", |p| p["workers_seen"] == 3 && p["frames"].as_u64() > Some(0));
+    assert_eq!(run.processes().len(), 4);
+    run.signal(Signal::SIGKILL);
+    run.wait(Duration::from_secs(5));
+    let t0 = Instant::now();
+    while !run.processes().is_empty() {
+        assert!(t0.elapsed() < Duration::from_secs(5), "children outlived the orchestrator: {:?}", run.processes());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // Nobody was left to end the run's shared-memory domain: the next `orchestrator up`
+    // sweeps it; here the test does.
+    worker::transport::end_run_domain(&run.run_id()).unwrap();
+    assert!(shm_leftovers(&run.run_id()).is_empty());
+}
