@@ -26,6 +26,7 @@ pub mod obs;
 pub mod optim;
 pub mod policy;
 pub mod ppo;
+pub mod ppo_policy;
 pub mod pth;
 pub mod resnet;
 pub mod rollout;

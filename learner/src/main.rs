@@ -9,6 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use learner::policy::{ExpertPolicy, FarmPolicy, RandomPolicy};
+use learner::ppo_policy::{Blank, PpoFarmPolicy};
 use learner::serve::{ServeOptions, serve};
 use learner::{bench, checkpoint, device, metrics::MetricsLog, smoke};
 use nix::sys::signal::Signal;
@@ -67,6 +68,14 @@ enum PolicyKind {
     Ppo,
 }
 
+/// Visual inputs to zero during evaluation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum BlankKind {
+    Rgb,
+    Depth,
+    Both,
+}
+
 #[derive(Args)]
 struct ServeArgs {
     /// Run configuration (TOML).
@@ -104,25 +113,43 @@ struct ServeArgs {
     /// Seconds between progress records.
     #[arg(long, default_value_t = 2.0)]
     report_every: f64,
+    /// Evaluate this checkpoint (with `--policy ppo --eval`) instead of training.
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Evaluation: zero these visual inputs (blind mode: both; T4.7 ablations: one).
+    #[arg(long, value_enum)]
+    blank: Option<BlankKind>,
     /// Before the first batch, wait up to this many seconds for every worker to connect.
     #[arg(long, default_value_t = 60.0)]
     start_wait: f64,
 }
 
-fn make_policy(kind: PolicyKind, cfg: &RunConfig) -> anyhow::Result<Box<dyn FarmPolicy>> {
-    Ok(match kind {
-        PolicyKind::Random => Box::new(RandomPolicy::new(cfg.run.seed)),
-        PolicyKind::Expert => Box::new(ExpertPolicy),
-        PolicyKind::Ppo => anyhow::bail!("--policy ppo: PPO is not wired into the policy server yet; use --policy random or expert"),
+fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Result<Box<dyn FarmPolicy>> {
+    Ok(match (a.policy, &a.checkpoint) {
+        (PolicyKind::Random, _) => Box::new(RandomPolicy::new(cfg.run.seed)),
+        (PolicyKind::Expert, _) => Box::new(ExpertPolicy),
+        (PolicyKind::Ppo, Some(ckpt)) => {
+            let blank = match a.blank {
+                None => Blank::default(),
+                Some(BlankKind::Rgb) => Blank { rgb: true, depth: false },
+                Some(BlankKind::Depth) => Blank { rgb: false, depth: true },
+                Some(BlankKind::Both) => Blank { rgb: true, depth: true },
+            };
+            Box::new(PpoFarmPolicy::eval(cfg, a.workers, dev, ckpt, blank)?)
+        }
+        (PolicyKind::Ppo, None) => {
+            anyhow::ensure!(!a.eval, "--eval with --policy ppo needs --checkpoint");
+            Box::new(PpoFarmPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?)
+        }
     })
 }
 
-fn run_serve(a: ServeArgs) -> anyhow::Result<()> {
+fn run_serve(a: ServeArgs, dev: tch::Device) -> anyhow::Result<()> {
     // Ctrl-C (SIGINT) stops cleanly and checkpoints; the orchestrator's death counts as Ctrl-C.
     process::install_termination_handler()?;
     process::die_with_parent(Signal::SIGINT)?;
     let cfg = RunConfig::load(&a.config)?;
-    let mut policy = make_policy(a.policy, &cfg)?;
+    let mut policy = make_policy(&a, &cfg, dev)?;
     if a.resume && a.policy != PolicyKind::Ppo {
         tracing::info!("--resume: policy `{}` keeps no state; nothing to resume", policy.name());
     }
@@ -191,7 +218,7 @@ fn run(cli: Cli) -> Result<()> {
     let dev = device::select(cli.device)?;
     device::configure(dev);
     match cli.command {
-        Command::Serve(a) => run_serve(a)?,
+        Command::Serve(a) => run_serve(a, dev)?,
         Command::Info => println!("{}", device::report(dev)),
         Command::Smoke { updates, envs, run_dir, resume } => smoke_run(dev, updates, envs, run_dir, resume)?,
         Command::Bench { faithful, reps } => bench_run(dev, faithful, reps)?,

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench, dataset_cmd, program_cmd, render_cmd, up};
+use orchestrator::{bench, dataset_cmd, eval, program_cmd, render_cmd, up};
 
 #[derive(Parser)]
 #[command(name = "orchestrator", version, about = "GesTHOR-RS: build the dataset, run the rollout farm, evaluate, benchmark")]
@@ -28,6 +28,8 @@ enum Command {
     Replay(program_cmd::ReplayArgs),
     /// Start a run: the learner and N worker processes, supervised; Ctrl-C stops it cleanly.
     Up(up::UpArgs),
+    /// Evaluate a checkpoint (or the Random baseline) on a split: the tables of chapter 4.
+    Eval(eval::EvalArgs),
     /// Throughput benchmarks.
     #[command(subcommand)]
     Bench(bench::BenchCmd),
@@ -41,6 +43,7 @@ fn main() -> ExitCode {
         Command::Program(c) => program_cmd::run(c).map(|_| 0),
         Command::Replay(a) => program_cmd::replay(a).map(|_| 0),
         Command::Up(a) => up::run(a),
+        Command::Eval(a) => eval::run(a).map(|_| 0),
         Command::Bench(c) => bench::run(c).map(|_| 0),
     };
     match result {

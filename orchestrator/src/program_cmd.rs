@@ -200,7 +200,7 @@ pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
         above_img.save(a.out.join("frames").join(format!("above_{n:03}.png")))?;
         gif_frames.push(side_by_side(&robot_img, &above_img));
     }
-    write_gif(&a.out.join("replay.gif"), &gif_frames, 1000 * a.every.max(1) as u32 / 30)?;
+    crate::trajectory::write_gif(&a.out.join("replay.gif"), &gif_frames, 1000 * a.every.max(1) as u32 / 30)?;
     std::fs::write(a.out.join("README.txt"), format!("{label}\nleft: the robot's start view; right: from above\n{} frames\n", frames.len()))?;
     println!("{label}: {} frames (robot view + from above) and replay.gif in {}", frames.len(), a.out.display());
     Ok(())
@@ -261,20 +261,4 @@ fn side_by_side(a: &RgbImage, b: &RgbImage) -> RgbImage {
     image::imageops::overlay(&mut out, a, 0, 0);
     image::imageops::overlay(&mut out, b, (w + gap) as i64, 0);
     out
-}
-
-fn write_gif(path: &Path, frames: &[RgbImage], delay_ms: u32) -> anyhow::Result<()> {
-    use image::codecs::gif::{GifEncoder, Repeat};
-    let tmp = path.with_extension("gif.partial");
-    {
-        let f = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
-        let mut enc = GifEncoder::new_with_speed(f, 20);
-        enc.set_repeat(Repeat::Infinite)?;
-        for fr in frames {
-            let rgba = image::DynamicImage::ImageRgb8(fr.clone()).to_rgba8();
-            enc.encode_frame(image::Frame::from_parts(rgba, 0, 0, image::Delay::from_numer_denom_ms(delay_ms, 1)))?;
-        }
-    }
-    std::fs::rename(&tmp, path)?;
-    Ok(())
 }

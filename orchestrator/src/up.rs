@@ -14,22 +14,7 @@ use crate::farm::{Farm, FarmSpec, FarmState, PolicyArg, Progress};
 use crate::run_dir::{self, RunDir};
 
 /// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.
-pub const DEFAULT_CONFIG: &str = r#"# Embedded default of `orchestrator up`: +Both on a CPU (small CNN, 64x64 frames).
-[run]
-method = "both"
-dataset = "data/gond"
-total_frames = 500000
-
-[env]
-envs_per_worker = 4
-width = 64
-height = 64
-
-[model]
-encoder = "small_cnn"
-hidden = 256
-gru_layers = 1
-"#;
+pub const DEFAULT_CONFIG: &str = include_str!("../../configs/tiny/both.toml");
 
 #[derive(Args, Debug)]
 pub struct UpArgs {

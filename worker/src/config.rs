@@ -153,6 +153,10 @@ pub struct TaskConfig {
     pub collision_penalty: f32,
     /// Subtracted for a stop that does not succeed.
     pub wrong_stop_penalty: f32,
+    /// Reward per metre of geodesic progress toward the success region (negative when moving
+    /// away). 0 in the dissertation (§4.3.2); the tiny CPU configs use a little of it so that a
+    /// 20-minute run on two cores learns (a standard shaping of embodied navigation).
+    pub progress_reward: f32,
     /// Intervention gestures show while heading and target bearing differ by more than this.
     pub intervention_angle_deg: f32,
     /// Distance-to-success threshold of DTS (the dissertation writes 1.5 m).
@@ -170,6 +174,7 @@ impl Default for TaskConfig {
             step_penalty: 0.001,
             collision_penalty: 0.005,
             wrong_stop_penalty: 0.01,
+            progress_reward: 0.0,
             intervention_angle_deg: 90.0,
             dts_threshold: 1.5,
         }

@@ -251,7 +251,9 @@ impl Env {
     /// Applies an action and scores it. The visibility used by Stop is that of the frame the
     /// robot saw when choosing the action (set before this call).
     pub fn step(&mut self, action: Action) -> StepResult {
+        let before = self.geodesic();
         let m = robot::apply(&mut self.pose, action, &self.cfg.env, &self.physics);
+        let after = self.geodesic();
         let facts = StepFacts {
             action,
             moved: m.moved,
@@ -259,6 +261,7 @@ impl Env {
             travelled: if m.moved { self.cfg.env.move_step } else { 0.0 },
             distance: self.goal.distance_2d(self.pose.xz()),
             visible_pixels: self.visible_pixels,
+            progress: if before.is_finite() && after.is_finite() { before - after } else { 0.0 },
         };
         self.last = self.task.step(&facts);
         self.last_action = Some(action);

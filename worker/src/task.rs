@@ -24,6 +24,9 @@ pub struct StepFacts {
     pub distance: f32,
     /// Pixels of the target instance in the frame the robot saw when acting.
     pub visible_pixels: u32,
+    /// Geodesic distance to the success region gained by the step (metres; negative when the
+    /// robot moved away), for `progress_reward`.
+    pub progress: f32,
 }
 
 /// The task's verdict on one step.
@@ -102,7 +105,7 @@ impl Task {
         s.steps += 1;
         s.path_length += f.travelled;
         s.final_distance = f.distance;
-        let mut r = StepResult { reward: -c.step_penalty, ..Default::default() };
+        let mut r = StepResult { reward: -c.step_penalty + c.progress_reward * f.progress, ..Default::default() };
         if f.collided {
             s.collisions += 1;
             r.reward -= c.collision_penalty;
@@ -136,7 +139,7 @@ mod tests {
     use super::*;
 
     fn facts(action: Action, distance: f32, pixels: u32) -> StepFacts {
-        StepFacts { action, moved: false, collided: false, travelled: 0.0, distance, visible_pixels: pixels }
+        StepFacts { action, moved: false, collided: false, travelled: 0.0, distance, visible_pixels: pixels, progress: 0.0 }
     }
 
     #[test]
@@ -175,6 +178,20 @@ mod tests {
         assert!(r.terminated && !r.truncated);
         assert_eq!(t.stats.stops.len(), 2);
         assert_eq!(t.stats.collisions, 1);
+    }
+
+    #[test]
+    fn progress_reward_is_off_by_default_and_follows_geodesic_progress() {
+        let mut t = Task::new(TaskConfig::default());
+        t.reset(3.0);
+        let r = t.step(&StepFacts { progress: 0.25, ..facts(Action::MoveAhead, 2.8, 0) });
+        assert!((r.reward + 0.001).abs() < 1e-7);
+        let mut t = Task::new(TaskConfig { progress_reward: 0.4, ..Default::default() });
+        t.reset(3.0);
+        let r = t.step(&StepFacts { progress: 0.25, ..facts(Action::MoveAhead, 2.8, 0) });
+        assert!((r.reward - (0.1 - 0.001)).abs() < 1e-6);
+        let r = t.step(&StepFacts { progress: -0.25, ..facts(Action::MoveAhead, 3.0, 0) });
+        assert!((r.reward + 0.1 + 0.001).abs() < 1e-6);
     }
 
     #[test]

@@ -1,0 +1,233 @@
+//! PPO served to the farm: every round, the observations of all N = workers × E envs become one
+//! `ObsBatch` read in place from the workers' shared-memory samples; the `Trainer` acts and,
+//! every `rollout` steps, learns. In evaluation the network only acts (greedy), optionally with
+//! its visual inputs zeroed (blind mode, RGB-only and depth-only ablations).
+//!
+//! A worker missing from a round (crashed, restarting, slow) contributes zero frames and its envs
+//! are flagged `lost`: that step and the one before stay out of the loss and the envs' memory is
+//! reset. The first observation of a restarted worker starts fresh episodes anyway.
+
+use std::path::{Path, PathBuf};
+
+use half::f16;
+use tch::Device;
+
+use shm_schema::EnvRecord;
+use worker::config::RunConfig;
+
+use crate::batch::ObsBatchView;
+use crate::checkpoint;
+use crate::metrics::MetricsLog;
+use crate::model::Policy;
+use crate::obs::{EnvStep, FrameView, GestureKind, GestureView, ObsBatch};
+use crate::policy::FarmPolicy;
+use crate::ppo::Trainer;
+
+/// What the network does with the batches.
+pub enum Mode {
+    /// Act and learn; checkpoints and metrics go to the run directory.
+    Train { trainer: Box<Trainer>, log: MetricsLog, checkpoints: PathBuf },
+    /// Act only, from a checkpoint.
+    Eval { policy: Box<Policy>, greedy: bool },
+}
+
+/// Inputs to blank during evaluation (T4.6, T4.7).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Blank {
+    pub rgb: bool,
+    pub depth: bool,
+}
+
+pub struct PpoFarmPolicy {
+    mode: Mode,
+    cfg: RunConfig,
+    workers: usize,
+    envs: usize,
+    blank: Blank,
+    zero_rgb: Vec<u8>,
+    zero_depth: Vec<u16>,
+    zero_gesture: Vec<f16>,
+    steps: Vec<EnvStep>,
+    /// Generation last seen per worker (a new one marks a restart).
+    generations: Vec<Option<u32>>,
+}
+
+impl PpoFarmPolicy {
+    /// Training from scratch, or from the run directory's latest checkpoint when `resume`.
+    pub fn train(cfg: &RunConfig, workers: usize, device: Device, run_dir: &Path, resume: bool) -> anyhow::Result<PpoFarmPolicy> {
+        let n = workers * cfg.env.envs_per_worker;
+        let checkpoints = run_dir.join("checkpoints");
+        let trainer = match (resume, checkpoint::latest(&checkpoints)) {
+            (true, Some(path)) => {
+                let t = Trainer::resume(cfg, n, device, &path)?;
+                tracing::info!("resumed from {} at update {} ({} frames)", path.display(), t.updates, t.frames);
+                t
+            }
+            (true, None) => anyhow::bail!("--resume: {} holds no checkpoint", checkpoints.display()),
+            (false, _) => Trainer::new(cfg, n, device)?,
+        };
+        for note in trainer.policy.notes() {
+            tracing::info!("{note}");
+        }
+        let log = MetricsLog::open(run_dir)?;
+        Ok(PpoFarmPolicy::with_mode(Mode::Train { trainer: Box::new(trainer), log, checkpoints }, cfg, workers, Blank::default()))
+    }
+
+    /// Evaluation of a checkpoint.
+    pub fn eval(cfg: &RunConfig, workers: usize, device: Device, checkpoint: &Path, blank: Blank) -> anyhow::Result<PpoFarmPolicy> {
+        let n = workers * cfg.env.envs_per_worker;
+        let policy = Policy::from_checkpoint(cfg, n, device, checkpoint)?;
+        for note in policy.notes() {
+            tracing::info!("{note}");
+        }
+        Ok(PpoFarmPolicy::with_mode(Mode::Eval { policy: Box::new(policy), greedy: true }, cfg, workers, blank))
+    }
+
+    fn with_mode(mode: Mode, cfg: &RunConfig, workers: usize, blank: Blank) -> PpoFarmPolicy {
+        let e = cfg.env.envs_per_worker;
+        let px = (cfg.env.width * cfg.env.height) as usize;
+        PpoFarmPolicy {
+            mode,
+            cfg: cfg.clone(),
+            workers,
+            envs: e,
+            blank,
+            zero_rgb: vec![0; e * px * 3],
+            zero_depth: vec![0; e * px],
+            zero_gesture: vec![f16::ZERO; e * shm_schema::GESTURE_FRAMES * shm_schema::GESTURE_DIMS],
+            steps: vec![EnvStep { lost: true, ..Default::default() }; workers * e],
+            generations: vec![None; workers],
+        }
+    }
+
+    fn save_checkpoint(&mut self) -> anyhow::Result<()> {
+        if let Mode::Train { trainer, checkpoints, .. } = &self.mode {
+            if trainer.updates > 0 {
+                let path = checkpoint::save_in_dir(checkpoints, trainer, self.cfg.checkpoint.keep)?;
+                tracing::info!("checkpoint {}", path.display());
+            }
+        }
+        Ok(())
+    }
+}
+
+fn env_step(r: &EnvRecord) -> EnvStep {
+    let done = r.terminated != 0 || r.truncated != 0;
+    let s = &r.summary;
+    let spl = if done && s.success != 0 {
+        let (l, p) = (s.start_geodesic, s.path_length);
+        if l <= 0.0 && p <= 0.0 { 1.0 } else { l / p.max(l) }
+    } else {
+        0.0
+    };
+    EnvStep {
+        reward: r.reward,
+        terminated: r.terminated != 0,
+        truncated: r.truncated != 0,
+        episode_start: r.episode_start != 0,
+        // an idle env (evaluation ran out of programs) has nothing to learn from
+        lost: r.idle != 0,
+        gesture: GestureKind::from_u8(r.gesture_kind).unwrap_or_default(),
+        target: r.target_category as i64,
+        person_pose: r.person_rel,
+        success: r.success != 0,
+        spl,
+    }
+}
+
+impl FarmPolicy for PpoFarmPolicy {
+    fn name(&self) -> &str {
+        match self.mode {
+            Mode::Train { .. } => "ppo",
+            Mode::Eval { .. } => "ppo-eval",
+        }
+    }
+
+    fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>> {
+        let e = self.envs;
+        let mut frames = Vec::with_capacity(self.workers);
+        for p in &batch.parts {
+            let w = p.worker as usize;
+            anyhow::ensure!(w < self.workers, "worker {w} is outside the run's {} workers", self.workers);
+            anyhow::ensure!(p.num_envs() == e, "worker {w} sends {} envs, the config says {e}", p.num_envs());
+        }
+        // One frame group per worker, in worker order; missing workers send zeros.
+        let mut parts = batch.parts.iter().peekable();
+        for w in 0..self.workers {
+            match parts.next_if(|p| p.worker as usize == w) {
+                Some(p) => {
+                    let restarted = p.new_generation || self.generations[w].is_some_and(|g| g != p.generation);
+                    self.generations[w] = Some(p.generation);
+                    for (k, r) in p.records().iter().enumerate() {
+                        let mut s = env_step(r);
+                        // the action sent to the previous process was never applied
+                        s.lost |= restarted && r.episode_start == 0;
+                        self.steps[w * e + k] = s;
+                    }
+                    frames.push(FrameView {
+                        envs: e,
+                        rgb: if self.blank.rgb { &self.zero_rgb } else { p.rgb() },
+                        depth: if self.blank.depth { &self.zero_depth } else { p.depth() },
+                        gesture: GestureView::F16(p.gesture()),
+                    });
+                }
+                None => {
+                    for k in 0..e {
+                        self.steps[w * e + k] = EnvStep { lost: true, ..Default::default() };
+                    }
+                    frames.push(FrameView { envs: e, rgb: &self.zero_rgb, depth: &self.zero_depth, gesture: GestureView::F16(&self.zero_gesture) });
+                }
+            }
+        }
+        let obs = ObsBatch { height: batch.height, width: batch.width, frames, envs: &self.steps };
+        let actions = match &mut self.mode {
+            Mode::Train { trainer, log, .. } => {
+                let out = trainer.step(&obs)?;
+                if let Some(m) = &out.update {
+                    log.append(m)?;
+                    tracing::info!(
+                        "update {} frames {} fps {:.0} success {} loss π {:.3} v {:.3} entropy {:.3}",
+                        m.update,
+                        m.frames,
+                        m.fps,
+                        m.success_rate.map_or("-".into(), |s| format!("{:.2}", s)),
+                        m.policy_loss,
+                        m.value_loss,
+                        m.entropy
+                    );
+                }
+                let save = out.update.is_some() && trainer.updates % self.cfg.checkpoint.every_updates.max(1) == 0;
+                let plot = out.update.is_some() && trainer.updates % 5 == 0;
+                if plot {
+                    log.plot()?;
+                }
+                let a = out.actions.actions;
+                if save {
+                    self.save_checkpoint()?;
+                }
+                a
+            }
+            Mode::Eval { policy, greedy } => {
+                let a = if *greedy { policy.act_deterministic(&obs)? } else { policy.act(&obs)? };
+                a.actions
+            }
+        };
+        // Answer only the workers that sent, in batch order.
+        let mut out = Vec::with_capacity(batch.num_envs());
+        for p in &batch.parts {
+            let w = p.worker as usize;
+            out.extend(actions[w * e..(w + 1) * e].iter().map(|&a| a as u8));
+        }
+        Ok(out)
+    }
+
+    fn finish(&mut self, checkpoint: bool) -> anyhow::Result<()> {
+        if let Mode::Train { log, .. } = &self.mode {
+            log.plot()?;
+        }
+        if checkpoint {
+            self.save_checkpoint()?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,322 @@
+//! `orchestrator eval`: runs a split's programs on the farm, each exactly once, and writes the
+//! tables of chapter 4 (T4.2–T4.7) as Markdown and CSV; `--compare` puts several evaluations side
+//! by side like T4.2; `--trajectories` draws episodes like Figs 4.2/4.3.
+//!
+//! A checkpoint (or a run directory, whose latest *complete* checkpoint is used, so a training
+//! that is still writing can be evaluated) is evaluated greedily in several passes: with all its
+//! inputs, blind (visual inputs zeroed, T4.6), and with RGB or depth alone (T4.7) when it was
+//! trained with both. Without a checkpoint the Random baseline runs. Episodes allow unlimited
+//! stops; the metrics at 1, 2 and 3 stops read each episode up to its k-th stop.
+
+use std::collections::BTreeMap;
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::Args;
+
+use worker::config::{Method, RunConfig};
+use worker::dataset::{Dataset, Verify};
+use worker::metrics::{EpisodeResult, scores};
+use worker::program::Program;
+use worker::scene::Split;
+
+use crate::farm::{Farm, FarmSpec, PolicyArg};
+use crate::tables::{EvalMode, Evaluation, compare};
+use crate::up::{prepare_run, resolve_dataset, sweep_dead_runs};
+
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// A checkpoint file, or a run directory (its latest complete checkpoint). Without it, the
+    /// Random baseline is evaluated.
+    #[arg(long)]
+    pub checkpoint: Option<PathBuf>,
+    /// Fold to evaluate on.
+    #[arg(long, default_value = "test")]
+    pub split: String,
+    #[arg(long, default_value_t = 4)]
+    pub workers: usize,
+    /// Run configuration when there is no run directory to take it from (Random baseline).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Dataset (default: the configuration's).
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+    /// Evaluate only this many programs, spread evenly over the split (every room keeps its share).
+    #[arg(long)]
+    pub max_programs: Option<usize>,
+    /// Passes to run: normal, blind, rgb_only, depth_only (default: all the checkpoint allows).
+    #[arg(long, value_delimiter = ',')]
+    pub modes: Vec<String>,
+    /// DTS threshold in metres (the dissertation writes 1.5 m; success uses 1 m).
+    #[arg(long, default_value_t = 1.5)]
+    pub dts_threshold: f64,
+    /// Where to write the tables (default: RUN/eval/<split>, or runs/eval-random/<split>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Name of the method in the tables (default: from the run's config).
+    #[arg(long)]
+    pub label: Option<String>,
+    /// Draw this many episodes (trajectory map PNG + robot-view GIF) from the normal pass.
+    #[arg(long, default_value_t = 0)]
+    pub trajectories: usize,
+    /// Put earlier evaluations side by side instead (their output folders, or run directories).
+    #[arg(long, num_args = 1..)]
+    pub compare: Vec<PathBuf>,
+}
+
+/// The `episodes.jsonl` of an evaluation pass.
+pub fn read_episodes(path: &Path) -> anyhow::Result<Vec<EpisodeResult>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| serde_json::from_str(l).with_context(|| format!("{}: line {}", path.display(), i + 1)))
+        .collect()
+}
+
+/// The newest checkpoint of a run directory. Checkpoints are renamed into place when complete,
+/// so any file with the final name is whole; a checkpoint being written has another name.
+pub fn latest_checkpoint(run: &Path) -> Option<PathBuf> {
+    let dir = run.join("checkpoints");
+    std::fs::read_dir(&dir)
+        .ok()?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let n: u64 = name.strip_prefix("ckpt-")?.strip_suffix(".safetensors")?.parse().ok()?;
+            Some((n, e.path()))
+        })
+        .max_by_key(|(n, _)| *n)
+        .map(|(_, p)| p)
+}
+
+/// Resolves `--checkpoint` into (checkpoint file, run directory holding its config).
+fn locate(path: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
+    if path.is_dir() {
+        let ckpt = latest_checkpoint(path).with_context(|| format!("{}: no checkpoint in {}/checkpoints yet", path.display(), path.display()))?;
+        return Ok((ckpt, path.to_path_buf()));
+    }
+    anyhow::ensure!(path.is_file(), "--checkpoint {}: no such file or run directory", path.display());
+    let run = path.parent().and_then(|p| p.parent()).with_context(|| format!("{}: not inside RUN/checkpoints", path.display()))?;
+    Ok((path.to_path_buf(), run.to_path_buf()))
+}
+
+/// Every program of the split, or `max` of them spread evenly (so each room keeps its share).
+pub fn choose_programs(total: usize, max: Option<usize>) -> Vec<u64> {
+    match max {
+        Some(m) if m < total => (0..m).map(|i| (i * total / m) as u64).collect(),
+        _ => (0..total as u64).collect(),
+    }
+}
+
+/// Worker w runs programs w, w + N, w + 2N, ... of the list, in order.
+pub fn assign(programs: &[u64], workers: usize) -> Vec<Vec<u64>> {
+    let mut out = vec![Vec::new(); workers];
+    for (i, &p) in programs.iter().enumerate() {
+        out[i % workers].push(p);
+    }
+    out
+}
+
+fn modes_for(cfg: &RunConfig, random: bool, asked: &[String]) -> anyhow::Result<Vec<EvalMode>> {
+    if !asked.is_empty() {
+        let modes = asked
+            .iter()
+            .map(|m| EvalMode::from_name(m).with_context(|| format!("--modes: `{m}` is not one of normal, blind, rgb_only, depth_only")))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        for m in &modes {
+            let needs_both = matches!(m, EvalMode::RgbOnly | EvalMode::DepthOnly);
+            anyhow::ensure!(!random || *m == EvalMode::Normal, "--modes {}: the Random baseline has no inputs to zero", m.name());
+            anyhow::ensure!(!needs_both || (cfg.model.rgb && cfg.model.depth), "--modes {}: the checkpoint was not trained with both RGB and depth", m.name());
+        }
+        return Ok(modes);
+    }
+    let mut modes = vec![EvalMode::Normal];
+    if !random && (cfg.model.rgb || cfg.model.depth) {
+        modes.push(EvalMode::Blind);
+    }
+    if !random && cfg.model.rgb && cfg.model.depth {
+        modes.extend([EvalMode::RgbOnly, EvalMode::DepthOnly]);
+    }
+    Ok(modes)
+}
+
+pub fn run(a: EvalArgs) -> anyhow::Result<()> {
+    if !a.compare.is_empty() {
+        return run_compare(&a);
+    }
+    let split = Split::from_name(&a.split).with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
+    let (checkpoint, run_dir) = match &a.checkpoint {
+        Some(p) => {
+            let (c, r) = locate(p)?;
+            (Some(c), Some(r))
+        }
+        None => (None, None),
+    };
+    let mut cfg = match (&run_dir, &a.config) {
+        (Some(r), _) => RunConfig::load(&r.join("config.toml")).with_context(|| format!("{}: the run's config", r.display()))?,
+        (None, Some(c)) => RunConfig::load(c)?,
+        (None, None) => crate::up::load_config(None)?,
+    };
+    let random = checkpoint.is_none();
+    if random {
+        cfg.run.method = Method::Random;
+    }
+    if let Some(d) = &a.dataset {
+        cfg.run.dataset = d.clone();
+    }
+    // Evaluation runs every program of the fold, with unlimited stops (the metrics at k stops
+    // read each episode up to its k-th stop).
+    cfg.run.split = split;
+    cfg.run.scenes.clear();
+    cfg.run.max_programs = None;
+    cfg.task.max_stops = 0;
+    resolve_dataset(&mut cfg, false)?;
+    let ds = Dataset::open(&cfg.run.dataset, Verify::Quick)?;
+    let total = ds.require(split)?.len();
+    let programs = choose_programs(total, a.max_programs);
+    let index: Vec<Program> = ds.index(split)?;
+    let modes = modes_for(&cfg, random, &a.modes)?;
+    let label = a.label.clone().unwrap_or_else(|| cfg.run.method.label().to_string());
+    let out = a.out.clone().unwrap_or_else(|| match &run_dir {
+        Some(r) => r.join("eval").join(split.name()),
+        None => PathBuf::from("runs/eval-random").join(split.name()),
+    });
+    std::fs::create_dir_all(&out)?;
+    eprintln!(
+        "[eval] {label}: {} programs of {} × {} pass(es) ({}) on {} workers{}",
+        programs.len(),
+        split.name(),
+        modes.len(),
+        modes.iter().map(|m| m.name()).collect::<Vec<_>>().join(", "),
+        a.workers,
+        checkpoint.as_ref().map(|c| format!(", checkpoint {}", c.display())).unwrap_or_default()
+    );
+    sweep_dead_runs();
+    let mut passes = BTreeMap::new();
+    let mut timing = Vec::new();
+    for mode in &modes {
+        let pass_dir = out.join(mode.name());
+        if pass_dir.exists() {
+            std::fs::remove_dir_all(&pass_dir)?;
+        }
+        let policy = if random { PolicyArg::Random } else { PolicyArg::Ppo };
+        let (dir, config_path) = prepare_run(&pass_dir, &cfg, false, a.workers, policy)?;
+        let mut spec = FarmSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, policy);
+        spec.programs = Some(assign(&programs, a.workers));
+        if let Some(c) = &checkpoint {
+            let mut args: Vec<OsString> = vec!["--checkpoint".into(), c.clone().into_os_string()];
+            let blank = match mode {
+                EvalMode::Normal => None,
+                EvalMode::Blind => Some("both"),
+                EvalMode::RgbOnly => Some("depth"),
+                EvalMode::DepthOnly => Some("rgb"),
+            };
+            if let Some(b) = blank {
+                args.extend(["--blank".into(), b.into()]);
+            }
+            spec.learner_args = args;
+        }
+        let t = Instant::now();
+        let farm = Farm::start(spec)?;
+        let outcome = farm.finish()?;
+        let secs = t.elapsed().as_secs_f64();
+        let ok = outcome.learner.as_ref().is_some_and(|e| e.success());
+        let finished = outcome.progress.as_ref().and_then(|p| p.stop_reason.clone()).unwrap_or_default();
+        if !ok {
+            let log = dir.logs().join("learner.log");
+            let tail = std::fs::read_to_string(&log).unwrap_or_default();
+            let last = tail.lines().rev().find(|l| !l.trim().is_empty()).unwrap_or("");
+            anyhow::bail!("{} pass failed ({finished}); the learner said: {last}\n(see {})", mode.name(), log.display());
+        }
+        let eps = read_episodes(&dir.path.join("episodes.jsonl"))?;
+        // each program exactly once (a restarted worker may repeat programs it had begun)
+        let mut by_program: BTreeMap<u64, EpisodeResult> = BTreeMap::new();
+        for e in eps {
+            by_program.entry(e.program).or_insert(e);
+        }
+        let missing = programs.iter().filter(|p| !by_program.contains_key(p)).count();
+        anyhow::ensure!(missing == 0, "{} pass: {missing} of {} programs have no episode", mode.name(), programs.len());
+        let eps: Vec<EpisodeResult> = by_program.into_values().collect();
+        let steps: u64 = eps.iter().map(|e| e.steps as u64 + 1).sum();
+        eprintln!("[eval] {}: {} episodes in {:.1} s ({:.1} episodes/s, {:.0} frames/s)", mode.name(), eps.len(), secs, eps.len() as f64 / secs, steps as f64 / secs);
+        timing.push((mode.name(), eps.len(), secs));
+        passes.insert(*mode, eps);
+    }
+    let evaluation = Evaluation { label: label.clone(), split: split.name(), programs: &index, passes, dts_threshold: a.dts_threshold };
+    let mut md = evaluation.markdown();
+    md += "\n## Throughput\n\n| pass | episodes | seconds | episodes/s |\n|---|---:|---:|---:|\n";
+    for (m, n, s) in &timing {
+        md += &format!("| {m} | {n} | {s:.1} | {:.2} |\n", *n as f64 / s);
+    }
+    if let Some(c) = &checkpoint {
+        md += &format!("\nCheckpoint: `{}`\n", c.display());
+    }
+    worker::util::write_atomic(&out.join("tables.md"), md.as_bytes())?;
+    worker::util::write_atomic(&out.join("tables.csv"), evaluation.csv().as_bytes())?;
+    if a.trajectories > 0 {
+        crate::trajectory::draw(&cfg, &ds, split, &evaluation, checkpoint.as_deref(), &out, a.trajectories)?;
+    }
+    println!("{md}");
+    eprintln!("[eval] tables in {}", out.display());
+    Ok(())
+}
+
+/// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>.
+fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<EpisodeResult>)> {
+    let candidates = [p.join("normal/episodes.jsonl"), p.join("eval").join(split).join("normal/episodes.jsonl")];
+    let f = candidates.iter().find(|c| c.is_file()).with_context(|| format!("{}: no evaluation found (looked for {})", p.display(), candidates[0].display()))?;
+    let eval_dir = f.parent().and_then(|x| x.parent()).unwrap_or(p);
+    let label = std::fs::read_to_string(eval_dir.join("tables.md"))
+        .ok()
+        .and_then(|t| t.lines().next().map(|l| l.trim_start_matches("# Evaluation: ").split(" on ").next().unwrap_or("").to_string()))
+        .filter(|l| !l.is_empty())
+        .unwrap_or_else(|| p.display().to_string());
+    Ok((label, read_episodes(f)?))
+}
+
+fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
+    let mut rows = Vec::new();
+    for p in &a.compare {
+        let (label, eps) = normal_episodes(p, &a.split)?;
+        rows.push((label, scores(&eps, Some(1), a.dts_threshold), scores(&eps, None, a.dts_threshold)));
+    }
+    let md = format!("# Comparison on {} (first stop; ∞ = unlimited stops)\n\n{}", a.split, compare(&rows));
+    if let Some(out) = &a.out {
+        std::fs::create_dir_all(out)?;
+        worker::util::write_atomic(&out.join("compare.md"), md.as_bytes())?;
+    }
+    println!("{md}");
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn programs_are_spread_and_assigned_exactly_once() {
+        assert_eq!(choose_programs(10, None), (0..10).collect::<Vec<_>>());
+        assert_eq!(choose_programs(10, Some(4)), vec![0, 2, 5, 7]);
+        let a = assign(&choose_programs(5000, Some(1000)), 3);
+        let mut all: Vec<u64> = a.concat();
+        all.sort();
+        all.dedup();
+        assert_eq!(all.len(), 1000);
+        assert!(a.iter().all(|w| w.len() >= 333));
+    }
+
+    #[test]
+    fn latest_checkpoint_ignores_unfinished_files() {
+        let d = tempfile::tempdir().unwrap();
+        let c = d.path().join("checkpoints");
+        std::fs::create_dir_all(&c).unwrap();
+        for f in ["ckpt-00000010.safetensors", "ckpt-00000020.safetensors", ".ckpt-00000030.safetensors.tmp123", "ckpt-00000040.safetensors.partial"] {
+            std::fs::write(c.join(f), b"x").unwrap();
+        }
+        assert_eq!(latest_checkpoint(d.path()).unwrap(), c.join("ckpt-00000020.safetensors"));
+        assert_eq!(locate(d.path()).unwrap().0, c.join("ckpt-00000020.safetensors"));
+    }
+}
