@@ -64,6 +64,8 @@ pub struct Row {
     /// Mean CPU use of one worker process, percent of one core.
     pub worker_cpu: f64,
     pub learner_cpu: f64,
+    /// CPU other processes of the machine took during the window, percent of one core.
+    pub other_cpu: f64,
     pub latency_ms: Option<f64>,
     pub frames: u64,
     pub window_s: f64,
@@ -118,6 +120,7 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
         let p0 = farm.progress().context("no progress record")?;
         let p0 = wait_for(&mut farm, Duration::from_secs(10), "a fresh progress record", |p| p.t > p0.t)?;
         let (w0, c0, l0, g0) = (Instant::now(), cpu(&farm.worker_pids()), farm.learner_pid().and_then(supervise::cpu_seconds), farm.generations());
+        let m0 = supervise::machine_cpu_seconds();
         let until = Instant::now() + Duration::from_secs_f64(a.seconds);
         while Instant::now() < until {
             if farm.tick()? == FarmState::Ended {
@@ -129,20 +132,29 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
         let p1 = farm.progress().context("no progress record")?;
         let p1 = wait_for(&mut farm, Duration::from_secs(10), "a fresh progress record", |p| p.t > p1.t)?;
         let (wall, c1, l1, g1) = (w0.elapsed().as_secs_f64(), cpu(&farm.worker_pids()), farm.learner_pid().and_then(supervise::cpu_seconds), farm.generations());
+        let m1 = supervise::machine_cpu_seconds();
         let per_worker: Vec<f64> = (0..n)
             .filter(|&k| g0[k] == g1[k])
             .filter_map(|k| Some(100.0 * (c1[k]? - c0[k]?) / wall))
             .collect();
         let dt = (p1.t - p0.t).max(1e-9);
         let dl = p1.latency_count.saturating_sub(p0.latency_count);
+        let learner_cpu = match (l0, l1) {
+            (Some(a), Some(b)) => 100.0 * (b - a) / wall,
+            _ => f64::NAN,
+        };
+        // Everything busy on the machine minus this farm: someone else's load.
+        let ours: f64 = (0..n).filter_map(|k| Some(100.0 * (c1[k]? - c0[k]?) / wall)).sum::<f64>() + learner_cpu.max(0.0);
+        let other_cpu = match (m0, m1) {
+            (Some((b0, _)), Some((b1, _))) => (100.0 * (b1 - b0) / wall - ours).max(0.0),
+            _ => f64::NAN,
+        };
         Ok(Row {
             workers: n,
             fps: (p1.frames - p0.frames) as f64 / dt,
             worker_cpu: per_worker.iter().sum::<f64>() / per_worker.len().max(1) as f64,
-            learner_cpu: match (l0, l1) {
-                (Some(a), Some(b)) => 100.0 * (b - a) / wall,
-                _ => f64::NAN,
-            },
+            learner_cpu,
+            other_cpu,
             latency_ms: (dl > 0).then(|| 1000.0 * (p1.latency_sum_s - p0.latency_sum_s) / dl as f64),
             frames: p1.frames - p0.frames,
             window_s: dt,
@@ -182,7 +194,7 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "# Farm scaling\n\n{}x{} RGB-D frames, {} envs per worker, random policy{}; {} s measured per row after {} s of warm-up; {} CPU cores.\n",
+        "# Farm scaling\n\n{}x{} RGB-D frames, {} envs per worker, random policy{}; {} s measured per row after {} s of warm-up; {} CPU cores. CPU % is of one core; \"other processes\" is what the rest of the machine used meanwhile (a busy machine lowers the figures).\n",
         cfg.env.width,
         cfg.env.height,
         cfg.env.envs_per_worker,
@@ -191,19 +203,20 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
         a.warmup,
         std::thread::available_parallelism().map(|n| n.get()).unwrap_or(0)
     );
-    let _ = writeln!(md, "| workers | frames/s | × 1 worker | CPU % per worker | learner CPU % | step round trip (ms) | frames measured | restarts | integrity errors |");
-    let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let mut csv = String::from("workers,frames_per_s,speedup_vs_1,worker_cpu_pct,learner_cpu_pct,step_latency_ms,frames,window_s,restarts,integrity_errors\n");
+    let _ = writeln!(md, "| workers | frames/s | × 1 worker | CPU % per worker | learner CPU % | other processes CPU % | step round trip (ms) | frames measured | restarts | integrity errors |");
+    let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let mut csv = String::from("workers,frames_per_s,speedup_vs_1,worker_cpu_pct,learner_cpu_pct,other_cpu_pct,step_latency_ms,frames,window_s,restarts,integrity_errors\n");
     for r in rows {
         let speedup = one.map(|o| r.fps / o.max(1e-9));
         let _ = writeln!(
             md,
-            "| {} | {:.1} | {} | {:.0} | {} | {} | {} | {} | {} |",
+            "| {} | {:.1} | {} | {:.0} | {} | {} | {} | {} | {} | {} |",
             r.workers,
             r.fps,
             fmt_opt(speedup, 2),
             r.worker_cpu,
             fmt_opt(Some(r.learner_cpu), 0),
+            fmt_opt(Some(r.other_cpu), 0),
             fmt_opt(r.latency_ms, 2),
             r.frames,
             r.restarts,
@@ -211,12 +224,13 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
         );
         let _ = writeln!(
             csv,
-            "{},{:.2},{},{:.1},{},{},{},{:.2},{},{}",
+            "{},{:.2},{},{:.1},{},{},{},{},{:.2},{},{}",
             r.workers,
             r.fps,
             fmt_opt(speedup, 3),
             r.worker_cpu,
             fmt_opt(Some(r.learner_cpu), 1),
+            fmt_opt(Some(r.other_cpu), 1),
             fmt_opt(r.latency_ms, 3),
             r.frames,
             r.window_s,

@@ -104,6 +104,19 @@ pub fn cpu_seconds(pid: Pid) -> Option<f64> {
     Some(ticks as f64 / hz)
 }
 
+/// Busy and total CPU time of the whole machine so far, in seconds (`/proc/stat`), to tell how
+/// much of a measurement window other processes took.
+pub fn machine_cpu_seconds() -> Option<(f64, f64)> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let line = stat.lines().next()?.strip_prefix("cpu ")?;
+    let v: Vec<u64> = line.split_whitespace().filter_map(|x| x.parse().ok()).collect();
+    let total: u64 = v.iter().take(8).sum();
+    let idle = v.get(3)? + v.get(4).unwrap_or(&0);
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+    Some(((total - idle) as f64 / hz, total as f64 / hz))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -123,6 +136,8 @@ mod tests {
         assert_eq!(tail(&log, 5), "hello world");
         let c = spawn(Path::new("/bin/sleep"), &["30".into()], &[], &log, Signal::SIGTERM).unwrap();
         assert!(cpu_seconds(c.pid).is_some());
+        let (busy, total) = machine_cpu_seconds().unwrap();
+        assert!(busy <= total && total > 0.0);
         assert_eq!(reap(c.pid), None);
         signal(&c, Signal::SIGKILL);
         let ended = loop {
