@@ -4,6 +4,7 @@
 //! They need the binaries (`cargo build --release --workspace`) and build a small dataset once
 //! (`orchestrator dataset build`, cached under target/release/gesthor-test-data).
 
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use gesthor_tests::*;
@@ -249,4 +250,40 @@ fn no_child_outlives_a_killed_orchestrator() {
     // sweeps it; here the test does.
     worker::transport::end_run_domain(&run.run_id()).unwrap();
     assert!(shm_leftovers(&run.run_id()).is_empty());
+}
+
+/// `orchestrator eval` of the shortest-path expert over a whole split: every program once, SR
+/// 100% and SPL close to 1 at unlimited stops, trajectory pictures drawn; and the Random
+/// baseline on the same programs far below it.
+#[test]
+fn eval_of_the_expert_scores_full_success_and_random_does_not() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tiny_config(tmp.path(), 4);
+    let eval = |extra: &[&str], out: &Path| {
+        let o = std::process::Command::new(bin("orchestrator"))
+            .args(["eval", "--split", "val", "--workers", "2", "--config"])
+            .arg(&cfg)
+            .arg("--out")
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "eval failed:\n{}", String::from_utf8_lossy(&o.stderr));
+        let csv = std::fs::read_to_string(out.join("tables.csv")).unwrap();
+        let row = csv.lines().find(|l| l.contains(",normal,all,all,inf,")).expect("unlimited-stops row").to_string();
+        let f: Vec<&str> = row.split(',').collect();
+        (f[6].parse::<usize>().unwrap(), f[7].parse::<f64>().unwrap(), f[8].parse::<f64>().unwrap())
+    };
+    let programs = worker::dataset::Dataset::open(&dataset(), worker::dataset::Verify::Quick).unwrap().require(worker::scene::Split::Val).unwrap().len();
+    let expert_dir = tmp.path().join("expert");
+    let (n, sr, spl) = eval(&["--expert", "--trajectories", "2"], &expert_dir);
+    assert_eq!(n, programs, "every program of the split once");
+    assert_eq!(sr, 100.0, "expert SR");
+    assert!(spl > 95.0, "expert SPL {spl}");
+    let pictures: Vec<_> = std::fs::read_dir(expert_dir.join("trajectories")).unwrap().flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect();
+    assert!(pictures.iter().filter(|p| p.ends_with(".png")).count() == 2 && pictures.iter().filter(|p| p.ends_with(".gif")).count() == 2, "{pictures:?}");
+    let (n, sr, _) = eval(&[], &tmp.path().join("random"));
+    assert_eq!(n, programs);
+    assert!(sr < 50.0, "random SR {sr}");
 }

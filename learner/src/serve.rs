@@ -16,7 +16,8 @@
 //! and, in check mode, fail the run.
 //!
 //! Files in the run directory: `farm.jsonl` (a progress record every `report_every`, and a
-//! final one), `episodes.jsonl` (one line per finished episode), `farm_summary.json` (at exit).
+//! final one), `episodes.jsonl` (one line per finished episode), in evaluation `trajectories.jsonl` (every
+//! episode step by step), `farm_summary.json` (at exit).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -24,7 +25,7 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, OBS_MAGIC, ObsShape, ObsView, SCHEMA_VERSION, command};
-use worker::metrics::EpisodeResult;
+use worker::metrics::{EpisodeResult, Trajectory};
 use worker::process;
 use worker::transport::TransportError;
 
@@ -262,6 +263,8 @@ struct Server<'p> {
     totals: Counters,
     episodes: std::io::BufWriter<std::fs::File>,
     episodes_path: PathBuf,
+    /// Evaluation: every episode step by step (`trajectories.jsonl`), per worker and env.
+    trajectories: Option<(std::io::BufWriter<std::fs::File>, PathBuf, Vec<Vec<Trajectory>>)>,
     progress: std::fs::File,
     progress_path: PathBuf,
     start: Instant,
@@ -282,6 +285,13 @@ pub fn serve(opts: &ServeOptions, policy: &mut dyn FarmPolicy) -> Result<Summary
     let open_append = |p: &Path| std::fs::OpenOptions::new().create(true).append(true).open(p);
     let episodes = std::io::BufWriter::new(open_append(&episodes_path).map_err(io_err(&episodes_path))?);
     let progress = open_append(&progress_path).map_err(io_err(&progress_path))?;
+    let trajectories = if opts.eval {
+        let path = opts.run_dir.join("trajectories.jsonl");
+        let f = std::io::BufWriter::new(open_append(&path).map_err(io_err(&path))?);
+        Some((f, path, vec![vec![Trajectory::default(); opts.envs_per_worker]; opts.workers]))
+    } else {
+        None
+    };
     let ports = LearnerPorts::open(&opts.run_id, opts.workers)?;
     let now = Instant::now();
     let mut server = Server {
@@ -293,6 +303,7 @@ pub fn serve(opts: &ServeOptions, policy: &mut dyn FarmPolicy) -> Result<Summary
         totals: Counters::default(),
         episodes,
         episodes_path,
+        trajectories,
         progress,
         progress_path,
         start: now,
@@ -472,6 +483,12 @@ impl Server<'_> {
             }
             self.totals.frames += 1;
             self.slots[k].frames += 1;
+            if let Some((file, path, trajs)) = &mut self.trajectories
+                && let Some(t) = trajs[k][e].record(r, k as u32, e as u32)
+            {
+                let line = serde_json::to_string(&t).expect("serialisable");
+                writeln!(file, "{line}").map_err(io_err(path))?;
+            }
             if r.terminated != 0 || r.truncated != 0 {
                 self.totals.episodes += 1;
                 self.totals.successes += (r.summary.success != 0) as u64;
@@ -573,6 +590,9 @@ impl Server<'_> {
                 break;
             }
             self.ports.wait(Duration::from_millis(20));
+        }
+        if let Some((file, path, _)) = &mut self.trajectories {
+            file.flush().map_err(io_err(path))?;
         }
         self.episodes.flush().map_err(io_err(&self.episodes_path))
     }

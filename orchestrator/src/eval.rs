@@ -32,6 +32,10 @@ pub struct EvalArgs {
     /// Random baseline is evaluated.
     #[arg(long)]
     pub checkpoint: Option<PathBuf>,
+    /// Evaluate the shortest-path expert instead of a checkpoint (an upper bound, and a check of
+    /// the metrics: SR 100%, SPL close to 1).
+    #[arg(long, conflicts_with = "checkpoint")]
+    pub expert: bool,
     /// Fold to evaluate on.
     #[arg(long, default_value = "test")]
     pub split: String,
@@ -52,7 +56,7 @@ pub struct EvalArgs {
     /// DTS threshold in metres (the dissertation writes 1.5 m; success uses 1 m).
     #[arg(long, default_value_t = 1.5)]
     pub dts_threshold: f64,
-    /// Where to write the tables (default: RUN/eval/<split>, or runs/eval-random/<split>).
+    /// Where to write the tables (default: RUN/eval/<split>, or runs/eval-random|eval-expert/<split>).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Name of the method in the tables (default: from the run's config).
@@ -161,7 +165,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         (None, None) => crate::up::load_config(None)?,
     };
     let random = checkpoint.is_none();
-    if random {
+    if random && !a.expert {
         cfg.run.method = Method::Random;
     }
     if let Some(d) = &a.dataset {
@@ -179,9 +183,11 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     let programs = choose_programs(total, a.max_programs);
     let index: Vec<Program> = ds.index(split)?;
     let modes = modes_for(&cfg, random, &a.modes)?;
-    let label = a.label.clone().unwrap_or_else(|| cfg.run.method.label().to_string());
+    let default_label = if a.expert { "Expert (shortest path)" } else { cfg.run.method.label() };
+    let label = a.label.clone().unwrap_or_else(|| default_label.to_string());
     let out = a.out.clone().unwrap_or_else(|| match &run_dir {
         Some(r) => r.join("eval").join(split.name()),
+        None if a.expert => PathBuf::from("runs/eval-expert").join(split.name()),
         None => PathBuf::from("runs/eval-random").join(split.name()),
     });
     std::fs::create_dir_all(&out)?;
@@ -202,7 +208,11 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         if pass_dir.exists() {
             std::fs::remove_dir_all(&pass_dir)?;
         }
-        let policy = if random { PolicyArg::Random } else { PolicyArg::Ppo };
+        let policy = match (random, a.expert) {
+            (_, true) => PolicyArg::Expert,
+            (true, false) => PolicyArg::Random,
+            (false, false) => PolicyArg::Ppo,
+        };
         let (dir, config_path) = prepare_run(&pass_dir, &cfg, false, a.workers, policy)?;
         let mut spec = FarmSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, policy);
         spec.programs = Some(assign(&programs, a.workers));

@@ -10,12 +10,12 @@ use std::path::Path;
 use anyhow::Context;
 use image::{Rgb, RgbImage};
 use nalgebra::Point3;
-use serde::{Deserialize, Serialize};
 
 use worker::config::RunConfig;
 use worker::dataset::Dataset;
 use worker::gesture::{self, Motion};
 use worker::humanoid::Humanoid;
+use worker::metrics::Trajectory;
 use worker::program::Program;
 use worker::render::{RenderConfig, Renderer, View, ViewOut};
 use worker::robot::{Action, RobotPose};
@@ -23,29 +23,6 @@ use worker::scene::Split;
 
 use crate::map::TopDownMap;
 use crate::tables::{EvalMode, Evaluation};
-
-/// One step of a recorded episode: the robot's pose when it observed, the action it then took
-/// (255 for the final observation), the gesture it perceived (0 none, 1 referencing,
-/// 2 intervention) and which intervention.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Step {
-    pub x: f32,
-    pub z: f32,
-    pub yaw: f32,
-    pub action: u8,
-    pub gesture: u8,
-    pub intervention: u8,
-}
-
-/// One line of `trajectories.jsonl`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Trajectory {
-    pub program: u64,
-    pub worker: u32,
-    pub env: u32,
-    pub success: bool,
-    pub steps: Vec<Step>,
-}
 
 pub fn read(path: &Path) -> anyhow::Result<Vec<Trajectory>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;

@@ -40,6 +40,50 @@ pub struct Stop {
     pub path_length: f32,
 }
 
+/// One step of a recorded episode: the robot's pose when it observed, the action it then took
+/// (255 for the final observation), the gesture it perceived (0 none, 1 referencing,
+/// 2 intervention) and which intervention.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrajectoryStep {
+    pub x: f32,
+    pub z: f32,
+    pub yaw: f32,
+    pub action: u8,
+    pub gesture: u8,
+    pub intervention: u8,
+}
+
+/// One evaluation episode step by step (a line of `trajectories.jsonl`), for pictures like
+/// Figs 4.2/4.3.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Trajectory {
+    pub program: u64,
+    pub worker: u32,
+    pub env: u32,
+    pub success: bool,
+    pub steps: Vec<TrajectoryStep>,
+}
+
+impl Trajectory {
+    /// Adds one observation of the env's current episode; returns the whole trajectory when
+    /// this observation ends it. A record that starts an episode begins a new trajectory (so a
+    /// restarted worker's unfinished episode is forgotten).
+    pub fn record(&mut self, r: &EnvRecord, worker: u32, env: u32) -> Option<Trajectory> {
+        if r.episode_start != 0 || self.program != r.program || self.worker != worker || self.env != env {
+            *self = Trajectory { program: r.program, worker, env, success: false, steps: Vec::with_capacity(128) };
+        }
+        if let Some(prev) = self.steps.last_mut() {
+            prev.action = r.last_action.min(255) as u8;
+        }
+        self.steps.push(TrajectoryStep { x: r.robot[0], z: r.robot[1], yaw: r.robot[2], action: 255, gesture: r.gesture_kind, intervention: r.gesture_index });
+        if r.terminated != 0 || r.truncated != 0 {
+            self.success = r.summary.success != 0;
+            return Some(std::mem::take(self));
+        }
+        None
+    }
+}
+
 impl EpisodeResult {
     /// From the record of an episode's final observation.
     pub fn from_record(r: &EnvRecord, worker: u32, env: u32, generation: u32) -> EpisodeResult {
@@ -141,6 +185,31 @@ mod tests {
 
     fn stop(success: bool, distance: f32, path_length: f32) -> Stop {
         Stop { step: 1, success, distance, path_length }
+    }
+
+    #[test]
+    fn a_trajectory_pairs_each_pose_with_the_action_taken_from_it() {
+        let rec = |step: u32, start: bool, action: u32, x: f32, end: bool| EnvRecord {
+            program: 7,
+            episode_step: step,
+            episode_start: start as u8,
+            last_action: action,
+            robot: [x, 0.0, 90.0],
+            terminated: end as u8,
+            summary: shm_schema::EpisodeSummary { success: end as u32, ..Default::default() },
+            ..Default::default()
+        };
+        let mut t = Trajectory::default();
+        // a restarted worker's unfinished episode is forgotten
+        assert!(t.record(&rec(0, true, 255, 9.0, false), 0, 1).is_none());
+        assert!(t.record(&rec(0, true, 255, 0.0, false), 0, 1).is_none());
+        assert!(t.record(&rec(1, false, 0, 0.25, false), 0, 1).is_none());
+        let done = t.record(&rec(2, false, 3, 0.25, true), 0, 1).unwrap();
+        assert!(done.success && done.program == 7 && done.env == 1);
+        let actions: Vec<u8> = done.steps.iter().map(|s| s.action).collect();
+        assert_eq!(actions, vec![0, 3, 255]);
+        assert_eq!(done.steps[1].x, 0.25);
+        assert!(t.steps.is_empty());
     }
 
     #[test]

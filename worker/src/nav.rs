@@ -238,6 +238,16 @@ pub struct Goal {
     pub field: DistanceField,
 }
 
+/// The success region's cells lie this much inside the success distance: the robot moves off
+/// the grid (15° headings), and a cell right at the boundary would need it to stand exactly on
+/// the grid point to count. Every pose within this margin of a region cell is a success pose.
+pub const REGION_MARGIN: f32 = 0.1;
+
+/// Radius around the target centre within which grid cells form the success region.
+pub fn region_radius(success_distance: f32) -> f32 {
+    (success_distance - REGION_MARGIN).max(0.0)
+}
+
 /// Headings the robot can face (multiples of the turn angle).
 pub fn headings(turn_deg: f32) -> impl Iterator<Item = f32> {
     let n = (360.0 / turn_deg).round() as u32;
@@ -246,7 +256,8 @@ pub fn headings(turn_deg: f32) -> impl Iterator<Item = f32> {
 
 impl Goal {
     /// Builds the success region and its distance field. The region holds free cells within
-    /// `success_distance` (2D) of the centre from which the target is seen for some heading.
+    /// `region_radius(success_distance)` (2D) of the centre from which the target is seen for
+    /// some heading.
     pub fn new(
         grid: &NavGrid,
         physics: &Physics,
@@ -258,7 +269,7 @@ impl Goal {
         points: Vec<Point3<f32>>,
     ) -> Goal {
         let cells: Vec<Cell> = grid
-            .cells_near(xz(&center).into(), success_distance)
+            .cells_near(xz(&center).into(), region_radius(success_distance))
             .into_iter()
             .filter(|&c| {
                 let p = grid.point(c);
@@ -300,9 +311,9 @@ pub fn sees_goal(physics: &Physics, env: &EnvConfig, k: &Intrinsics, pose: &Robo
     visibility::visible(physics, &cam, k, &goal.points, goal.id)
 }
 
-/// The expert's next action: Stop when the target is near and seen; otherwise turn to (or step
-/// along) the heading whose step lowers the geodesic distance most; within the success distance,
-/// turn towards the nearest heading from which the target is seen.
+/// The expert's next action: Stop when the target is near and seen; near the target, the first
+/// action of the shortest action sequence to a success pose (a local search); otherwise turn
+/// to (or step along) the heading whose step lowers the geodesic distance most.
 ///
 /// `seen_now` is what the robot's rendered frame says about the target (None: judge it
 /// geometrically). A frame smaller than the reference resolution can miss a small target that
@@ -319,22 +330,19 @@ pub fn expert_action(
     seen_now: Option<bool>,
 ) -> Action {
     let here = pose.xz();
-    if goal.distance_2d(here) < success_distance {
-        let seen: Vec<f32> = visible_headings(physics, env, k, here, &goal.points, goal.id).collect();
-        let facing = seen.iter().any(|&y| angle_diff_deg(pose.yaw, y).abs() < 1e-2);
-        match (seen_now, facing) {
-            (Some(true), _) | (None, true) => return Action::Stop,
-            (Some(false), true) => {
-                let delta = heading(pose.yaw) * env.move_step;
-                let closer = goal.distance_2d(here + delta) < goal.distance_2d(here);
-                if closer && physics.move_is_free(here, delta) {
-                    return Action::MoveAhead;
-                }
-            }
-            _ => {}
+    let d = goal.distance_2d(here);
+    if d < success_distance + LOCAL_REACH {
+        let seen_geo = sees_goal(physics, env, k, pose, goal);
+        let seen = seen_now.unwrap_or(seen_geo);
+        if d < success_distance && seen {
+            return Action::Stop;
         }
-        if let Some(y) = nearest(pose.yaw, seen.iter().copied().filter(|&y| !facing || angle_diff_deg(pose.yaw, y).abs() > 1e-2)) {
-            return turn_towards(pose.yaw, y);
+        // Near the target, plan over the robot's own actions: off-grid poses and real
+        // collisions count. When the frame misses a target that geometry sees (a small target
+        // in a small frame), look for a closer pose, where it is larger.
+        let closer_than = if d < success_distance && seen_geo { d - 0.5 * env.move_step } else { f32::INFINITY };
+        if let Some(a) = local_plan(physics, env, k, success_distance, goal, pose, closer_than) {
+            return a;
         }
     }
     // Step along the heading that lowers the distance most; turning costs a little so that
@@ -357,17 +365,64 @@ pub fn expert_action(
         Some((cost, yaw)) if cost < now + 0.01 * 12.0 => {
             if angle_diff_deg(pose.yaw, yaw).abs() < 1e-2 { Action::MoveAhead } else { turn_towards(pose.yaw, yaw) }
         }
-        // Nowhere better to go (boxed in or unreachable): face the target, which is the
-        // most useful thing left to do.
+        // No step lowers the geodesic distance: off the grid, next to the success region, every
+        // step overshoots it (or the robot is boxed in). Face the target and step towards it
+        // while that brings it closer.
         _ => {
             let to = goal.center - Point3::new(here.x, goal.center.y, here.y);
-            turn_towards(pose.yaw, crate::geometry::yaw_of(Vector2::new(to.x, to.z)))
+            let want = crate::geometry::yaw_of(Vector2::new(to.x, to.z));
+            let delta = heading(pose.yaw) * env.move_step;
+            let facing = angle_diff_deg(pose.yaw, want).abs() <= env.turn_deg / 2.0 + 1e-3;
+            if facing && goal.distance_2d(here + delta) < goal.distance_2d(here) && physics.move_is_free(here, delta) {
+                Action::MoveAhead
+            } else {
+                turn_towards(pose.yaw, want)
+            }
         }
     }
 }
 
-fn nearest(from: f32, yaws: impl Iterator<Item = f32>) -> Option<f32> {
-    yaws.min_by(|a, b| angle_diff_deg(from, *a).abs().total_cmp(&angle_diff_deg(from, *b).abs()))
+/// How far outside the success distance the local search starts, and how deep it looks.
+const LOCAL_REACH: f32 = 0.75;
+const LOCAL_DEPTH: usize = 8;
+
+/// Breadth-first search over the robot's own actions (so off-grid poses and real collisions
+/// count) for the shortest action sequence to a pose within the success distance, closer than
+/// `closer_than` to the target centre, from which the target is seen. Returns its first action.
+fn local_plan(
+    physics: &Physics,
+    env: &EnvConfig,
+    k: &Intrinsics,
+    success_distance: f32,
+    goal: &Goal,
+    start: &RobotPose,
+    closer_than: f32,
+) -> Option<Action> {
+    use std::collections::{HashSet, VecDeque};
+    let key = |p: &RobotPose| ((p.x * 1000.0).round() as i64, (p.z * 1000.0).round() as i64, (p.yaw * 10.0).round() as i64);
+    let mut seen = HashSet::from([key(start)]);
+    let mut queue = VecDeque::from([(*start, None::<Action>, 0usize)]);
+    while let Some((pose, first, depth)) = queue.pop_front() {
+        if first.is_some() {
+            let d = goal.distance_2d(pose.xz());
+            if d < success_distance && d < closer_than && sees_goal(physics, env, k, &pose, goal) {
+                return first;
+            }
+        }
+        if depth == LOCAL_DEPTH {
+            continue;
+        }
+        for a in [Action::MoveAhead, Action::RotateLeft, Action::RotateRight] {
+            let mut next = pose;
+            if !crate::robot::apply(&mut next, a, env, physics).moved && a == Action::MoveAhead {
+                continue;
+            }
+            if seen.insert(key(&next)) {
+                queue.push_back((next, first.or(Some(a)), depth + 1));
+            }
+        }
+    }
+    None
 }
 
 fn turn_towards(from: f32, to: f32) -> Action {

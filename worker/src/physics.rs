@@ -1,4 +1,4 @@
-//! Collision queries with rapier3d: static colliders for the scene's solid parts (and the person),
+//! Collision queries with rapier3d: static colliders for the scene's parts (and the person),
 //! the robot as a kinematic capsule moved by shape casts, and rays for line of sight.
 //!
 //! The robot's height is held fixed and the floor is left out of every query: the capsule
@@ -49,17 +49,20 @@ pub struct Physics {
 }
 
 impl Physics {
-    /// Builds colliders for every solid part except the floor slab (parts with id
-    /// `ID_STRUCTURE` lying entirely below y = 0.01) and the ceiling.
+    /// Builds colliders for every part except the floor slab (parts with id `ID_STRUCTURE`
+    /// lying entirely below y = 0.01) and the ceiling. Parts that are seen but not solid (a
+    /// shower curtain, a rug) become sensors: they stop lines of sight, not the robot.
     pub fn new(parts: &[Part], robot: RobotBody) -> Physics {
         let mut colliders = ColliderSet::new();
         let mut handles = Vec::with_capacity(parts.len());
-        for p in parts.iter().filter(|p| p.solid) {
+        for p in parts {
             let (lo, hi) = p.aabb();
             if p.id == ID_STRUCTURE && (hi.y <= 0.01 || lo.y >= 2.0 && p.half_extents.y < 0.2) {
                 continue;
             }
-            handles.push(colliders.insert(collider_of(p)));
+            let mut c = collider_of(p);
+            c.set_sensor(!p.solid);
+            handles.push(colliders.insert(c));
         }
         let capsule_half = (robot.height / 2.0 - robot.radius).max(0.0);
         let mut phys = Physics {
@@ -110,7 +113,13 @@ impl Physics {
         self.refresh(&modified, &removed);
     }
 
+    /// Queries of the robot's motion: sensors (see-only parts) do not block it.
     fn query(&self) -> rapier3d::pipeline::QueryPipeline<'_> {
+        self.broad_phase.as_query_pipeline(&DefaultQueryDispatcher, &self.bodies, &self.colliders, QueryFilter::default().exclude_sensors())
+    }
+
+    /// Queries of lines of sight: everything that is drawn blocks them.
+    fn sight(&self) -> rapier3d::pipeline::QueryPipeline<'_> {
         self.broad_phase.as_query_pipeline(&DefaultQueryDispatcher, &self.bodies, &self.colliders, QueryFilter::default())
     }
 
@@ -147,7 +156,7 @@ impl Physics {
             return None;
         }
         let ray = Ray::new(v3(from), Vec3::new(d.x / len, d.y / len, d.z / len));
-        let q = self.query();
+        let q = self.sight();
         let (h, toi) = q.cast_ray(&ray, len, true)?;
         if toi >= len - slack {
             return None;
@@ -229,6 +238,15 @@ mod tests {
         assert_eq!(p.first_hit(eye, Point3::new(0.0, 1.5, 5.0), 0.01), Some(9));
         assert!(p.sees(eye, Point3::new(0.0, 1.5, 1.9), 0));
         assert!(p.sees(eye, Point3::new(0.0, 1.0, 2.1), 9));
+    }
+
+    #[test]
+    fn a_curtain_blocks_sight_not_motion() {
+        let curtain = Part::new(Shape::Box, Point3::new(0.0, 1.0, 1.0), Vector3::new(1.0, 1.0, 0.02), [0.8; 3]).with_id(5).non_solid();
+        let p = Physics::new(&[curtain], RobotBody::default());
+        assert!(p.robot_fits(Point2::new(0.0, 1.0)));
+        assert!(p.move_is_free(Point2::new(0.0, 0.5), Vector2::new(0.0, 1.0)));
+        assert_eq!(p.first_hit(Point3::new(0.0, 1.5, 0.0), Point3::new(0.0, 1.5, 2.0), 0.01), Some(5));
     }
 
     #[test]

@@ -135,7 +135,7 @@ impl RoomContext {
             let points = visibility::sample_points(&parts);
             let id = crate::scene::object_id(i);
             let cells: Vec<Cell> = grid
-                .cells_near(Point2::new(o.position[0], o.position[2]), success_distance)
+                .cells_near(Point2::new(o.position[0], o.position[2]), crate::nav::region_radius(success_distance))
                 .into_iter()
                 .filter(|&c| Some(label[c]) == largest)
                 .filter(|&c| visible_headings(&physics, env, &k, grid.point(c), &points, id).next().is_some())
