@@ -14,5 +14,10 @@ if [ ! -f "$DATA/manifest.json" ]; then
   "$ORCH" dataset build --out "$DATA"
 fi
 RUN="${GESTHOR_RUN_DIR:-runs/default}"
-"$ORCH" up --run-dir "$RUN" "$@"
+if ls "$RUN"/checkpoints/ckpt-*.safetensors >/dev/null 2>&1; then
+  # a second run.sh continues the first run's training instead of starting over
+  "$ORCH" up --resume "$RUN" "$@"
+else
+  "$ORCH" up --run-dir "$RUN" "$@"
+fi
 "$ORCH" eval --checkpoint "$RUN" --split val --max-programs 500

@@ -119,6 +119,9 @@ struct ServeArgs {
     /// Evaluation: zero these visual inputs (blind mode: both; T4.7 ablations: one).
     #[arg(long, value_enum)]
     blank: Option<BlankKind>,
+    /// Evaluation: take the policy's most likely action instead of sampling it.
+    #[arg(long)]
+    greedy: bool,
     /// Before the first batch, wait up to this many seconds for every worker to connect.
     #[arg(long, default_value_t = 60.0)]
     start_wait: f64,
@@ -135,7 +138,7 @@ fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Resu
                 Some(BlankKind::Depth) => Blank { rgb: false, depth: true },
                 Some(BlankKind::Both) => Blank { rgb: true, depth: true },
             };
-            Box::new(PpoFarmPolicy::eval(cfg, a.workers, dev, ckpt, blank)?)
+            Box::new(PpoFarmPolicy::eval(cfg, a.workers, dev, ckpt, blank, a.greedy)?)
         }
         (PolicyKind::Ppo, None) => {
             anyhow::ensure!(!a.eval, "--eval with --policy ppo needs --checkpoint");

@@ -1,6 +1,6 @@
 //! PPO served to the farm: every round, the observations of all N = workers × E envs become one
 //! `ObsBatch` read in place from the workers' shared-memory samples; the `Trainer` acts and,
-//! every `rollout` steps, learns. In evaluation the network only acts (greedy), optionally with
+//! every `rollout` steps, learns. In evaluation the network only acts (sampled or greedy), optionally with
 //! its visual inputs zeroed (blind mode, RGB-only and depth-only ablations).
 //!
 //! A worker missing from a round (crashed, restarting, slow) contributes zero frames and its envs
@@ -73,14 +73,16 @@ impl PpoFarmPolicy {
         Ok(PpoFarmPolicy::with_mode(Mode::Train { trainer: Box::new(trainer), log, checkpoints }, cfg, workers, Blank::default()))
     }
 
-    /// Evaluation of a checkpoint.
-    pub fn eval(cfg: &RunConfig, workers: usize, device: Device, checkpoint: &Path, blank: Blank) -> anyhow::Result<PpoFarmPolicy> {
+    /// Evaluation of a checkpoint: actions sampled from the policy as in training (seeded from
+    /// the run seed), or its most likely action with `greedy`.
+    pub fn eval(cfg: &RunConfig, workers: usize, device: Device, checkpoint: &Path, blank: Blank, greedy: bool) -> anyhow::Result<PpoFarmPolicy> {
+        tch::manual_seed(cfg.run.seed as i64);
         let n = workers * cfg.env.envs_per_worker;
         let policy = Policy::from_checkpoint(cfg, n, device, checkpoint)?;
         for note in policy.notes() {
             tracing::info!("{note}");
         }
-        Ok(PpoFarmPolicy::with_mode(Mode::Eval { policy: Box::new(policy), greedy: true }, cfg, workers, blank))
+        Ok(PpoFarmPolicy::with_mode(Mode::Eval { policy: Box::new(policy), greedy }, cfg, workers, blank))
     }
 
     fn with_mode(mode: Mode, cfg: &RunConfig, workers: usize, blank: Blank) -> PpoFarmPolicy {

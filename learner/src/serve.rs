@@ -705,7 +705,8 @@ mod tests {
         }
         assert!(s.totals.frames >= 600, "{s:?}");
         assert_eq!((s.totals.lost, s.totals.duplicates, s.totals.corrupt), (0, 0, 0));
-        assert!(s.workers.iter().all(|w| w.generation == Some(0) && w.messages > 50));
+        // env-by-env policies answer each worker at once, so the two need not keep pace
+        assert!(s.workers.iter().all(|w| w.generation == Some(0) && w.messages > 0), "{s:?}");
         let episodes = std::fs::read_to_string(dir.path().join("episodes.jsonl")).unwrap();
         let lines: Vec<EpisodeLine> = episodes.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
         assert_eq!(lines.len() as u64, s.totals.episodes);

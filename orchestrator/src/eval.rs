@@ -36,6 +36,13 @@ pub struct EvalArgs {
     /// the metrics: SR 100%, SPL close to 1).
     #[arg(long, conflicts_with = "checkpoint")]
     pub expert: bool,
+    /// Take the checkpoint's most likely action at every step instead of sampling from the
+    /// policy as in training (a greedy policy that never ranks Stop first never succeeds).
+    #[arg(long)]
+    pub greedy: bool,
+    /// Only the programs of these rooms (e.g. a run's training rooms), comma-separated.
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Vec<String>,
     /// Fold to evaluate on.
     #[arg(long, default_value = "test")]
     pub split: String,
@@ -72,6 +79,11 @@ pub struct EvalArgs {
 
 /// The `episodes.jsonl` of an evaluation pass.
 pub fn read_episodes(path: &Path) -> anyhow::Result<Vec<EpisodeResult>> {
+    read_jsonl(path)
+}
+
+/// Every line of a JSON-lines file, a bad line named by its number.
+pub fn read_jsonl<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     text.lines()
         .enumerate()
@@ -179,12 +191,19 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     cfg.task.max_stops = 0;
     resolve_dataset(&mut cfg, false)?;
     let ds = Dataset::open(&cfg.run.dataset, Verify::Quick)?;
-    let total = ds.require(split)?.len();
-    let programs = choose_programs(total, a.max_programs);
     let index: Vec<Program> = ds.index(split)?;
+    let mut candidates: Vec<u64> = (0..index.len() as u64).collect();
+    if !a.scenes.is_empty() {
+        for s in &a.scenes {
+            anyhow::ensure!(index.iter().any(|p| &p.scene == s), "--scenes: {s} has no programs in {}", split.name());
+        }
+        candidates.retain(|&i| a.scenes.contains(&index[i as usize].scene));
+    }
+    let programs: Vec<u64> = choose_programs(candidates.len(), a.max_programs).into_iter().map(|i| candidates[i as usize]).collect();
     let modes = modes_for(&cfg, random, &a.modes)?;
     let default_label = if a.expert { "Expert (shortest path)" } else { cfg.run.method.label() };
-    let label = a.label.clone().unwrap_or_else(|| default_label.to_string());
+    let greedy = if a.greedy && checkpoint.is_some() { ", greedy" } else { "" };
+    let label = a.label.clone().unwrap_or_else(|| format!("{default_label}{greedy}"));
     let out = a.out.clone().unwrap_or_else(|| match &run_dir {
         Some(r) => r.join("eval").join(split.name()),
         None if a.expert => PathBuf::from("runs/eval-expert").join(split.name()),
@@ -226,6 +245,9 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             };
             if let Some(b) = blank {
                 args.extend(["--blank".into(), b.into()]);
+            }
+            if a.greedy {
+                args.push("--greedy".into());
             }
             spec.learner_args = args;
         }

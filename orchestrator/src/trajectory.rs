@@ -25,12 +25,7 @@ use crate::map::TopDownMap;
 use crate::tables::{EvalMode, Evaluation};
 
 pub fn read(path: &Path) -> anyhow::Result<Vec<Trajectory>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| serde_json::from_str(l).with_context(|| format!("{}: line {}", path.display(), i + 1)))
-        .collect()
+    crate::eval::read_jsonl(path)
 }
 
 /// Picks `n` episodes to draw: successes and failures alternately, preferring episodes that

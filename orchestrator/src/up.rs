@@ -115,6 +115,14 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         }
         None => (a.run_dir.clone().unwrap_or_else(|| run_dir::default_path("up")), load_config(a.config.as_deref())?),
     };
+    if !resume && let Some(c) = crate::eval::latest_checkpoint(&run_path) {
+        anyhow::bail!(
+            "{} already holds a training run ({}): continue it with `orchestrator up --resume {}`, or choose another --run-dir",
+            run_path.display(),
+            c.display(),
+            run_path.display()
+        );
+    }
     resolve_dataset(&mut cfg, a.synthetic)?;
     let (dir, config_path) = prepare_run(&run_path, &cfg, resume, a.workers, a.policy)?;
     sweep_dead_runs();
