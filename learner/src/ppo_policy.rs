@@ -1,7 +1,7 @@
 //! PPO served to the farm: every round, the observations of all N = workers × E envs become one
 //! `ObsBatch` read in place from the workers' shared-memory samples; the `Trainer` acts and,
-//! every `rollout` steps, learns. In evaluation the network only acts (sampled or greedy), optionally with
-//! its visual inputs zeroed (blind mode, RGB-only and depth-only ablations).
+//! every `rollout` steps, learns. In evaluation the network only acts (sampled or greedy),
+//! optionally with its visual inputs zeroed (blind mode, RGB-only and depth-only ablations).
 //!
 //! A worker missing from a round (crashed, restarting, slow) contributes zero frames and its envs
 //! are flagged `lost`: that step and the one before stay out of the loss and the envs' memory is
