@@ -15,7 +15,7 @@ use std::time::Instant;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use tch::{Device, Kind, Tensor};
-use worker::config::RunConfig;
+use worker::config::{PpoConfig, RunConfig};
 
 use crate::LearnerError;
 use crate::metrics::{EpisodeStats, UpdateMetrics};
@@ -24,61 +24,12 @@ use crate::obs::{EnvStep, ObsBatch};
 use crate::optim::Adam;
 use crate::rollout::{FeedbackCounts, Rollout, as_f32, flags};
 
-/// The hyperparameters, all in one place.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Hyper {
-    /// Steps per env per rollout (T4.1: rollout length 128).
-    pub rollout: usize,
-    /// Passes over each rollout (T4.1: update repeats 4).
-    pub epochs: usize,
-    /// Minibatches per epoch; each is a set of whole envs so the GRU sees full sequences.
-    pub minibatches: usize,
-    /// Adam learning rate at the start (T4.1: 0.0003) ...
-    pub lr: f64,
-    /// ... decayed linearly to 0 over this many frames (§4.3.2; §4.4.1 trains 5 million).
-    pub total_frames: u64,
-    /// Clipping parameter ε of Eq. 4.2 (T4.1: 0.2).
-    pub clip: f64,
-    /// Discount factor γ (T4.1: 0.99).
-    pub gamma: f64,
-    /// GAE parameter λ of Eq. 4.3 (T4.1: 0.99).
-    pub gae_lambda: f64,
-    /// Maximum gradient norm (§4.3.2: 0.5).
-    pub max_grad_norm: f64,
-    /// Weight of the value loss (not given in the dissertation; the usual 0.5).
-    pub value_coef: f64,
-    /// Weight of the entropy bonus (not given in the dissertation; 0.01).
-    pub entropy_coef: f64,
-    /// Clip the value loss around the old values with ε (as CleanRL's `clip_vloss`).
-    pub clip_value_loss: bool,
-    /// Adam's ε (1e-5, the usual choice for PPO; torch's default is 1e-8).
-    pub adam_eps: f64,
-}
+/// Adam's ε: 1e-5, the usual choice for PPO (torch's default is 1e-8).
+const ADAM_EPS: f64 = 1e-5;
 
-impl Hyper {
-    pub fn from_config(cfg: &RunConfig) -> Hyper {
-        let p = &cfg.ppo;
-        Hyper {
-            rollout: p.rollout,
-            epochs: p.epochs,
-            minibatches: p.minibatches,
-            lr: p.lr,
-            total_frames: cfg.run.total_frames,
-            clip: p.clip,
-            gamma: p.gamma,
-            gae_lambda: p.gae_lambda,
-            max_grad_norm: p.max_grad_norm,
-            value_coef: p.value_coef,
-            entropy_coef: p.entropy_coef,
-            clip_value_loss: p.clip_value_loss,
-            adam_eps: 1e-5,
-        }
-    }
-
-    /// The linearly annealed learning rate after `frames` frames.
-    pub fn lr_at(&self, frames: u64) -> f64 {
-        self.lr * (1.0 - frames as f64 / self.total_frames.max(1) as f64).max(0.0)
-    }
+/// The linearly annealed learning rate after `frames` of the run's `total_frames`.
+pub fn lr_at(p: &PpoConfig, total_frames: u64, frames: u64) -> f64 {
+    p.lr * (1.0 - frames as f64 / total_frames.max(1) as f64).max(0.0)
 }
 
 /// What [`Trainer::step`] gives back: the actions to send, and the update's metrics when this
@@ -93,7 +44,8 @@ pub struct StepOutput {
 #[derive(Debug)]
 pub struct Trainer {
     pub cfg: RunConfig,
-    pub hp: Hyper,
+    /// `cfg.ppo`, with at most one minibatch per env.
+    pub hp: PpoConfig,
     pub policy: Policy,
     pub opt: Adam,
     pub rollout: Rollout,
@@ -120,12 +72,12 @@ impl Trainer {
 
     fn build(cfg: &RunConfig, n_envs: usize, device: Device, load_weights: bool) -> Result<Trainer, LearnerError> {
         let policy = Policy::build(cfg, n_envs, device, load_weights)?;
-        let mut hp = Hyper::from_config(cfg);
+        let mut hp = cfg.ppo.clone();
         if hp.minibatches > n_envs {
             tracing::warn!("ppo.minibatches = {} > {n_envs} envs: using {n_envs}", hp.minibatches);
             hp.minibatches = n_envs;
         }
-        let opt = Adam::new(&policy.vs, hp.lr, hp.adam_eps);
+        let opt = Adam::new(&policy.vs, hp.lr, ADAM_EPS);
         let rollout = Rollout::new(hp.rollout, n_envs, policy.hidden());
         Ok(Trainer {
             rng: worker::util::rng(cfg.run.seed, &[0x7070_6f5f]),
@@ -220,7 +172,7 @@ impl Trainer {
         let (t_len, n) = (r.steps, r.envs);
 
         // Annealing the learning rate: 3e-4 → 0 linearly over the run's frames.
-        let lr = hp.lr_at(self.frames);
+        let lr = lr_at(&hp, self.cfg.run.total_frames, self.frames);
         self.opt.lr = lr;
         let mut m = UpdateMetrics { lr, ..Default::default() };
         let valid_count = r.valid.iter().filter(|v| **v).count();
@@ -489,10 +441,10 @@ mod tests {
     #[test]
     fn lr_decays_linearly_to_zero() {
         let cfg = RunConfig::from_toml("[run]\nmethod = \"both\"\ntotal_frames = 1000\n", "x.toml").unwrap();
-        let hp = Hyper::from_config(&cfg);
-        assert_eq!(hp.lr_at(0), 3e-4);
-        assert!((hp.lr_at(250) - 2.25e-4).abs() < 1e-12);
-        assert_eq!(hp.lr_at(1000), 0.0);
-        assert_eq!(hp.lr_at(5000), 0.0);
+        let lr = |frames| lr_at(&cfg.ppo, cfg.run.total_frames, frames);
+        assert_eq!(lr(0), 3e-4);
+        assert!((lr(250) - 2.25e-4).abs() < 1e-12);
+        assert_eq!(lr(1000), 0.0);
+        assert_eq!(lr(5000), 0.0);
     }
 }

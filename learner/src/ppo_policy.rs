@@ -116,12 +116,7 @@ impl PpoFarmPolicy {
 fn env_step(r: &EnvRecord) -> EnvStep {
     let done = r.terminated != 0 || r.truncated != 0;
     let s = &r.summary;
-    let spl = if done && s.success != 0 {
-        let (l, p) = (s.start_geodesic, s.path_length);
-        if l <= 0.0 && p <= 0.0 { 1.0 } else { l / p.max(l) }
-    } else {
-        0.0
-    };
+    let spl = if done && s.success != 0 { worker::metrics::spl(s.start_geodesic as f64, s.path_length as f64) as f32 } else { 0.0 };
     EnvStep {
         reward: r.reward,
         terminated: r.terminated != 0,

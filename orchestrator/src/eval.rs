@@ -136,7 +136,7 @@ pub fn assign(programs: &[u64], workers: usize) -> Vec<Vec<u64>> {
     out
 }
 
-fn modes_for(cfg: &RunConfig, random: bool, asked: &[String]) -> anyhow::Result<Vec<EvalMode>> {
+fn modes_for(cfg: &RunConfig, baseline: bool, asked: &[String]) -> anyhow::Result<Vec<EvalMode>> {
     if !asked.is_empty() {
         let modes = asked
             .iter()
@@ -144,16 +144,16 @@ fn modes_for(cfg: &RunConfig, random: bool, asked: &[String]) -> anyhow::Result<
             .collect::<anyhow::Result<Vec<_>>>()?;
         for m in &modes {
             let needs_both = matches!(m, EvalMode::RgbOnly | EvalMode::DepthOnly);
-            anyhow::ensure!(!random || *m == EvalMode::Normal, "--modes {}: the Random baseline has no inputs to zero", m.name());
+            anyhow::ensure!(!baseline || *m == EvalMode::Normal, "--modes {}: a baseline without a checkpoint has no inputs to zero", m.name());
             anyhow::ensure!(!needs_both || (cfg.model.rgb && cfg.model.depth), "--modes {}: the checkpoint was not trained with both RGB and depth", m.name());
         }
         return Ok(modes);
     }
     let mut modes = vec![EvalMode::Normal];
-    if !random && (cfg.model.rgb || cfg.model.depth) {
+    if !baseline && (cfg.model.rgb || cfg.model.depth) {
         modes.push(EvalMode::Blind);
     }
-    if !random && cfg.model.rgb && cfg.model.depth {
+    if !baseline && cfg.model.rgb && cfg.model.depth {
         modes.extend([EvalMode::RgbOnly, EvalMode::DepthOnly]);
     }
     Ok(modes)
@@ -176,8 +176,8 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         (None, Some(c)) => RunConfig::load(c)?,
         (None, None) => crate::up::load_config(None)?,
     };
-    let random = checkpoint.is_none();
-    if random && !a.expert {
+    let baseline = checkpoint.is_none();
+    if baseline && !a.expert {
         cfg.run.method = Method::Random;
     }
     if let Some(d) = &a.dataset {
@@ -200,7 +200,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         candidates.retain(|&i| a.scenes.contains(&index[i as usize].scene));
     }
     let programs: Vec<u64> = choose_programs(candidates.len(), a.max_programs).into_iter().map(|i| candidates[i as usize]).collect();
-    let modes = modes_for(&cfg, random, &a.modes)?;
+    let modes = modes_for(&cfg, baseline, &a.modes)?;
     let default_label = if a.expert { "Expert (shortest path)" } else { cfg.run.method.label() };
     let greedy = if a.greedy && checkpoint.is_some() { ", greedy" } else { "" };
     let label = a.label.clone().unwrap_or_else(|| format!("{default_label}{greedy}"));
@@ -227,7 +227,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         if pass_dir.exists() {
             std::fs::remove_dir_all(&pass_dir)?;
         }
-        let policy = match (random, a.expert) {
+        let policy = match (baseline, a.expert) {
             (_, true) => PolicyArg::Expert,
             (true, false) => PolicyArg::Random,
             (false, false) => PolicyArg::Ppo,

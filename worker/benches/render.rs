@@ -38,13 +38,7 @@ fn render_views(c: &mut Criterion) {
         group.throughput(Throughput::Elements(k as u64));
         group.bench_function(format!("views_per_submit_{k}"), |b| {
             b.iter(|| {
-                let mut outs: Vec<ViewOut> = rgb
-                    .chunks_exact_mut(n * 3)
-                    .zip(depth.chunks_exact_mut(n))
-                    .zip(ids.chunks_exact_mut(n))
-                    .map(|((rgb, depth), ids)| ViewOut { rgb, depth, ids: Some(ids) })
-                    .collect();
-                renderer.render(black_box(&views), &mut outs).unwrap();
+                renderer.render(black_box(&views), &mut ViewOut::split(&mut rgb, &mut depth, &mut ids, n)).unwrap();
             })
         });
     }

@@ -235,11 +235,17 @@ pub struct PpoConfig {
     pub minibatches: usize,
     /// Adam learning rate, decayed linearly to 0 over `total_frames` (T4.1: 3e-4).
     pub lr: f64,
+    /// Clipping parameter ε of Eq. 4.2 (T4.1: 0.2).
     pub clip: f64,
+    /// Discount factor γ (T4.1: 0.99).
     pub gamma: f64,
+    /// GAE parameter λ of Eq. 4.3 (T4.1: 0.99).
     pub gae_lambda: f64,
+    /// Maximum gradient norm (§4.3.2: 0.5).
     pub max_grad_norm: f64,
+    /// Weight of the value loss (not given in the dissertation; the usual 0.5).
     pub value_coef: f64,
+    /// Weight of the entropy bonus (not given in the dissertation; 0.01).
     pub entropy_coef: f64,
     /// Clip the value loss around the rollout's values with `clip` (as CleanRL's `clip_vloss`).
     pub clip_value_loss: bool,

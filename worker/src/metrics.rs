@@ -40,6 +40,12 @@ pub struct Stop {
     pub path_length: f32,
 }
 
+/// SPL of one successful episode (Anderson et al.): l / max(p, l), with l the shortest path and
+/// p the path taken; 1 when the robot started inside the success region and never moved.
+pub fn spl(shortest: f64, taken: f64) -> f64 {
+    if shortest <= 0.0 && taken <= 0.0 { 1.0 } else { shortest / taken.max(shortest) }
+}
+
 /// One step of a recorded episode: the robot's pose when it observed, the action it then took
 /// (255 for the final observation), the gesture it perceived (0 none, 1 referencing,
 /// 2 intervention) and which intervention.
@@ -114,7 +120,7 @@ impl EpisodeResult {
     /// (success, SPL, distance at the end) when at most `k` stops are allowed (None = ∞).
     pub fn at_stops(&self, k: Option<usize>) -> (bool, f64, f64) {
         let l = self.start_geodesic as f64;
-        let spl = |p: f64| if l <= 0.0 && p <= 0.0 { 1.0 } else { l / p.max(l) };
+        let spl = |p: f64| spl(l, p);
         match k {
             None => {
                 let spl = if self.success { spl(self.path_length as f64) } else { 0.0 };

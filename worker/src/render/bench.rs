@@ -172,13 +172,7 @@ pub fn bench_views(
     let mut depth = vec![0u16; k * n];
     let mut ids = vec![0u16; k * n];
     let mut run = |r: &mut Renderer| -> Result<(), RenderError> {
-        let mut outs: Vec<ViewOut> = rgb
-            .chunks_exact_mut(n * 3)
-            .zip(depth.chunks_exact_mut(n))
-            .zip(ids.chunks_exact_mut(n))
-            .map(|((rgb, depth), ids)| ViewOut { rgb, depth, ids: Some(ids) })
-            .collect();
-        r.render(&views, &mut outs)
+        r.render(&views, &mut ViewOut::split(&mut rgb, &mut depth, &mut ids, n))
     };
     let result = (|| {
         for _ in 0..2 {

@@ -129,6 +129,17 @@ pub struct ViewOut<'a> {
     pub ids: Option<&'a mut [u16]>,
 }
 
+impl<'a> ViewOut<'a> {
+    /// Cuts buffers holding several views back to back (`pixels` each) into one output per view.
+    pub fn split(rgb: &'a mut [u8], depth: &'a mut [u16], ids: &'a mut [u16], pixels: usize) -> Vec<ViewOut<'a>> {
+        rgb.chunks_exact_mut(pixels * 3)
+            .zip(depth.chunks_exact_mut(pixels))
+            .zip(ids.chunks_exact_mut(pixels))
+            .map(|((rgb, depth), ids)| ViewOut { rgb, depth, ids: Some(ids) })
+            .collect()
+    }
+}
+
 /// Number of pixels showing instance `id`.
 pub fn count_id(ids: &[u16], id: u16) -> u32 {
     ids.iter().filter(|&&v| v == id).count() as u32
