@@ -23,7 +23,11 @@ pub fn bin_dir() -> PathBuf {
 
 pub fn bin(name: &str) -> PathBuf {
     let p = bin_dir().join(name);
-    assert!(p.is_file(), "{} is missing: run `cargo build --release --workspace` first (or set GESTHOR_BIN_DIR)", p.display());
+    assert!(
+        p.is_file(),
+        "{} is missing: run `cargo build --release --workspace` first (or set GESTHOR_BIN_DIR)",
+        p.display()
+    );
     p
 }
 
@@ -45,7 +49,12 @@ pub fn dataset() -> PathBuf {
         // Keyed on the orchestrator build, so a changed dataset format is never read stale.
         let orch = bin("orchestrator");
         let meta = std::fs::metadata(&orch).unwrap();
-        let stamp = meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map(|d| d.as_secs()).unwrap_or(0);
+        let stamp = meta
+            .modified()
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map(|d| d.as_secs())
+            .unwrap_or(0);
         let root = bin_dir().join("gesthor-test-data");
         let dir = root.join(format!("gond-{stamp}-{}", meta.len()));
         if dir.join("manifest.json").is_file() {
@@ -69,7 +78,10 @@ pub fn dataset() -> PathBuf {
             Ok(()) => {
                 // datasets of older builds are of no use any more
                 for e in std::fs::read_dir(&root).into_iter().flatten().flatten() {
-                    if e.path() != dir && e.file_name().to_string_lossy().starts_with("gond-") && !e.file_name().to_string_lossy().contains("partial") {
+                    if e.path() != dir
+                        && e.file_name().to_string_lossy().starts_with("gond-")
+                        && !e.file_name().to_string_lossy().contains("partial")
+                    {
                         let _ = std::fs::remove_dir_all(e.path());
                     }
                 }
@@ -208,7 +220,10 @@ impl Run {
 
     pub fn summary(&self) -> Value {
         let p = self.dir.join("farm_summary.json");
-        serde_json::from_str(&std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}\n{}", p.display(), self.diagnostics()))).unwrap()
+        serde_json::from_str(
+            &std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}\n{}", p.display(), self.diagnostics())),
+        )
+        .unwrap()
     }
 
     pub fn episodes(&self) -> Vec<Value> {
@@ -250,7 +265,7 @@ pub fn processes_mentioning(needle: &str) -> Vec<(i32, String)> {
 
 /// Files the run left in `/dev/shm` (and iceoryx2's folder).
 pub fn shm_leftovers(run_id: &str) -> Vec<PathBuf> {
-    worker::transport::run_files(run_id)
+    farm::transport::run_files(run_id)
 }
 
 /// `(width, height)` from a PNG's IHDR, after checking the signature.
@@ -266,7 +281,9 @@ pub fn png_size(path: &Path) -> (u32, u32) {
 pub fn python_with_iceoryx2() -> Result<Command, String> {
     let mut path = std::env::var("PYTHONPATH").unwrap_or_default();
     if let Some(home) = std::env::var_os("HOME") {
-        let deps = std::env::var_os("GESTHOR_DEPS").map(PathBuf::from).unwrap_or_else(|| PathBuf::from(home).join(".cache/gesthor"));
+        let deps = std::env::var_os("GESTHOR_DEPS")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| PathBuf::from(home).join(".cache/gesthor"));
         let py = deps.join("python");
         if py.is_dir() {
             path = if path.is_empty() { py.display().to_string() } else { format!("{path}:{}", py.display()) };
@@ -275,7 +292,9 @@ pub fn python_with_iceoryx2() -> Result<Command, String> {
     let probe = Command::new("python3").env("PYTHONPATH", &path).args(["-c", "import iceoryx2, numpy"]).output();
     match probe {
         Err(e) => Err(format!("no python3 ({e})")),
-        Ok(o) if !o.status.success() => Err(format!("python3 cannot import iceoryx2 and numpy: {}", String::from_utf8_lossy(&o.stderr).trim())),
+        Ok(o) if !o.status.success() => {
+            Err(format!("python3 cannot import iceoryx2 and numpy: {}", String::from_utf8_lossy(&o.stderr).trim()))
+        }
         Ok(_) => {
             let mut c = Command::new("python3");
             c.env("PYTHONPATH", path);

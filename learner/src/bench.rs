@@ -5,9 +5,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use farm::config::RunConfig;
 use rand::Rng;
 use tch::{Device, nn};
-use worker::config::RunConfig;
 
 use crate::LearnerError;
 use crate::model::{Actions, Policy};
@@ -44,7 +44,7 @@ pub fn random_resnet_weights(dir: &Path) -> Result<PathBuf, LearnerError> {
 
 /// A random observation batch for `n` envs.
 pub fn random_obs(n: usize, side: usize, seed: u64) -> OwnedObs {
-    let mut rng = worker::util::rng(seed, &[]);
+    let mut rng = farm::seed::rng(seed, &[]);
     let mut o = OwnedObs::new(n, side, side);
     o.rgb.iter_mut().for_each(|v| *v = rng.random());
     o.depth.iter_mut().for_each(|v| *v = rng.random());
@@ -113,7 +113,7 @@ pub fn fill_rollout(t: &mut Trainer, seed: u64) -> Result<(), LearnerError> {
     let n = t.rollout.envs;
     let o = random_obs(n, t.cfg.env.width as usize, seed);
     let (x, _) = t.policy.prepare(&o.batch())?;
-    let mut rng = worker::util::rng(seed, &[1]);
+    let mut rng = farm::seed::rng(seed, &[1]);
     t.rollout.begin(t.policy.hidden());
     for _ in 0..t.rollout.steps {
         let starts: Vec<bool> = (0..n).map(|_| rng.random::<f32>() < 1.0 / 30.0).collect();

@@ -10,12 +10,12 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
+use farm::config::RunConfig;
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::SeedableRng;
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use sha2::{Digest, Sha256};
 use tch::{Device, Kind, Tensor};
-use worker::config::RunConfig;
 
 use crate::model::{NetSpec, Policy};
 use crate::ppo::Trainer;
@@ -57,34 +57,7 @@ pub fn config_hash(cfg: &RunConfig) -> String {
     digest.iter().take(8).map(|b| format!("{b:02x}")).collect()
 }
 
-/// `dir/ckpt-00000042.safetensors`.
-pub fn checkpoint_path(dir: &Path, update: u64) -> PathBuf {
-    dir.join(format!("ckpt-{update:08}.safetensors"))
-}
-
-fn update_of(path: &Path) -> Option<u64> {
-    let name = path.file_name()?.to_str()?;
-    name.strip_prefix("ckpt-")?.strip_suffix(".safetensors")?.parse().ok()
-}
-
-/// Complete checkpoints in `dir`, oldest first (temporary files of a write in progress are
-/// hidden dot-files and never match).
-pub fn list(dir: &Path) -> Vec<(u64, PathBuf)> {
-    let mut found: Vec<(u64, PathBuf)> = std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .map(|e| e.path())
-        .filter_map(|p| update_of(&p).map(|u| (u, p)))
-        .collect();
-    found.sort();
-    found
-}
-
-/// The newest complete checkpoint in `dir`.
-pub fn latest(dir: &Path) -> Option<PathBuf> {
-    list(dir).pop().map(|(_, p)| p)
-}
+pub use farm::checkpoints::{latest, list, path as checkpoint_path};
 
 /// Writes the trainer's checkpoint into `dir` and keeps the newest `keep` (0 keeps all).
 pub fn save_in_dir(dir: &Path, t: &Trainer, keep: usize) -> Result<PathBuf, CheckpointError> {
@@ -260,7 +233,7 @@ fn write(
         .map_err(|e| error(path, e.to_string()))?;
     let bytes =
         safetensors::serialize(views, Some(meta.into_iter().collect())).map_err(|e| error(path, e.to_string()))?;
-    worker::util::write_atomic(path, &bytes).map_err(|e| error(path, format!("cannot write: {e}")))
+    farm::files::write_atomic(path, &bytes).map_err(|e| error(path, format!("cannot write: {e}")))
 }
 
 /// Reads and checks a checkpoint: complete file, our format, intact data, same network.

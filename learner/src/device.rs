@@ -10,8 +10,8 @@ use std::ffi::CString;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use farm::config::Device as DeviceChoice;
 use tch::Device;
-use worker::config::Device as DeviceChoice;
 
 /// What happened when we tried to load torch's CUDA backend.
 #[derive(Clone, Debug)]

@@ -57,7 +57,7 @@ pub enum LearnerError {
 
 #[cfg(test)]
 mod config_files {
-    use worker::config::RunConfig;
+    use farm::config::RunConfig;
 
     /// Every TOML file under `configs/` parses and builds a network description.
     #[test]

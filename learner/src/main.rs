@@ -8,13 +8,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use farm::config::{Device as DeviceChoice, RunConfig};
+use farm::process;
 use learner::policy::{ExpertPolicy, FarmPolicy, RandomPolicy};
 use learner::ppo_policy::{Blank, PpoFarmPolicy};
 use learner::serve::{ServeOptions, serve};
 use learner::{bench, checkpoint, device, metrics::MetricsLog, smoke};
 use nix::sys::signal::Signal;
-use worker::config::{Device as DeviceChoice, RunConfig};
-use worker::process;
 
 #[derive(Parser)]
 #[command(name = "learner", about = "GesTHOR-RS PPO learner (tch / libtorch)")]
@@ -156,7 +156,8 @@ fn run_serve(a: ServeArgs, dev: tch::Device) -> anyhow::Result<()> {
     if a.resume && a.policy != PolicyKind::Ppo {
         tracing::info!("--resume: policy `{}` keeps no state; nothing to resume", policy.name());
     }
-    let mut opts = ServeOptions::new(&a.run_id, a.workers, &a.run_dir, cfg.env.envs_per_worker, cfg.env.width, cfg.env.height);
+    let mut opts =
+        ServeOptions::new(&a.run_id, a.workers, &a.run_dir, cfg.env.envs_per_worker, cfg.env.width, cfg.env.height);
     opts.max_frames = a.max_frames;
     opts.max_seconds = a.max_seconds;
     opts.eval = a.eval;
@@ -234,9 +235,9 @@ fn smoke_run(dev: tch::Device, updates: u64, envs: usize, run_dir: PathBuf, resu
     install_ctrl_c()?;
     println!("{}", device::report(dev));
     let cfg = smoke::config(updates, envs);
-    let ckpt_dir = run_dir.join("checkpoints");
+    let ckpt_dir = farm::checkpoints::dir_of(&run_dir);
     std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
-    worker::util::write_atomic(&run_dir.join("config.toml"), cfg.to_toml().as_bytes())
+    farm::files::write_atomic(&run_dir.join("config.toml"), cfg.to_toml().as_bytes())
         .with_context(|| format!("writing {}", run_dir.join("config.toml").display()))?;
     let mut log = MetricsLog::open(&run_dir)?;
     let from = if resume { checkpoint::latest(&ckpt_dir) } else { None };

@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
-
 /// What one PPO update reports.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct UpdateMetrics {
@@ -140,7 +139,7 @@ impl MetricsLog {
 fn register_font() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
-        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, worker::util::FONT_TTF);
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, farm::font::FONT_TTF);
     });
 }
 
@@ -200,7 +199,7 @@ pub fn plot_curves(rows: &[UpdateMetrics], path: &Path) -> Result<(), MetricsErr
     let img = image::RgbImage::from_raw(w, h, buf).ok_or_else(|| perr("bad buffer".into()))?;
     let mut png = Vec::new();
     img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).map_err(|e| perr(e.to_string()))?;
-    worker::util::write_atomic(path, &png).map_err(|e| perr(e.to_string()))
+    farm::files::write_atomic(path, &png).map_err(|e| perr(e.to_string()))
 }
 
 fn format_frames(x: f64) -> String {

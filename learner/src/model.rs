@@ -18,22 +18,21 @@
 //! never re-run the ResNet; the trained encoders (small CNN, ResNet without weights) store the
 //! raw frames instead.
 
+use farm::config::{Encoder, Method, RunConfig};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use tch::nn::{self, RNN};
 use tch::{Device, Kind, Tensor};
-use worker::config::{Encoder, Method, RunConfig};
-use worker::scene::Category;
 
 use crate::obs::{GESTURE_FEATURES, GESTURE_FRAMES, ObsBatch, ObsError};
 use crate::resnet::{self, CONV5_CHANNELS, Resnet18, WeightsError};
 
 /// MoveAhead, RotateLeft, RotateRight, Stop (§4.2).
-pub const ACTIONS: i64 = 4;
+pub const ACTIONS: i64 = shm_schema::action::COUNT as i64;
 
 /// Size of the target-category vocabulary (37 targets of T3.3).
 pub fn target_count() -> i64 {
-    Category::targets().count() as i64
+    shm_schema::TARGET_CATEGORIES as i64
 }
 
 /// What the network looks like for a run: which inputs, which encoder, how wide.
@@ -609,7 +608,7 @@ impl Policy {
             return Err(ModelError::Config("a policy needs at least one env".into()));
         }
         crate::device::flush_denormals();
-        tch::manual_seed(worker::util::mix(cfg.run.seed, &[0x6E65_7477]) as i64);
+        tch::manual_seed(farm::seed::mix(cfg.run.seed, &[0x6E65_7477]) as i64);
         let vs = nn::VarStore::new(device);
         let bf16 = crate::device::use_bf16(device, cfg.ppo.mixed_precision);
         let net = PolicyNet::new(&vs, &spec, bf16);
@@ -630,7 +629,7 @@ impl Policy {
         }
         let hidden = Tensor::zeros([spec.gru_layers, n_envs as i64, spec.hidden], (Kind::Float, device));
         Ok(Policy {
-            rng: worker::util::rng(cfg.run.seed, &[0x6163_7473]),
+            rng: farm::seed::rng(cfg.run.seed, &[0x6163_7473]),
             spec,
             vs,
             net,

@@ -35,7 +35,7 @@ pub struct RandomPolicy {
 
 impl RandomPolicy {
     pub fn new(seed: u64) -> RandomPolicy {
-        RandomPolicy { rng: worker::util::rng(seed, &[0x5EED_A7C7]) }
+        RandomPolicy { rng: farm::seed::rng(seed, &[0x5EED_A7C7]) }
     }
 }
 
@@ -74,7 +74,9 @@ impl FarmPolicy for ExpertPolicy {
                 // No expert from a final observation or an idle env: the worker ignores the
                 // action answered to those.
                 _ if r.idle != 0 || r.terminated != 0 || r.truncated != 0 => Ok(0),
-                a => anyhow::bail!("worker {w} env {e}: no expert action ({a}); the workers must run with --expert-hints"),
+                a => anyhow::bail!(
+                    "worker {w} env {e}: no expert action ({a}); the workers must run with --expert-hints"
+                ),
             })
             .collect()
     }

@@ -12,10 +12,10 @@
 
 use std::time::Instant;
 
+use farm::config::{PpoConfig, RunConfig};
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use tch::{Device, Kind, Tensor};
-use worker::config::{PpoConfig, RunConfig};
 
 use crate::LearnerError;
 use crate::metrics::{EpisodeStats, UpdateMetrics};
@@ -80,7 +80,7 @@ impl Trainer {
         let opt = Adam::new(&policy.vs, hp.lr, ADAM_EPS);
         let rollout = Rollout::new(hp.rollout, n_envs, policy.hidden());
         Ok(Trainer {
-            rng: worker::util::rng(cfg.run.seed, &[0x7070_6f5f]),
+            rng: farm::seed::rng(cfg.run.seed, &[0x7070_6f5f]),
             cfg: cfg.clone(),
             hp,
             policy,

@@ -12,8 +12,8 @@ use std::path::{Path, PathBuf};
 use half::f16;
 use tch::Device;
 
+use farm::config::RunConfig;
 use shm_schema::EnvRecord;
-use worker::config::RunConfig;
 
 use crate::batch::ObsBatchView;
 use crate::checkpoint;
@@ -54,9 +54,15 @@ pub struct PpoFarmPolicy {
 
 impl PpoFarmPolicy {
     /// Training from scratch, or from the run directory's latest checkpoint when `resume`.
-    pub fn train(cfg: &RunConfig, workers: usize, device: Device, run_dir: &Path, resume: bool) -> anyhow::Result<PpoFarmPolicy> {
+    pub fn train(
+        cfg: &RunConfig,
+        workers: usize,
+        device: Device,
+        run_dir: &Path,
+        resume: bool,
+    ) -> anyhow::Result<PpoFarmPolicy> {
         let n = workers * cfg.env.envs_per_worker;
-        let checkpoints = run_dir.join("checkpoints");
+        let checkpoints = farm::checkpoints::dir_of(run_dir);
         let trainer = match (resume, checkpoint::latest(&checkpoints)) {
             (true, Some(path)) => {
                 let t = Trainer::resume(cfg, n, device, &path)?;
@@ -70,12 +76,24 @@ impl PpoFarmPolicy {
             tracing::info!("{note}");
         }
         let log = MetricsLog::open(run_dir)?;
-        Ok(PpoFarmPolicy::with_mode(Mode::Train { trainer: Box::new(trainer), log, checkpoints }, cfg, workers, Blank::default()))
+        Ok(PpoFarmPolicy::with_mode(
+            Mode::Train { trainer: Box::new(trainer), log, checkpoints },
+            cfg,
+            workers,
+            Blank::default(),
+        ))
     }
 
     /// Evaluation of a checkpoint: actions sampled from the policy as in training (seeded from
     /// the run seed), or its most likely action with `greedy`.
-    pub fn eval(cfg: &RunConfig, workers: usize, device: Device, checkpoint: &Path, blank: Blank, greedy: bool) -> anyhow::Result<PpoFarmPolicy> {
+    pub fn eval(
+        cfg: &RunConfig,
+        workers: usize,
+        device: Device,
+        checkpoint: &Path,
+        blank: Blank,
+        greedy: bool,
+    ) -> anyhow::Result<PpoFarmPolicy> {
         tch::manual_seed(cfg.run.seed as i64);
         let n = workers * cfg.env.envs_per_worker;
         let policy = Policy::from_checkpoint(cfg, n, device, checkpoint)?;
@@ -116,7 +134,11 @@ impl PpoFarmPolicy {
 fn env_step(r: &EnvRecord) -> EnvStep {
     let done = r.terminated != 0 || r.truncated != 0;
     let s = &r.summary;
-    let spl = if done && s.success != 0 { worker::metrics::spl(s.start_geodesic as f64, s.path_length as f64) as f32 } else { 0.0 };
+    let spl = if done && s.success != 0 {
+        farm::metrics::spl(s.start_geodesic as f64, s.path_length as f64) as f32
+    } else {
+        0.0
+    };
     EnvStep {
         reward: r.reward,
         terminated: r.terminated != 0,
@@ -172,7 +194,12 @@ impl FarmPolicy for PpoFarmPolicy {
                     for k in 0..e {
                         self.steps[w * e + k] = EnvStep { lost: true, ..Default::default() };
                     }
-                    frames.push(FrameView { envs: e, rgb: &self.zero_rgb, depth: &self.zero_depth, gesture: GestureView::F16(&self.zero_gesture) });
+                    frames.push(FrameView {
+                        envs: e,
+                        rgb: &self.zero_rgb,
+                        depth: &self.zero_depth,
+                        gesture: GestureView::F16(&self.zero_gesture),
+                    });
                 }
             }
         }

@@ -237,7 +237,8 @@ mod tests {
     fn terminated_with_a_final_observation() {
         let h0 = Tensor::zeros([1, 1, 4], (Kind::Float, Device::Cpu));
         let mut r = Rollout::new(4, 1, &h0);
-        let step = |reward, terminated, start| EnvStep { reward, terminated, episode_start: start, ..Default::default() };
+        let step =
+            |reward, terminated, start| EnvStep { reward, terminated, episode_start: start, ..Default::default() };
         r.push(&no_inputs(), &[true], &acted(1, 1.0), &[true]);
         // success: reward 1 for a0; o1 is the episode's final observation
         let m = step(1.0, true, false);

@@ -23,11 +23,11 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use farm::metrics::{EpisodeResult, Trajectory};
+use farm::process;
+use farm::transport::TransportError;
 use serde::{Deserialize, Serialize};
 use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, OBS_MAGIC, ObsShape, ObsView, SCHEMA_VERSION, command};
-use worker::metrics::{EpisodeResult, Trajectory};
-use worker::process;
-use worker::transport::TransportError;
 
 use crate::batch::{ObsBatchView, WorkerObs};
 use crate::policy::{FarmPolicy, NUM_ACTIONS};
@@ -166,7 +166,7 @@ pub struct Summary {
     pub workers: Vec<WorkerSummary>,
 }
 
-/// One line of `episodes.jsonl`: the episode as `worker::metrics` scores it, plus where it
+/// One line of `episodes.jsonl`: the episode as `farm::metrics` scores it, plus where it
 /// came from.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EpisodeLine {
@@ -349,7 +349,10 @@ impl Server<'_> {
                 };
                 if waiting.is_empty() || first.elapsed() >= self.opts.batch_timeout {
                     for k in waiting {
-                        tracing::warn!("worker {k} did not answer within {:?}; going on without it", self.opts.batch_timeout);
+                        tracing::warn!(
+                            "worker {k} did not answer within {:?}; going on without it",
+                            self.opts.batch_timeout
+                        );
                         self.slots[k].absent = true;
                     }
                     round_start = None;
@@ -424,7 +427,12 @@ impl Server<'_> {
                     tracing::info!("worker {k} is back as generation {} (was {g})", h.generation);
                 }
                 let fresh = Slot::new();
-                *slot = Slot { generation: Some(h.generation), new_generation: true, next_env_step: vec![None; self.shape.num_envs], ..fresh };
+                *slot = Slot {
+                    generation: Some(h.generation),
+                    new_generation: true,
+                    next_env_step: vec![None; self.shape.num_envs],
+                    ..fresh
+                };
             }
         }
         // Message counter of this generation.
@@ -504,23 +512,37 @@ impl Server<'_> {
     fn round(&mut self) -> Result<Option<Stop>, ServeError> {
         let held: Vec<(usize, ObsSample, bool)> =
             (0..self.slots.len()).filter_map(|k| self.slots[k].held.take().map(|(s, g)| (k, s, g))).collect();
-        let missing: Vec<u32> = (0..self.slots.len()).filter(|&k| self.slots[k].generation.is_some() && !held.iter().any(|h| h.0 == k)).map(|k| k as u32).collect();
+        let missing: Vec<u32> = (0..self.slots.len())
+            .filter(|&k| self.slots[k].generation.is_some() && !held.iter().any(|h| h.0 == k))
+            .map(|k| k as u32)
+            .collect();
         let parts: Vec<WorkerObs> = held
             .iter()
             .map(|(k, s, new_generation)| {
                 let header = s.user_header();
                 let view = ObsView::new(self.shape, s.payload()).expect("checked on arrival");
-                WorkerObs { worker: *k as u32, generation: header.generation, new_generation: *new_generation, header, view }
+                WorkerObs {
+                    worker: *k as u32,
+                    generation: header.generation,
+                    new_generation: *new_generation,
+                    header,
+                    view,
+                }
             })
             .collect();
         let batch = ObsBatchView { width: self.shape.width, height: self.shape.height, parts, missing };
         let t = Instant::now();
-        let actions = self.policy.act(&batch).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
+        let actions =
+            self.policy.act(&batch).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
         self.totals.policy_sum_s += t.elapsed().as_secs_f64();
         if actions.len() != batch.num_envs() || actions.iter().any(|&a| a >= NUM_ACTIONS) {
             return Err(ServeError::Policy {
                 name: self.policy.name().into(),
-                source: anyhow::anyhow!("returned {} actions (values < {NUM_ACTIONS}) for {} envs", actions.len(), batch.num_envs()),
+                source: anyhow::anyhow!(
+                    "returned {} actions (values < {NUM_ACTIONS}) for {} envs",
+                    actions.len(),
+                    batch.num_envs()
+                ),
             });
         }
         for p in &batch.parts {
@@ -585,7 +607,9 @@ impl Server<'_> {
                     self.slots[k].shutdown_sent = true;
                 }
             }
-            let pending = (0..self.slots.len()).any(|k| self.slots[k].generation.is_some() && !self.slots[k].shutdown_sent && self.ports.worker_attached(k));
+            let pending = (0..self.slots.len()).any(|k| {
+                self.slots[k].generation.is_some() && !self.slots[k].shutdown_sent && self.ports.worker_attached(k)
+            });
             if !pending || Instant::now() >= until {
                 break;
             }
@@ -605,7 +629,8 @@ impl Server<'_> {
             t: now.duration_since(self.start).as_secs_f64(),
             fps: (self.totals.frames - before.frames) as f64 / dt,
             latency_ms: (dl > 0).then(|| 1000.0 * (self.totals.latency_sum_s - before.latency_sum_s) / dl as f64),
-            success_rate: (self.totals.episodes > 0).then(|| self.totals.successes as f64 / self.totals.episodes as f64),
+            success_rate: (self.totals.episodes > 0)
+                .then(|| self.totals.successes as f64 / self.totals.episodes as f64),
             workers_seen: self.slots.iter().filter(|s| s.generation.is_some()).count(),
             workers_live: self.slots.iter().filter(|s| s.generation.is_some() && !s.absent).count(),
             totals: self.totals.clone(),
@@ -642,7 +667,9 @@ impl Server<'_> {
         tracing::info!("{}; telling the workers to shut down", stop.describe());
         self.drain()?;
         let checkpoint = !matches!(stop, Stop::Signal(nix::sys::signal::Signal::SIGTERM));
-        self.policy.finish(checkpoint).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
+        self.policy
+            .finish(checkpoint)
+            .map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
         self.report(Some(&stop))?;
         let summary = Summary {
             run_id: self.opts.run_id.clone(),
@@ -654,15 +681,28 @@ impl Server<'_> {
                 .slots
                 .iter()
                 .enumerate()
-                .map(|(k, s)| WorkerSummary { worker: k as u32, generation: s.generation, messages: s.messages, frames: s.frames, finished: s.finished })
+                .map(|(k, s)| WorkerSummary {
+                    worker: k as u32,
+                    generation: s.generation,
+                    messages: s.messages,
+                    frames: s.frames,
+                    finished: s.finished,
+                })
                 .collect(),
         };
         let path = self.opts.run_dir.join("farm_summary.json");
-        worker::util::write_atomic(&path, serde_json::to_string_pretty(&summary).expect("serialisable").as_bytes()).map_err(io_err(&path))?;
+        farm::files::write_atomic(&path, serde_json::to_string_pretty(&summary).expect("serialisable").as_bytes())
+            .map_err(io_err(&path))?;
         if self.opts.check {
             let t = &self.totals;
             if t.lost + t.duplicates + t.corrupt > 0 {
-                return Err(ServeError::Check(format!("{} lost, {} duplicated, {} malformed messages: {}", t.lost, t.duplicates, t.corrupt, self.problems.join("; "))));
+                return Err(ServeError::Check(format!(
+                    "{} lost, {} duplicated, {} malformed messages: {}",
+                    t.lost,
+                    t.duplicates,
+                    t.corrupt,
+                    self.problems.join("; ")
+                )));
             }
         }
         Ok(summary)
@@ -673,10 +713,15 @@ impl Server<'_> {
 mod tests {
     use super::*;
     use crate::policy::{ExpertPolicy, RandomPolicy};
-    use worker::farm::SyntheticStepper;
-    use worker::transport::{self as wt, Exit, WorkerOptions};
+    use farm::stepper::SyntheticStepper;
+    use farm::transport::{self as wt, Exit, WorkerOptions};
 
-    fn spawn_workers(run: &str, n: u32, envs: usize, generation: u32) -> Vec<std::thread::JoinHandle<Result<Exit, TransportError>>> {
+    fn spawn_workers(
+        run: &str,
+        n: u32,
+        envs: usize,
+        generation: u32,
+    ) -> Vec<std::thread::JoinHandle<Result<Exit, TransportError>>> {
         (0..n)
             .map(|k| {
                 let opts = WorkerOptions::new(run, k, generation, 24, 16);
@@ -743,16 +788,24 @@ mod tests {
                 let s = SyntheticStepper::new(0, 2, 24, 16, None, false);
                 // fails after a few steps, as if the process crashed mid-run
                 struct Crashing(SyntheticStepper, u32);
-                impl worker::farm::Stepper for Crashing {
-                    fn num_envs(&self) -> usize { self.0.num_envs() }
-                    fn layout(&self) -> shm_schema::ObsLayout { self.0.layout() }
-                    fn reset(&mut self, p: &mut [u8]) -> anyhow::Result<()> { self.0.reset(p) }
+                impl farm::stepper::Stepper for Crashing {
+                    fn num_envs(&self) -> usize {
+                        self.0.num_envs()
+                    }
+                    fn layout(&self) -> shm_schema::ObsLayout {
+                        self.0.layout()
+                    }
+                    fn reset(&mut self, p: &mut [u8]) -> anyhow::Result<()> {
+                        self.0.reset(p)
+                    }
                     fn step(&mut self, a: &[u8], p: &mut [u8]) -> anyhow::Result<()> {
                         self.1 += 1;
                         anyhow::ensure!(self.1 < 20, "crash");
                         self.0.step(a, p)
                     }
-                    fn finished(&self) -> bool { self.0.finished() }
+                    fn finished(&self) -> bool {
+                        self.0.finished()
+                    }
                 }
                 wt::serve(&mut Crashing(s, 0), &opts)
             }

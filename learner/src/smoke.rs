@@ -12,11 +12,11 @@
 use std::path::Path;
 use std::time::Instant;
 
+use farm::config::RunConfig;
 use half::f16;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use tch::Device;
-use worker::config::RunConfig;
 
 use crate::LearnerError;
 use crate::metrics::UpdateMetrics;
@@ -46,7 +46,7 @@ impl CueTask {
             steps: vec![0; n],
             reset_next: vec![false; n],
             max_steps: 8,
-            rng: worker::util::rng(seed, &[0x6375_6573]),
+            rng: farm::seed::rng(seed, &[0x6375_6573]),
         };
         for k in 0..n {
             t.reset(k);

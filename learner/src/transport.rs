@@ -1,10 +1,11 @@
 //! The learner's side of the farm over iceoryx2: one subscriber (observations) and one
 //! publisher (actions) per worker, a listener that wakes when any worker sent, and a notifier
 //! per worker to wake it when its actions are out. Services are opened with the same functions
-//! the workers use (`worker::transport`), so both sides agree on every setting.
+//! the workers use (`farm::transport`), so both sides agree on every setting.
 
 use std::time::Duration;
 
+use farm::transport::{self as wt, ActService, EventService, IpcService, ObsService, TransportError};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -12,7 +13,6 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 use shm_schema::{ActionMsg, ObsHeader, qos};
-use worker::transport::{self as wt, ActService, EventService, IpcService, ObsService, TransportError};
 
 /// An observation sample, held borrowed (in shared memory) until it is dropped.
 pub type ObsSample = Sample<IpcService, [u8], ObsHeader>;
@@ -46,7 +46,8 @@ impl LearnerPorts {
     pub fn open(run_id: &str, workers: usize) -> Result<LearnerPorts, TransportError> {
         let node = wt::open_node(run_id, "learner")?;
         let obs_ready_service = wt::create_obs_ready(&node, run_id, workers)?;
-        let obs_ready = obs_ready_service.listener_builder().create().map_err(ipc("creating the obs_ready listener"))?;
+        let obs_ready =
+            obs_ready_service.listener_builder().create().map_err(ipc("creating the obs_ready listener"))?;
         let mut links = Vec::with_capacity(workers);
         for k in 0..workers as u32 {
             let obs = wt::open_obs_service(&node, run_id, k)?;
@@ -59,8 +60,16 @@ impl LearnerPorts {
                 .create()
                 .map_err(ipc("creating an observation subscriber"))?;
             let publisher = act.publisher_builder().create().map_err(ipc("creating an action publisher"))?;
-            let act_ready = act_ready_service.notifier_builder().create().map_err(ipc("creating an act_ready notifier"))?;
-            links.push(WorkerLink { obs, _act: act, subscriber, publisher, act_ready, _act_ready_service: act_ready_service });
+            let act_ready =
+                act_ready_service.notifier_builder().create().map_err(ipc("creating an act_ready notifier"))?;
+            links.push(WorkerLink {
+                obs,
+                _act: act,
+                subscriber,
+                publisher,
+                act_ready,
+                _act_ready_service: act_ready_service,
+            });
         }
         Ok(LearnerPorts { links, obs_ready, _obs_ready_service: obs_ready_service, _node: node })
     }

@@ -13,13 +13,13 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Args;
+use farm::config::RunConfig;
+use farm::process;
 use nix::unistd::Pid;
-use worker::config::RunConfig;
-use worker::process;
 
 use crate::binaries;
-use crate::farm::{Farm, FarmSpec, FarmState, PolicyArg, Progress};
-use crate::supervise;
+use crate::child;
+use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
 use crate::up;
 
 /// The bench's configuration when none is given: the dissertation's 224×224 RGB-D frames.
@@ -74,14 +74,19 @@ pub struct Row {
 }
 
 fn cpu(pids: &[Option<Pid>]) -> Vec<Option<f64>> {
-    pids.iter().map(|p| p.and_then(supervise::cpu_seconds)).collect()
+    pids.iter().map(|p| p.and_then(child::cpu_seconds)).collect()
 }
 
 /// Ticks the farm until `pred` holds for its progress, or `timeout`.
-fn wait_for(farm: &mut Farm, timeout: Duration, what: &str, mut pred: impl FnMut(&Progress) -> bool) -> anyhow::Result<Progress> {
+fn wait_for(
+    farm: &mut Crew,
+    timeout: Duration,
+    what: &str,
+    mut pred: impl FnMut(&Progress) -> bool,
+) -> anyhow::Result<Progress> {
     let start = Instant::now();
     loop {
-        if farm.tick()? == FarmState::Ended || farm.is_stopping() {
+        if farm.tick()? == CrewState::Ended || farm.is_stopping() {
             anyhow::bail!("the farm ended while waiting for {what}");
         }
         if process::termination_signal().is_some() {
@@ -102,13 +107,13 @@ fn wait_for(farm: &mut Farm, timeout: Duration, what: &str, mut pred: impl FnMut
 fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::Result<Row> {
     let run_dir = out.join(format!("w{n}"));
     let (dir, config_path) = up::prepare_run(&run_dir, cfg, false, n, PolicyArg::Random)?;
-    let mut spec = FarmSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), n, PolicyArg::Random);
+    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), n, PolicyArg::Random);
     spec.synthetic = a.synthetic;
     spec.report_every = 0.5;
     spec.check = true;
     // A safety net: the learner ends the run by itself should this process hang.
     spec.max_seconds = Some(300.0 + a.warmup + a.seconds);
-    let mut farm = Farm::start(spec)?;
+    let mut farm = Crew::start(spec)?;
     let result = (|| -> anyhow::Result<Row> {
         let startup = Duration::from_secs(60 + 10 * n as u64);
         wait_for(&mut farm, startup, "first observation from every worker", |p| p.workers_seen == n && p.frames > 0)?;
@@ -119,11 +124,16 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
         }
         let p0 = farm.progress().context("no progress record")?;
         let p0 = wait_for(&mut farm, Duration::from_secs(10), "a fresh progress record", |p| p.t > p0.t)?;
-        let (w0, c0, l0, g0) = (Instant::now(), cpu(&farm.worker_pids()), farm.learner_pid().and_then(supervise::cpu_seconds), farm.generations());
-        let m0 = supervise::machine_cpu_seconds();
+        let (w0, c0, l0, g0) = (
+            Instant::now(),
+            cpu(&farm.worker_pids()),
+            farm.learner_pid().and_then(child::cpu_seconds),
+            farm.generations(),
+        );
+        let m0 = child::machine_cpu_seconds();
         let until = Instant::now() + Duration::from_secs_f64(a.seconds);
         while Instant::now() < until {
-            if farm.tick()? == FarmState::Ended {
+            if farm.tick()? == CrewState::Ended {
                 anyhow::bail!("the farm ended during the measurement");
             }
             anyhow::ensure!(process::termination_signal().is_none(), "interrupted");
@@ -131,12 +141,15 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
         }
         let p1 = farm.progress().context("no progress record")?;
         let p1 = wait_for(&mut farm, Duration::from_secs(10), "a fresh progress record", |p| p.t > p1.t)?;
-        let (wall, c1, l1, g1) = (w0.elapsed().as_secs_f64(), cpu(&farm.worker_pids()), farm.learner_pid().and_then(supervise::cpu_seconds), farm.generations());
-        let m1 = supervise::machine_cpu_seconds();
-        let per_worker: Vec<f64> = (0..n)
-            .filter(|&k| g0[k] == g1[k])
-            .filter_map(|k| Some(100.0 * (c1[k]? - c0[k]?) / wall))
-            .collect();
+        let (wall, c1, l1, g1) = (
+            w0.elapsed().as_secs_f64(),
+            cpu(&farm.worker_pids()),
+            farm.learner_pid().and_then(child::cpu_seconds),
+            farm.generations(),
+        );
+        let m1 = child::machine_cpu_seconds();
+        let per_worker: Vec<f64> =
+            (0..n).filter(|&k| g0[k] == g1[k]).filter_map(|k| Some(100.0 * (c1[k]? - c0[k]?) / wall)).collect();
         let dt = (p1.t - p0.t).max(1e-9);
         let dl = p1.latency_count.saturating_sub(p0.latency_count);
         let learner_cpu = match (l0, l1) {
@@ -144,7 +157,8 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
             _ => f64::NAN,
         };
         // Everything busy on the machine minus this farm: someone else's load.
-        let ours: f64 = (0..n).filter_map(|k| Some(100.0 * (c1[k]? - c0[k]?) / wall)).sum::<f64>() + learner_cpu.max(0.0);
+        let ours: f64 =
+            (0..n).filter_map(|k| Some(100.0 * (c1[k]? - c0[k]?) / wall)).sum::<f64>() + learner_cpu.max(0.0);
         let other_cpu = match (m0, m1) {
             (Some((b0, _)), Some((b1, _))) => (100.0 * (b1 - b0) / wall - ours).max(0.0),
             _ => f64::NAN,
@@ -180,7 +194,10 @@ fn render_ceiling(config_path: &Path, seconds: f64) -> Result<f64, String> {
     if !out.status.success() {
         return Err(String::from_utf8_lossy(&out.stderr).trim().lines().last().unwrap_or("failed").to_string());
     }
-    text.split_whitespace().next().and_then(|v| v.parse().ok()).ok_or_else(|| format!("unexpected output `{}`", text.trim()))
+    text.split_whitespace()
+        .next()
+        .and_then(|v| v.parse().ok())
+        .ok_or_else(|| format!("unexpected output `{}`", text.trim()))
 }
 
 fn fmt_opt(v: Option<f64>, digits: usize) -> String {
@@ -194,7 +211,7 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "# Farm scaling\n\n{}x{} RGB-D frames, {} envs per worker, random policy{}; {} s measured per row after {} s of warm-up; {} CPU cores. CPU % is of one core; \"other processes\" is what the rest of the machine used meanwhile (a busy machine lowers the figures).\n",
+        "# Crew scaling\n\n{}x{} RGB-D frames, {} envs per worker, random policy{}; {} s measured per row after {} s of warm-up; {} CPU cores. CPU % is of one core; \"other processes\" is what the rest of the machine used meanwhile (a busy machine lowers the figures).\n",
         cfg.env.width,
         cfg.env.height,
         cfg.env.envs_per_worker,
@@ -203,9 +220,14 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
         a.warmup,
         std::thread::available_parallelism().map(|n| n.get()).unwrap_or(0)
     );
-    let _ = writeln!(md, "| workers | frames/s | × 1 worker | CPU % per worker | learner CPU % | other processes CPU % | step round trip (ms) | frames measured | restarts | integrity errors |");
+    let _ = writeln!(
+        md,
+        "| workers | frames/s | × 1 worker | CPU % per worker | learner CPU % | other processes CPU % | step round trip (ms) | frames measured | restarts | integrity errors |"
+    );
     let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let mut csv = String::from("workers,frames_per_s,speedup_vs_1,worker_cpu_pct,learner_cpu_pct,other_cpu_pct,step_latency_ms,frames,window_s,restarts,integrity_errors\n");
+    let mut csv = String::from(
+        "workers,frames_per_s,speedup_vs_1,worker_cpu_pct,learner_cpu_pct,other_cpu_pct,step_latency_ms,frames,window_s,restarts,integrity_errors\n",
+    );
     for r in rows {
         let speedup = one.map(|o| r.fps / o.max(1e-9));
         let _ = writeln!(
@@ -241,7 +263,11 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
     let _ = writeln!(md);
     match ceiling {
         Ok(c) => {
-            let _ = writeln!(md, "Renderer-only ceiling (one process, same scene content, {} views per submit): **{c:.1} views/s**.\n", cfg.env.envs_per_worker);
+            let _ = writeln!(
+                md,
+                "Renderer-only ceiling (one process, same scene content, {} views per submit): **{c:.1} views/s**.\n",
+                cfg.env.envs_per_worker
+            );
         }
         Err(e) => {
             let _ = writeln!(md, "Renderer-only ceiling: not measured ({e}).\n");
@@ -268,7 +294,10 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
 
 pub fn run(a: BenchFarmArgs) -> anyhow::Result<()> {
     process::install_termination_handler()?;
-    anyhow::ensure!(!a.workers.is_empty() && a.workers.iter().all(|&n| n > 0), "--workers: give positive counts, e.g. 1,2,4");
+    anyhow::ensure!(
+        !a.workers.is_empty() && a.workers.iter().all(|&n| n > 0),
+        "--workers: give positive counts, e.g. 1,2,4"
+    );
     let mut cfg = match &a.config {
         Some(p) => RunConfig::load(p)?,
         None => RunConfig::from_toml(BENCH_CONFIG, "(embedded bench config)")?,
@@ -278,7 +307,7 @@ pub fn run(a: BenchFarmArgs) -> anyhow::Result<()> {
     let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-farm"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let config_path = out.join("config.toml");
-    worker::util::write_atomic(&config_path, cfg.to_toml().as_bytes())?;
+    farm::files::write_atomic(&config_path, cfg.to_toml().as_bytes())?;
     let ceiling = if a.synthetic {
         Err("synthetic environments render nothing".to_string())
     } else {
@@ -298,8 +327,8 @@ pub fn run(a: BenchFarmArgs) -> anyhow::Result<()> {
         rows.push(row);
     }
     let (md, csv) = report(&rows, &ceiling, &cfg, &a);
-    worker::util::write_atomic(&out.join("bench_farm.md"), md.as_bytes())?;
-    worker::util::write_atomic(&out.join("bench_farm.csv"), csv.as_bytes())?;
+    farm::files::write_atomic(&out.join("bench_farm.md"), md.as_bytes())?;
+    farm::files::write_atomic(&out.join("bench_farm.csv"), csv.as_bytes())?;
     println!("{md}");
     eprintln!("[bench] written {} and {}", out.join("bench_farm.md").display(), out.join("bench_farm.csv").display());
     Ok(())
@@ -312,8 +341,24 @@ mod tests {
     #[test]
     fn the_report_checks_the_targets() {
         let cfg = RunConfig::from_toml(BENCH_CONFIG, "x").unwrap();
-        let a = BenchFarmArgs { workers: vec![1, 2, 20], config: None, seconds: 5.0, warmup: 1.0, out: None, synthetic: false };
-        let row = |w, fps| Row { workers: w, fps, worker_cpu: 50.0, learner_cpu: 5.0, latency_ms: Some(3.0), frames: 100, window_s: 5.0, ..Default::default() };
+        let a = BenchFarmArgs {
+            workers: vec![1, 2, 20],
+            config: None,
+            seconds: 5.0,
+            warmup: 1.0,
+            out: None,
+            synthetic: false,
+        };
+        let row = |w, fps| Row {
+            workers: w,
+            fps,
+            worker_cpu: 50.0,
+            learner_cpu: 5.0,
+            latency_ms: Some(3.0),
+            frames: 100,
+            window_s: 5.0,
+            ..Default::default()
+        };
         let (md, csv) = report(&[row(1, 100.0), row(2, 190.0), row(20, 170.0)], &Ok(200.0), &cfg, &a);
         assert!(md.contains("| 2 workers ≥ 1.8 × 1 worker | 1.90 | yes |"), "{md}");
         assert!(md.contains("| 20 workers ≥ 90% of the best count | 0.89 | no |"), "{md}");

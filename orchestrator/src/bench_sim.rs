@@ -14,7 +14,7 @@ use std::time::Instant;
 use clap::Args;
 use rand::Rng;
 
-use worker::config::RunConfig;
+use farm::config::RunConfig;
 use worker::dataset::build::{BuildOptions, build, default_interventions, default_synth};
 use worker::dataset::{Dataset, Verify};
 use worker::env::{AlignedBuf, Env, EnvPool, PoolSpec, ProgramSource, Rooms};
@@ -74,7 +74,7 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     // 2. physics + task, no rendering
     let file = ds.require(Split::Val)?;
     let mut rooms = Rooms::new(ds.clone(), &cfg);
-    let mut rng = worker::util::rng(1, &[7]);
+    let mut rng = farm::seed::rng(1, &[7]);
     let ivs = ds.interventions();
     let iv = Arc::new(Motion::from_flat(&ivs.motion(0)).expect("intervention size"));
     let next_env = |rng: &mut rand_chacha::ChaCha8Rng, rooms: &mut Rooms| -> anyhow::Result<Env> {
@@ -126,13 +126,16 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     eprintln!("env loop with rendering: {v:.0} frames/s");
     rows.push((format!("env loop with rendering, {} envs, {}×{} RGB-D", a.envs, a.size, a.size), v, "frames/s"));
 
-    let mut md = format!("Simulator benchmark ({info}), {:.0} s per row\n\n| measurement | rate | unit | ms each |\n|---|---:|---|---:|\n", a.seconds);
+    let mut md = format!(
+        "Simulator benchmark ({info}), {:.0} s per row\n\n| measurement | rate | unit | ms each |\n|---|---:|---|---:|\n",
+        a.seconds
+    );
     for (name, v, unit) in &rows {
         md += &format!("| {name} | {v:.0} | {unit} | {:.3} |\n", 1000.0 / v);
     }
     println!("{md}");
     if let Some(out) = a.out {
-        worker::util::write_atomic(&out, md.as_bytes())?;
+        farm::files::write_atomic(&out, md.as_bytes())?;
     }
     Ok(())
 }

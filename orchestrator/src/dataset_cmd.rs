@@ -74,11 +74,20 @@ fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
         .iter()
         .map(|s| Split::from_name(s).with_context(|| format!("--splits: `{s}` is not one of train, val, test")))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let opts = BuildOptions { seed: a.seed, train_programs: a.train, val_per_room: a.val_per_room, test_per_room: a.test_per_room, splits, ..Default::default() };
+    let opts = BuildOptions {
+        seed: a.seed,
+        train_programs: a.train,
+        val_per_room: a.val_per_room,
+        test_per_room: a.test_per_room,
+        splits,
+        ..Default::default()
+    };
     let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
     let multi = MultiProgress::new();
-    let style = ProgressStyle::with_template("{prefix:>6} [{bar:40}] {pos}/{len} programs {per_sec} eta {eta}").unwrap().progress_chars("=> ");
+    let style = ProgressStyle::with_template("{prefix:>6} [{bar:40}] {pos}/{len} programs {per_sec} eta {eta}")
+        .unwrap()
+        .progress_chars("=> ");
     let bars: BTreeMap<Split, ProgressBar> = opts
         .splits
         .iter()
@@ -100,7 +109,12 @@ fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
         b.finish();
     }
     let secs = t.elapsed().as_secs_f64();
-    let bytes: u64 = std::fs::read_dir(&a.out)?.filter_map(|e| e.ok()).filter_map(|e| e.metadata().ok()).filter(|m| m.is_file()).map(|m| m.len()).sum();
+    let bytes: u64 = std::fs::read_dir(&a.out)?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| e.metadata().ok())
+        .filter(|m| m.is_file())
+        .map(|m| m.len())
+        .sum();
     let total: u64 = manifest.splits.values().map(|s| s.programs).sum();
     println!(
         "built {} programs in {:.1} s ({:.0} programs/s, {} threads) into {} ({:.1} MB)",
@@ -112,7 +126,11 @@ fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
         bytes as f64 / 1e6
     );
     for (name, s) in &manifest.splits {
-        println!("  {name:5}: {:6} programs, {:.1}% with several instances of the target category", s.programs, 100.0 * s.multi_instance_share);
+        println!(
+            "  {name:5}: {:6} programs, {:.1}% with several instances of the target category",
+            s.programs,
+            100.0 * s.multi_instance_share
+        );
     }
     Ok(())
 }
@@ -135,17 +153,36 @@ fn stats_cmd(a: StatsArgs) -> anyhow::Result<()> {
 
 /// Draws the figures and writes `summary.md`; returns the summary text.
 pub fn write_stats(by_split: &BTreeMap<Split, Vec<Program>>, out: &Path) -> anyhow::Result<String> {
-    let main_split = if by_split.contains_key(&Split::Train) { Split::Train } else { *by_split.keys().next().context("the dataset has no split")? };
+    let main_split = if by_split.contains_key(&Split::Train) {
+        Split::Train
+    } else {
+        *by_split.keys().next().context("the dataset has no split")?
+    };
     let main = &by_split[&main_split];
 
     // Fig. 3.8: programs per scene type.
-    let per_type: Vec<(String, f64)> = SceneType::ALL.iter().map(|t| (t.name().to_string(), main.iter().filter(|p| p.scene_type == *t).count() as f64)).collect();
-    plot::bars(&out.join("fig3_8_scene_types.png"), &format!("Programs per scene type ({})", main_split.name()), "programs", &per_type)?;
+    let per_type: Vec<(String, f64)> = SceneType::ALL
+        .iter()
+        .map(|t| (t.name().to_string(), main.iter().filter(|p| p.scene_type == *t).count() as f64))
+        .collect();
+    plot::bars(
+        &out.join("fig3_8_scene_types.png"),
+        &format!("Programs per scene type ({})", main_split.name()),
+        "programs",
+        &per_type,
+    )?;
 
     // Fig. 3.9: programs per object type.
-    let mut per_cat: Vec<(String, f64)> = Category::targets().map(|c| (c.name().to_string(), main.iter().filter(|p| p.target == c).count() as f64)).collect();
+    let mut per_cat: Vec<(String, f64)> = Category::targets()
+        .map(|c| (c.name().to_string(), main.iter().filter(|p| p.target == c).count() as f64))
+        .collect();
     per_cat.sort_by(|a, b| b.1.total_cmp(&a.1));
-    plot::hbars(&out.join("fig3_9_object_types.png"), &format!("Programs per object type ({})", main_split.name()), "programs", &per_cat)?;
+    plot::hbars(
+        &out.join("fig3_9_object_types.png"),
+        &format!("Programs per object type ({})", main_split.name()),
+        "programs",
+        &per_cat,
+    )?;
 
     // Fig. 3.11: instances of the target category, per split.
     let buckets = ["1", "2", "3", "4+"];
@@ -160,25 +197,53 @@ pub fn write_stats(by_split: &BTreeMap<Split, Vec<Program>>, out: &Path) -> anyh
         shares.push((s.name(), multi));
         groups.push((format!("{} ({:.0}% multi)", s.name(), 100.0 * multi), c.to_vec()));
     }
-    plot::grouped_bars(&out.join("fig3_11_instances.png"), "Instances of the target category in the room", "programs", &buckets, &groups)?;
+    plot::grouped_bars(
+        &out.join("fig3_11_instances.png"),
+        "Instances of the target category in the room",
+        "programs",
+        &buckets,
+        &groups,
+    )?;
 
     // Fig. 3.12: geodesic robot–target and Euclidean robot–person distances.
     let all: Vec<&Program> = by_split.values().flatten().collect();
     let geo: Vec<f64> = all.iter().map(|p| p.geodesic as f64).collect();
     let rh: Vec<f64> = all.iter().map(|p| p.robot_human_distance as f64).collect();
-    plot::histogram(&out.join("fig3_12a_geodesic.png"), "Geodesic distance robot start → target (m)", "metres", &geo, 0.25)?;
-    plot::histogram(&out.join("fig3_12b_robot_person.png"), "Euclidean distance robot start ↔ person (m)", "metres", &rh, 0.25)?;
+    plot::histogram(
+        &out.join("fig3_12a_geodesic.png"),
+        "Geodesic distance robot start → target (m)",
+        "metres",
+        &geo,
+        0.25,
+    )?;
+    plot::histogram(
+        &out.join("fig3_12b_robot_person.png"),
+        "Euclidean distance robot start ↔ person (m)",
+        "metres",
+        &rh,
+        0.25,
+    )?;
 
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let acc: Vec<f64> = all.iter().map(|p| p.gesture_accuracy as f64).collect();
     let right = all.iter().filter(|p| p.hand == Hand::Right).count() as f64 / all.len().max(1) as f64;
-    let mut md = String::from("# GOND statistics\n\n| split | programs | rooms | multi-instance share | mean geodesic (m) | mean robot–person (m) |\n|---|---:|---:|---:|---:|---:|\n");
+    let mut md = String::from(
+        "# GOND statistics\n\n| split | programs | rooms | multi-instance share | mean geodesic (m) | mean robot–person (m) |\n|---|---:|---:|---:|---:|---:|\n",
+    );
     for (s, progs) in by_split {
         let rooms: std::collections::BTreeSet<&str> = progs.iter().map(|p| p.scene.as_str()).collect();
         let g: Vec<f64> = progs.iter().map(|p| p.geodesic as f64).collect();
         let d: Vec<f64> = progs.iter().map(|p| p.robot_human_distance as f64).collect();
         let multi = shares.iter().find(|x| x.0 == s.name()).map_or(0.0, |x| x.1);
-        md += &format!("| {} | {} | {} | {:.1}% | {:.2} | {:.2} |\n", s.name(), progs.len(), rooms.len(), 100.0 * multi, mean(&g), mean(&d));
+        md += &format!(
+            "| {} | {} | {} | {:.1}% | {:.2} | {:.2} |\n",
+            s.name(),
+            progs.len(),
+            rooms.len(),
+            100.0 * multi,
+            mean(&g),
+            mean(&d)
+        );
     }
     md += &format!(
         "\nReferencing gestures: mean gesture accuracy {:.2} (fraction of frames whose pointing ray passes within {} m of the target), right hand {:.0}%.\n",
@@ -187,6 +252,6 @@ pub fn write_stats(by_split: &BTreeMap<Split, Vec<Program>>, out: &Path) -> anyh
         100.0 * right
     );
     md += "\n![scene types](fig3_8_scene_types.png)\n![object types](fig3_9_object_types.png)\n![instances](fig3_11_instances.png)\n![geodesic](fig3_12a_geodesic.png)\n![robot-person](fig3_12b_robot_person.png)\n";
-    worker::util::write_atomic(&out.join("summary.md"), md.as_bytes())?;
+    farm::files::write_atomic(&out.join("summary.md"), md.as_bytes())?;
     Ok(md)
 }

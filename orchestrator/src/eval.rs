@@ -16,13 +16,13 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::Args;
 
-use worker::config::{Method, RunConfig};
+use farm::config::{Method, RunConfig};
+use farm::metrics::{EpisodeResult, scores};
 use worker::dataset::{Dataset, Verify};
-use worker::metrics::{EpisodeResult, scores};
 use worker::program::Program;
 use worker::scene::Split;
 
-use crate::farm::{Farm, FarmSpec, PolicyArg};
+use crate::crew::{Crew, CrewSpec, PolicyArg};
 use crate::tables::{EvalMode, Evaluation, compare};
 use crate::up::{prepare_run, resolve_dataset, sweep_dead_runs};
 
@@ -92,30 +92,23 @@ pub fn read_jsonl<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result
         .collect()
 }
 
-/// The newest checkpoint of a run directory. Checkpoints are renamed into place when complete,
-/// so any file with the final name is whole; a checkpoint being written has another name.
+/// The newest complete checkpoint of a run directory.
 pub fn latest_checkpoint(run: &Path) -> Option<PathBuf> {
-    let dir = run.join("checkpoints");
-    std::fs::read_dir(&dir)
-        .ok()?
-        .filter_map(|e| e.ok())
-        .filter_map(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            let n: u64 = name.strip_prefix("ckpt-")?.strip_suffix(".safetensors")?.parse().ok()?;
-            Some((n, e.path()))
-        })
-        .max_by_key(|(n, _)| *n)
-        .map(|(_, p)| p)
+    farm::checkpoints::latest(&farm::checkpoints::dir_of(run))
 }
 
 /// Resolves `--checkpoint` into (checkpoint file, run directory holding its config).
 fn locate(path: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
     if path.is_dir() {
-        let ckpt = latest_checkpoint(path).with_context(|| format!("{}: no checkpoint in {}/checkpoints yet", path.display(), path.display()))?;
+        let ckpt = latest_checkpoint(path)
+            .with_context(|| format!("{}: no checkpoint in {}/checkpoints yet", path.display(), path.display()))?;
         return Ok((ckpt, path.to_path_buf()));
     }
     anyhow::ensure!(path.is_file(), "--checkpoint {}: no such file or run directory", path.display());
-    let run = path.parent().and_then(|p| p.parent()).with_context(|| format!("{}: not inside RUN/checkpoints", path.display()))?;
+    let run = path
+        .parent()
+        .and_then(|p| p.parent())
+        .with_context(|| format!("{}: not inside RUN/checkpoints", path.display()))?;
     Ok((path.to_path_buf(), run.to_path_buf()))
 }
 
@@ -140,12 +133,23 @@ fn modes_for(cfg: &RunConfig, baseline: bool, asked: &[String]) -> anyhow::Resul
     if !asked.is_empty() {
         let modes = asked
             .iter()
-            .map(|m| EvalMode::from_name(m).with_context(|| format!("--modes: `{m}` is not one of normal, blind, rgb_only, depth_only")))
+            .map(|m| {
+                EvalMode::from_name(m)
+                    .with_context(|| format!("--modes: `{m}` is not one of normal, blind, rgb_only, depth_only"))
+            })
             .collect::<anyhow::Result<Vec<_>>>()?;
         for m in &modes {
             let needs_both = matches!(m, EvalMode::RgbOnly | EvalMode::DepthOnly);
-            anyhow::ensure!(!baseline || *m == EvalMode::Normal, "--modes {}: a baseline without a checkpoint has no inputs to zero", m.name());
-            anyhow::ensure!(!needs_both || (cfg.model.rgb && cfg.model.depth), "--modes {}: the checkpoint was not trained with both RGB and depth", m.name());
+            anyhow::ensure!(
+                !baseline || *m == EvalMode::Normal,
+                "--modes {}: a baseline without a checkpoint has no inputs to zero",
+                m.name()
+            );
+            anyhow::ensure!(
+                !needs_both || (cfg.model.rgb && cfg.model.depth),
+                "--modes {}: the checkpoint was not trained with both RGB and depth",
+                m.name()
+            );
         }
         return Ok(modes);
     }
@@ -163,7 +167,8 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     if !a.compare.is_empty() {
         return run_compare(&a);
     }
-    let split = Split::from_name(&a.split).with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
+    let split =
+        Split::from_name(&a.split).with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
     let (checkpoint, run_dir) = match &a.checkpoint {
         Some(p) => {
             let (c, r) = locate(p)?;
@@ -172,7 +177,9 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         None => (None, None),
     };
     let mut cfg = match (&run_dir, &a.config) {
-        (Some(r), _) => RunConfig::load(&r.join("config.toml")).with_context(|| format!("{}: the run's config", r.display()))?,
+        (Some(r), _) => {
+            RunConfig::load(&r.join("config.toml")).with_context(|| format!("{}: the run's config", r.display()))?
+        }
         (None, Some(c)) => RunConfig::load(c)?,
         (None, None) => crate::up::load_config(None)?,
     };
@@ -199,7 +206,8 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         }
         candidates.retain(|&i| a.scenes.contains(&index[i as usize].scene));
     }
-    let programs: Vec<u64> = choose_programs(candidates.len(), a.max_programs).into_iter().map(|i| candidates[i as usize]).collect();
+    let programs: Vec<u64> =
+        choose_programs(candidates.len(), a.max_programs).into_iter().map(|i| candidates[i as usize]).collect();
     let modes = modes_for(&cfg, baseline, &a.modes)?;
     let default_label = if a.expert { "Expert (shortest path)" } else { cfg.run.method.label() };
     let greedy = if a.greedy && checkpoint.is_some() { ", greedy" } else { "" };
@@ -233,7 +241,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             (false, false) => PolicyArg::Ppo,
         };
         let (dir, config_path) = prepare_run(&pass_dir, &cfg, false, a.workers, policy)?;
-        let mut spec = FarmSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, policy);
+        let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, policy);
         spec.programs = Some(assign(&programs, a.workers));
         if let Some(c) = &checkpoint {
             let mut args: Vec<OsString> = vec!["--checkpoint".into(), c.clone().into_os_string()];
@@ -252,7 +260,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             spec.learner_args = args;
         }
         let t = Instant::now();
-        let farm = Farm::start(spec)?;
+        let farm = Crew::start(spec)?;
         let outcome = farm.finish()?;
         let secs = t.elapsed().as_secs_f64();
         let ok = outcome.learner.as_ref().is_some_and(|e| e.success());
@@ -261,7 +269,11 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             let log = dir.logs().join("learner.log");
             let tail = std::fs::read_to_string(&log).unwrap_or_default();
             let last = tail.lines().rev().find(|l| !l.trim().is_empty()).unwrap_or("");
-            anyhow::bail!("{} pass failed ({finished}); the learner said: {last}\n(see {})", mode.name(), log.display());
+            anyhow::bail!(
+                "{} pass failed ({finished}); the learner said: {last}\n(see {})",
+                mode.name(),
+                log.display()
+            );
         }
         let eps = read_episodes(&dir.path.join("episodes.jsonl"))?;
         // each program exactly once (a restarted worker may repeat programs it had begun)
@@ -273,11 +285,24 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         anyhow::ensure!(missing == 0, "{} pass: {missing} of {} programs have no episode", mode.name(), programs.len());
         let eps: Vec<EpisodeResult> = by_program.into_values().collect();
         let steps: u64 = eps.iter().map(|e| e.steps as u64 + 1).sum();
-        eprintln!("[eval] {}: {} episodes in {:.1} s ({:.1} episodes/s, {:.0} frames/s)", mode.name(), eps.len(), secs, eps.len() as f64 / secs, steps as f64 / secs);
+        eprintln!(
+            "[eval] {}: {} episodes in {:.1} s ({:.1} episodes/s, {:.0} frames/s)",
+            mode.name(),
+            eps.len(),
+            secs,
+            eps.len() as f64 / secs,
+            steps as f64 / secs
+        );
         timing.push((mode.name(), eps.len(), secs));
         passes.insert(*mode, eps);
     }
-    let evaluation = Evaluation { label: label.clone(), split: split.name(), programs: &index, passes, dts_threshold: a.dts_threshold };
+    let evaluation = Evaluation {
+        label: label.clone(),
+        split: split.name(),
+        programs: &index,
+        passes,
+        dts_threshold: a.dts_threshold,
+    };
     let mut md = evaluation.markdown();
     md += "\n## Throughput\n\n| pass | episodes | seconds | episodes/s |\n|---|---:|---:|---:|\n";
     for (m, n, s) in &timing {
@@ -286,8 +311,8 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     if let Some(c) = &checkpoint {
         md += &format!("\nCheckpoint: `{}`\n", c.display());
     }
-    worker::util::write_atomic(&out.join("tables.md"), md.as_bytes())?;
-    worker::util::write_atomic(&out.join("tables.csv"), evaluation.csv().as_bytes())?;
+    farm::files::write_atomic(&out.join("tables.md"), md.as_bytes())?;
+    farm::files::write_atomic(&out.join("tables.csv"), evaluation.csv().as_bytes())?;
     if a.trajectories > 0 {
         crate::trajectory::draw(&cfg, &ds, split, &evaluation, checkpoint.as_deref(), &out, a.trajectories)?;
     }
@@ -299,11 +324,18 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
 /// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>.
 fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<EpisodeResult>)> {
     let candidates = [p.join("normal/episodes.jsonl"), p.join("eval").join(split).join("normal/episodes.jsonl")];
-    let f = candidates.iter().find(|c| c.is_file()).with_context(|| format!("{}: no evaluation found (looked for {})", p.display(), candidates[0].display()))?;
+    let f = candidates
+        .iter()
+        .find(|c| c.is_file())
+        .with_context(|| format!("{}: no evaluation found (looked for {})", p.display(), candidates[0].display()))?;
     let eval_dir = f.parent().and_then(|x| x.parent()).unwrap_or(p);
     let label = std::fs::read_to_string(eval_dir.join("tables.md"))
         .ok()
-        .and_then(|t| t.lines().next().map(|l| l.trim_start_matches("# Evaluation: ").split(" on ").next().unwrap_or("").to_string()))
+        .and_then(|t| {
+            t.lines()
+                .next()
+                .map(|l| l.trim_start_matches("# Evaluation: ").split(" on ").next().unwrap_or("").to_string())
+        })
         .filter(|l| !l.is_empty())
         .unwrap_or_else(|| p.display().to_string());
     Ok((label, read_episodes(f)?))
@@ -318,7 +350,7 @@ fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
     let md = format!("# Comparison on {} (first stop; ∞ = unlimited stops)\n\n{}", a.split, compare(&rows));
     if let Some(out) = &a.out {
         std::fs::create_dir_all(out)?;
-        worker::util::write_atomic(&out.join("compare.md"), md.as_bytes())?;
+        farm::files::write_atomic(&out.join("compare.md"), md.as_bytes())?;
     }
     println!("{md}");
     Ok(())
@@ -345,7 +377,12 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let c = d.path().join("checkpoints");
         std::fs::create_dir_all(&c).unwrap();
-        for f in ["ckpt-00000010.safetensors", "ckpt-00000020.safetensors", ".ckpt-00000030.safetensors.tmp123", "ckpt-00000040.safetensors.partial"] {
+        for f in [
+            "ckpt-00000010.safetensors",
+            "ckpt-00000020.safetensors",
+            ".ckpt-00000030.safetensors.tmp123",
+            "ckpt-00000040.safetensors.partial",
+        ] {
             std::fs::write(c.join(f), b"x").unwrap();
         }
         assert_eq!(latest_checkpoint(d.path()).unwrap(), c.join("ckpt-00000020.safetensors"));

@@ -11,7 +11,7 @@ pub const FAMILY: &str = "sans-serif";
 pub fn ensure() -> &'static str {
     static REGISTERED: OnceLock<()> = OnceLock::new();
     REGISTERED.get_or_init(|| {
-        let ok = plotters::style::register_font(FAMILY, FontStyle::Normal, worker::util::FONT_TTF).is_ok();
+        let ok = plotters::style::register_font(FAMILY, FontStyle::Normal, farm::font::FONT_TTF).is_ok();
         assert!(ok, "the bundled DejaVu Sans must parse");
     });
     FAMILY

@@ -8,7 +8,11 @@ use clap::{Parser, Subcommand};
 use orchestrator::{bench, dataset_cmd, eval, program_cmd, render_cmd, up};
 
 #[derive(Parser)]
-#[command(name = "orchestrator", version, about = "GesTHOR-RS: build the dataset, run the rollout farm, evaluate, benchmark")]
+#[command(
+    name = "orchestrator",
+    version,
+    about = "GesTHOR-RS: build the dataset, run the rollout farm, evaluate, benchmark"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -20,7 +20,6 @@ use worker::geometry::{Part, Shape, heading};
 use worker::render::mesh::Mesh;
 use worker::scene::Scene;
 
-
 /// Supersampling factor: drawn at this multiple of the output size, then averaged.
 const SS: i32 = 2;
 /// Space around the room (metres).
@@ -603,7 +602,7 @@ impl TopDownMap {
         let mut bytes = Vec::new();
         img.write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
             .map_err(|e| MapError::Encode { path: path.display().to_string(), message: e.to_string() })?;
-        worker::util::write_atomic(path, &bytes)
+        farm::files::write_atomic(path, &bytes)
             .map_err(|source| MapError::Write { path: path.display().to_string(), source })
     }
 

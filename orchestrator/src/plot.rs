@@ -7,7 +7,8 @@ use plotters::prelude::*;
 const W: u32 = 1000;
 const H: u32 = 560;
 const BLUE: RGBColor = RGBColor(52, 101, 164);
-const PALETTE: [RGBColor; 4] = [RGBColor(52, 101, 164), RGBColor(204, 85, 0), RGBColor(78, 154, 6), RGBColor(117, 80, 123)];
+const PALETTE: [RGBColor; 4] =
+    [RGBColor(52, 101, 164), RGBColor(204, 85, 0), RGBColor(78, 154, 6), RGBColor(117, 80, 123)];
 
 fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
     anyhow::anyhow!("drawing chart: {e}")
@@ -45,7 +46,11 @@ pub fn bars(path: &Path, title: &str, y_label: &str, data: &[(String, f64)]) -> 
         .map_err(err)?;
     chart
         .draw_series(data.iter().enumerate().map(|(i, d)| {
-            Text::new(format!("{}", d.1 as u64), (SegmentValue::CenterOf(i), d.1 + max * 0.02), ("sans-serif", 15).into_font())
+            Text::new(
+                format!("{}", d.1 as u64),
+                (SegmentValue::CenterOf(i), d.1 + max * 0.02),
+                ("sans-serif", 15).into_font(),
+            )
         }))
         .map_err(err)?;
     root.present().map_err(err)?;
@@ -82,7 +87,8 @@ pub fn hbars(path: &Path, title: &str, x_label: &str, data: &[(String, f64)]) ->
     chart
         .draw_series(data.iter().enumerate().map(|(i, d)| {
             let row = n - 1 - i;
-            let mut r = Rectangle::new([(0.0, SegmentValue::Exact(row)), (d.1, SegmentValue::Exact(row + 1))], BLUE.filled());
+            let mut r =
+                Rectangle::new([(0.0, SegmentValue::Exact(row)), (d.1, SegmentValue::Exact(row + 1))], BLUE.filled());
             r.set_margin(2, 2, 0, 0);
             r
         }))
@@ -92,7 +98,13 @@ pub fn hbars(path: &Path, title: &str, x_label: &str, data: &[(String, f64)]) ->
 }
 
 /// Groups of bars: one group per `groups` entry, one bar per bucket.
-pub fn grouped_bars(path: &Path, title: &str, y_label: &str, buckets: &[&str], groups: &[(String, Vec<f64>)]) -> anyhow::Result<()> {
+pub fn grouped_bars(
+    path: &Path,
+    title: &str,
+    y_label: &str,
+    buckets: &[&str],
+    groups: &[(String, Vec<f64>)],
+) -> anyhow::Result<()> {
     crate::fonts::ensure();
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
@@ -119,11 +131,18 @@ pub fn grouped_bars(path: &Path, title: &str, y_label: &str, buckets: &[&str], g
         for (bi, v) in vals.iter().enumerate() {
             let x = x0 + bi as f64;
             chart
-                .draw_series(std::iter::once(Rectangle::new([(x + 0.1, 0.0), (x + 0.9, *v)], PALETTE[bi % PALETTE.len()].filled())))
+                .draw_series(std::iter::once(Rectangle::new(
+                    [(x + 0.1, 0.0), (x + 0.9, *v)],
+                    PALETTE[bi % PALETTE.len()].filled(),
+                )))
                 .map_err(err)?;
         }
         chart
-            .draw_series(std::iter::once(Text::new(name.clone(), (x0 + 0.1, -max * 0.06), ("sans-serif", 16).into_font())))
+            .draw_series(std::iter::once(Text::new(
+                name.clone(),
+                (x0 + 0.1, -max * 0.06),
+                ("sans-serif", 16).into_font(),
+            )))
             .map_err(err)?;
     }
     for (bi, b) in buckets.iter().enumerate() {
@@ -134,7 +153,13 @@ pub fn grouped_bars(path: &Path, title: &str, y_label: &str, buckets: &[&str], g
             .label(format!("{b} instance(s)"))
             .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], c.filled()));
     }
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).label_font(("sans-serif", 15)).draw().map_err(err)?;
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 15))
+        .draw()
+        .map_err(err)?;
     root.present().map_err(err)?;
     Ok(())
 }
@@ -165,16 +190,28 @@ pub fn histogram(path: &Path, title: &str, x_label: &str, values: &[f64], bin: f
             Rectangle::new([(i as f64 * bin, 0.0), ((i + 1) as f64 * bin, *c as f64)], BLUE.mix(0.85).filled())
         }))
         .map_err(err)?;
-    chart.draw_series(std::iter::once(PathElement::new(vec![(mean, 0.0), (mean, max)], RED.stroke_width(2)))).map_err(err)?;
     chart
-        .draw_series(std::iter::once(Text::new(format!("mean {mean:.2} m"), (mean + bin * 0.3, max * 0.92), ("sans-serif", 18).into_font())))
+        .draw_series(std::iter::once(PathElement::new(vec![(mean, 0.0), (mean, max)], RED.stroke_width(2))))
+        .map_err(err)?;
+    chart
+        .draw_series(std::iter::once(Text::new(
+            format!("mean {mean:.2} m"),
+            (mean + bin * 0.3, max * 0.92),
+            ("sans-serif", 18).into_font(),
+        )))
         .map_err(err)?;
     root.present().map_err(err)?;
     Ok(())
 }
 
 /// Line chart of several series over a shared x axis.
-pub fn lines(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[(String, Vec<(f64, f64)>)]) -> anyhow::Result<()> {
+pub fn lines(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[(String, Vec<(f64, f64)>)],
+) -> anyhow::Result<()> {
     crate::fonts::ensure();
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
@@ -206,7 +243,13 @@ pub fn lines(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[(
             .label(name.clone())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
     }
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).label_font(("sans-serif", 15)).draw().map_err(err)?;
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 15))
+        .draw()
+        .map_err(err)?;
     root.present().map_err(err)?;
     Ok(())
 }

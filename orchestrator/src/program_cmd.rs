@@ -9,8 +9,8 @@ use clap::{Args, Subcommand};
 use image::{Rgb, RgbImage};
 use nalgebra::{Point3, Vector2};
 
+use farm::config::EnvConfig;
 use worker::camera::Camera;
-use worker::config::EnvConfig;
 use worker::dataset::build::HUMAN_EYE_HEIGHT;
 use worker::dataset::{Dataset, Verify};
 use worker::geometry::yaw_of;
@@ -78,7 +78,13 @@ fn parse_ref(s: &str) -> Option<(Split, usize)> {
 /// A program and its motion, from the dataset.
 fn dataset_program(ds: &Dataset, split: Split, i: usize) -> anyhow::Result<(Program, Motion)> {
     let file = ds.require(split)?;
-    anyhow::ensure!(i < file.len(), "{}: split {} has {} programs, no program {i}", ds.dir.display(), split.name(), file.len());
+    anyhow::ensure!(
+        i < file.len(),
+        "{}: split {} has {} programs, no program {i}",
+        ds.dir.display(),
+        split.name(),
+        file.len()
+    );
     let p = Program::from_record(i as u64, &file.record(i)).context("invalid program record")?;
     let m = Motion::from_flat(&file.motion(i)).context("motion size")?;
     Ok((p, m))
@@ -89,7 +95,8 @@ fn instruction(p: &Program) -> String {
 }
 
 fn export(a: ExportArgs) -> anyhow::Result<()> {
-    let (split, i) = parse_ref(&a.program).with_context(|| format!("`{}` is not SPLIT:INDEX (e.g. val:17)", a.program))?;
+    let (split, i) =
+        parse_ref(&a.program).with_context(|| format!("`{}` is not SPLIT:INDEX (e.g. val:17)", a.program))?;
     let ds = Dataset::open(&a.dataset, Verify::Quick)?;
     let (p, motion) = dataset_program(&ds, split, i)?;
     let scene = ds.scene(p.scene_id())?;
@@ -113,12 +120,24 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
     let eye = Camera::new(Point3::new(p.human_pos[0], HUMAN_EYE_HEIGHT, p.human_pos[2]), p.human_yaw);
     let img = render_views(&scene, &[eye], &[], 448)?;
     img[0].save(a.out.join(&files[0]))?;
-    println!("exported {} ({} → {}) to {} (no audio is recorded: {} is not written)", name, p.scene, p.target.name(), a.out.display(), files[2]);
+    println!(
+        "exported {} ({} → {}) to {} (no audio is recorded: {} is not written)",
+        name,
+        p.scene,
+        p.target.name(),
+        a.out.display(),
+        files[2]
+    );
     Ok(())
 }
 
 /// Renders views of a scene with extra (dynamic) parts; returns one image per camera.
-fn render_views(scene: &Scene, cameras: &[Camera], dynamic: &[worker::geometry::Part], size: u32) -> anyhow::Result<Vec<RgbImage>> {
+fn render_views(
+    scene: &Scene,
+    cameras: &[Camera],
+    dynamic: &[worker::geometry::Part],
+    size: u32,
+) -> anyhow::Result<Vec<RgbImage>> {
     let cfg = RenderConfig { width: size, height: size, fov_deg: 90.0, max_views_per_submit: cameras.len().max(1) };
     let mut r = Renderer::new(&cfg)?;
     let h = r.upload_scene(&scene.parts());
@@ -126,7 +145,8 @@ fn render_views(scene: &Scene, cameras: &[Camera], dynamic: &[worker::geometry::
     let mut rgb = vec![vec![0u8; px * 3]; cameras.len()];
     let mut depth = vec![vec![0u16; px]; cameras.len()];
     let views: Vec<View> = cameras.iter().map(|c| View { scene: h, camera: *c, dynamic }).collect();
-    let mut outs: Vec<ViewOut> = rgb.iter_mut().zip(depth.iter_mut()).map(|(r, d)| ViewOut { rgb: r, depth: d, ids: None }).collect();
+    let mut outs: Vec<ViewOut> =
+        rgb.iter_mut().zip(depth.iter_mut()).map(|(r, d)| ViewOut { rgb: r, depth: d, ids: None }).collect();
     r.render(&views, &mut outs)?;
     drop(outs);
     Ok(rgb.into_iter().map(|b| RgbImage::from_raw(size, size, b).expect("buffer size")).collect())
@@ -150,7 +170,9 @@ fn above_camera(scene: &Scene, person: Point3<f32>, target: Point3<f32>) -> Came
 pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
     let ds = Dataset::open(&a.dataset, Verify::Quick).ok();
     let (scene, program, motion, label) = if let Some((split, i)) = parse_ref(&a.program) {
-        let ds = ds.as_ref().with_context(|| format!("{}: no dataset to take program {} from", a.dataset.display(), a.program))?;
+        let ds = ds
+            .as_ref()
+            .with_context(|| format!("{}: no dataset to take program {} from", a.dataset.display(), a.program))?;
         let (p, m) = dataset_program(ds, split, i)?;
         let scene = ds.scene(p.scene_id())?;
         let label = format!("{} {}:{} → {}", p.scene, split.name(), i, p.target.name());
@@ -160,7 +182,11 @@ pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
     };
     let (motion, label) = match a.intervention {
         Some(k) => {
-            anyhow::ensure!(k < gesture::INTERVENTIONS, "--intervention: {k} is not one of 0..{}", gesture::INTERVENTIONS);
+            anyhow::ensure!(
+                k < gesture::INTERVENTIONS,
+                "--intervention: {k} is not one of 0..{}",
+                gesture::INTERVENTIONS
+            );
             (gesture::intervention(k), format!("{label}; intervention: {}", gesture::INTERVENTION_NAMES[k]))
         }
         None => (motion, label),
@@ -186,7 +212,8 @@ pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
         let parts = human.parts(&pose);
         let mut rgb = [vec![0u8; px * 3], vec![0u8; px * 3]];
         let mut depth = [vec![0u16; px], vec![0u16; px]];
-        let views = [View { scene: h, camera: robot, dynamic: &parts }, View { scene: h, camera: above, dynamic: &parts }];
+        let views =
+            [View { scene: h, camera: robot, dynamic: &parts }, View { scene: h, camera: above, dynamic: &parts }];
         {
             let [r0, r1] = &mut rgb;
             let [d0, d1] = &mut depth;
@@ -201,7 +228,10 @@ pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
         gif_frames.push(side_by_side(&robot_img, &above_img));
     }
     crate::trajectory::write_gif(&a.out.join("replay.gif"), &gif_frames, 1000 * a.every.max(1) as u32 / 30)?;
-    std::fs::write(a.out.join("README.txt"), format!("{label}\nleft: the robot's start view; right: from above\n{} frames\n", frames.len()))?;
+    std::fs::write(
+        a.out.join("README.txt"),
+        format!("{label}\nleft: the robot's start view; right: from above\n{} frames\n", frames.len()),
+    )?;
     println!("{label}: {} frames (robot view + from above) and replay.gif in {}", frames.len(), a.out.display());
     Ok(())
 }
@@ -213,12 +243,24 @@ fn replay_from_metadata(a: &ReplayArgs, ds: Option<&Dataset>) -> anyhow::Result<
     let meta = Metadata::load(path)?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let beside = path.with_extension("csv");
-    let motion_path = [dir.join(&meta.motion), beside.clone()].into_iter().find(|p| p.is_file()).with_context(|| {
-        format!("{}: motion not found at {} nor {}", path.display(), dir.join(&meta.motion).display(), beside.display())
-    })?;
+    let motion_path =
+        [dir.join(&meta.motion), beside.clone()].into_iter().find(|p| p.is_file()).with_context(|| {
+            format!(
+                "{}: motion not found at {} nor {}",
+                path.display(),
+                dir.join(&meta.motion).display(),
+                beside.display()
+            )
+        })?;
     let motion = read_csv(&motion_path)?;
-    let t = SceneType::from_name(&meta.scene_type).with_context(|| format!("{}: field `sceneType`: `{}` is not a scene type", path.display(), meta.scene_type))?;
-    anyhow::ensure!((1..=30).contains(&meta.scene_num), "{}: field `sceneNum`: {} is not in 1..=30", path.display(), meta.scene_num);
+    let t = SceneType::from_name(&meta.scene_type)
+        .with_context(|| format!("{}: field `sceneType`: `{}` is not a scene type", path.display(), meta.scene_type))?;
+    anyhow::ensure!(
+        (1..=30).contains(&meta.scene_num),
+        "{}: field `sceneNum`: {} is not in 1..=30",
+        path.display(),
+        meta.scene_num
+    );
     let id = SceneId::new(t, meta.scene_num as u32);
     let scene = match ds {
         Some(ds) => ds.scene(id)?,
@@ -250,7 +292,13 @@ fn replay_from_metadata(a: &ReplayArgs, ds: Option<&Dataset>) -> anyhow::Result<
         style: 0,
         seed: 0,
     };
-    let label = format!("{} ({}): \"{}\", gesture accuracy {:.2}", path.display(), id.name(), meta.instruction, program.gesture_accuracy);
+    let label = format!(
+        "{} ({}): \"{}\", gesture accuracy {:.2}",
+        path.display(),
+        id.name(),
+        meta.instruction,
+        program.gesture_accuracy
+    );
     Ok((scene, program, motion, label))
 }
 

@@ -7,8 +7,8 @@ use anyhow::Context;
 use clap::Args;
 use nalgebra::Point2;
 
+use farm::config::EnvConfig;
 use worker::camera::Camera;
-use worker::config::EnvConfig;
 use worker::dataset::{Dataset, Verify};
 use worker::nav::{GRID_STEP, NavGrid};
 use worker::physics::{Physics, RobotBody};
@@ -44,7 +44,8 @@ fn load_scene(a: &RenderArgs) -> anyhow::Result<Scene> {
     if a.scene.ends_with(".json") {
         return Ok(Scene::load(std::path::Path::new(&a.scene))?);
     }
-    let id = SceneId::parse(&a.scene).with_context(|| format!("--scene: `{}` is not a room name like FloorPlan201 or a .json file", a.scene))?;
+    let id = SceneId::parse(&a.scene)
+        .with_context(|| format!("--scene: `{}` is not a room name like FloorPlan201 or a .json file", a.scene))?;
     match &a.dataset {
         Some(d) => Ok(Dataset::open(d, Verify::Quick)?.scene(id)?),
         None => Ok(worker::scene::generate::generate(id, a.seed)),
@@ -79,7 +80,8 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
         }
     }
 
-    let cfg = RenderConfig { width: a.width, height: a.height, fov_deg: env.fov_deg, max_views_per_submit: poses.len() };
+    let cfg =
+        RenderConfig { width: a.width, height: a.height, fov_deg: env.fov_deg, max_views_per_submit: poses.len() };
     let mut renderer = Renderer::new(&cfg)?;
     let handle = renderer.upload_scene(&parts);
     let px = (a.width * a.height) as usize;
@@ -87,9 +89,14 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let mut depth = vec![vec![0u16; px]; poses.len()];
     let views: Vec<View> = poses
         .iter()
-        .map(|&(x, z, yaw)| View { scene: handle, camera: Camera::new(nalgebra::Point3::new(x, env.camera_height, z), yaw), dynamic: &[] })
+        .map(|&(x, z, yaw)| View {
+            scene: handle,
+            camera: Camera::new(nalgebra::Point3::new(x, env.camera_height, z), yaw),
+            dynamic: &[],
+        })
         .collect();
-    let mut outs: Vec<ViewOut> = rgb.iter_mut().zip(depth.iter_mut()).map(|(r, d)| ViewOut { rgb: r, depth: d, ids: None }).collect();
+    let mut outs: Vec<ViewOut> =
+        rgb.iter_mut().zip(depth.iter_mut()).map(|(r, d)| ViewOut { rgb: r, depth: d, ids: None }).collect();
     renderer.render(&views, &mut outs)?;
     drop(outs);
     for (i, &(_, _, yaw)) in poses.iter().enumerate() {
@@ -104,7 +111,13 @@ pub fn run(a: RenderArgs) -> anyhow::Result<()> {
     let mut map = TopDownMap::new(&scene, 80.0);
     map.reachable(&reachable);
     let (x, z, yaw) = poses[0];
-    map.robot([x, z], yaw).title(&format!("{} ({:?}): {} objects, {} reachable grid points", scene.name, scene.scene_type, scene.objects.len(), reachable.len()));
+    map.robot([x, z], yaw).title(&format!(
+        "{} ({:?}): {} objects, {} reachable grid points",
+        scene.name,
+        scene.scene_type,
+        scene.objects.len(),
+        reachable.len()
+    ));
     map.save_png(&a.out.join("map.png"))?;
     println!(
         "{}: wrote {} RGB + depth views and map.png to {} ({})",

@@ -46,7 +46,8 @@ impl RunDir {
     /// message when another live run holds it; a lock left by a dead run is simply taken over.
     pub fn open(path: &Path) -> anyhow::Result<RunDir> {
         std::fs::create_dir_all(path).with_context(|| format!("creating run directory {}", path.display()))?;
-        std::fs::create_dir_all(path.join("logs")).with_context(|| format!("creating {}", path.join("logs").display()))?;
+        std::fs::create_dir_all(path.join("logs"))
+            .with_context(|| format!("creating {}", path.join("logs").display()))?;
         let lock_path = path.join(".lock");
         let file = std::fs::OpenOptions::new()
             .read(true)
@@ -94,7 +95,8 @@ impl RunDir {
             command: std::env::args().collect(),
         };
         let p = self.path.join("run.json");
-        worker::util::write_atomic(&p, serde_json::to_string_pretty(&info)?.as_bytes()).with_context(|| format!("writing {}", p.display()))
+        farm::files::write_atomic(&p, serde_json::to_string_pretty(&info)?.as_bytes())
+            .with_context(|| format!("writing {}", p.display()))
     }
 }
 
@@ -106,7 +108,8 @@ pub fn now_secs() -> u64 {
 /// full path, this process and the time. It names the shared-memory services and files.
 pub fn make_run_id(path: &Path) -> String {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let mut slug: String = name.chars().map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '-' }).collect();
+    let mut slug: String =
+        name.chars().map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '-' }).collect();
     slug = slug.trim_matches('-').chars().take(20).collect();
     if slug.is_empty() {
         slug = "run".into();
@@ -114,7 +117,7 @@ pub fn make_run_id(path: &Path) -> String {
     let nanos = SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0);
     let mut key: Vec<u64> = path.to_string_lossy().bytes().map(u64::from).collect();
     key.extend([std::process::id() as u64, nanos]);
-    let h = worker::util::mix(0x6E57_0000, &key);
+    let h = farm::seed::mix(0x6E57_0000, &key);
     format!("{slug}-{:08x}", h as u32)
 }
 

@@ -5,7 +5,7 @@ use std::fmt::Write;
 
 use serde::{Deserialize, Serialize};
 
-use worker::metrics::{EpisodeResult, Scores, scores};
+use farm::metrics::{EpisodeResult, Scores, scores};
 use worker::program::Program;
 use worker::scene::SceneType;
 
@@ -89,7 +89,12 @@ impl Evaluation<'_> {
         let normal = EvalMode::Normal;
         let n = self.passes.get(&normal).map_or(0, |v| v.len());
         writeln!(md, "# Evaluation: {} on {} ({} episodes)\n", self.label, self.split, n).unwrap();
-        writeln!(md, "DTS threshold {:.2} m; success needs Stop within 1 m of the target with the target in view.\n", self.dts_threshold).unwrap();
+        writeln!(
+            md,
+            "DTS threshold {:.2} m; success needs Stop within 1 m of the target with the target in view.\n",
+            self.dts_threshold
+        )
+        .unwrap();
 
         writeln!(md, "## Navigation performance at 1, 2, 3 and unlimited stops (T4.2 at the first stop)\n").unwrap();
         writeln!(md, "| stops | SR (%) | SPL (%) | DTS (m) |\n|---|---:|---:|---:|").unwrap();
@@ -102,7 +107,8 @@ impl Evaluation<'_> {
         writeln!(md, "\n## Per scene type (T4.3 / T4.4)\n").unwrap();
         writeln!(md, "| scene type | episodes | SR 1 | SR 2 | SR 3 | SR ∞ | SPL 1 | SPL 2 | SPL 3 | SPL ∞ |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|").unwrap();
         for t in SceneType::ALL {
-            let row: Vec<Scores> = STOPS.iter().filter_map(|(k, _)| self.scores(normal, *k, |e| self.scene_type(e) == t)).collect();
+            let row: Vec<Scores> =
+                STOPS.iter().filter_map(|(k, _)| self.scores(normal, *k, |e| self.scene_type(e) == t)).collect();
             if row.is_empty() || row[0].episodes == 0 {
                 continue;
             }
@@ -159,7 +165,10 @@ impl Evaluation<'_> {
                 for b in buckets {
                     for (k, kname) in STOPS {
                         let s = self
-                            .scores(mode, k, |e| t.is_none_or(|t| self.scene_type(e) == t) && b.is_none_or(|b| bucket(self.instances(e)) == b))
+                            .scores(mode, k, |e| {
+                                t.is_none_or(|t| self.scene_type(e) == t)
+                                    && b.is_none_or(|b| bucket(self.instances(e)) == b)
+                            })
                             .unwrap_or_default();
                         if s.episodes == 0 {
                             continue;
@@ -190,9 +199,16 @@ impl Evaluation<'_> {
 
 /// Several evaluations side by side, as T4.2 (first stop) with ∞ columns added.
 pub fn compare(rows: &[(String, Scores, Scores)]) -> String {
-    let mut md = String::from("| method | SR (%) | SPL (%) | DTS (m) | SR ∞ (%) | SPL ∞ (%) |\n|---|---:|---:|---:|---:|---:|\n");
+    let mut md = String::from(
+        "| method | SR (%) | SPL (%) | DTS (m) | SR ∞ (%) | SPL ∞ (%) |\n|---|---:|---:|---:|---:|---:|\n",
+    );
     for (label, first, inf) in rows {
-        writeln!(md, "| {label} | {:.1} | {:.1} | {:.3} | {:.1} | {:.1} |", first.sr, first.spl, first.dts, inf.sr, inf.spl).unwrap();
+        writeln!(
+            md,
+            "| {label} | {:.1} | {:.1} | {:.3} | {:.1} | {:.1} |",
+            first.sr, first.spl, first.dts, inf.sr, inf.spl
+        )
+        .unwrap();
     }
     md
 }
@@ -200,7 +216,7 @@ pub fn compare(rows: &[(String, Scores, Scores)]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use worker::metrics::Stop;
+    use farm::metrics::Stop;
     use worker::program::Hand;
     use worker::scene::Category;
 
@@ -247,7 +263,11 @@ mod tests {
 
     #[test]
     fn tables_split_by_type_and_instances() {
-        let programs = vec![program(0, SceneType::Kitchen, 1), program(1, SceneType::Bedroom, 3), program(2, SceneType::Bedroom, 2)];
+        let programs = vec![
+            program(0, SceneType::Kitchen, 1),
+            program(1, SceneType::Bedroom, 3),
+            program(2, SceneType::Bedroom, 2),
+        ];
         let mut passes = BTreeMap::new();
         passes.insert(EvalMode::Normal, vec![result(0, true), result(1, false), result(2, true)]);
         passes.insert(EvalMode::Blind, vec![result(0, false), result(1, false), result(2, false)]);
@@ -257,7 +277,10 @@ mod tests {
         let b = e.scores(EvalMode::Normal, Some(1), |r| bucket(e.instances(r)) == "3+").unwrap();
         assert_eq!((b.episodes, b.sr), (1, 0.0));
         let md = e.markdown();
-        assert!(md.contains("| Kitchen | 1 | 100.0") && md.contains("## Blind mode") && md.contains("| 3+ | 1 | 0.0"), "{md}");
+        assert!(
+            md.contains("| Kitchen | 1 | 100.0") && md.contains("## Blind mode") && md.contains("| 3+ | 1 | 0.0"),
+            "{md}"
+        );
         let csv = e.csv();
         assert!(csv.lines().any(|l| l.starts_with("x,test,blind,all,all,1,3,0.000")), "{csv}");
     }

@@ -11,11 +11,11 @@ use anyhow::Context;
 use image::{Rgb, RgbImage};
 use nalgebra::Point3;
 
-use worker::config::RunConfig;
+use farm::config::RunConfig;
+use farm::metrics::Trajectory;
 use worker::dataset::Dataset;
 use worker::gesture::{self, Motion};
 use worker::humanoid::Humanoid;
-use worker::metrics::Trajectory;
 use worker::program::Program;
 use worker::render::{RenderConfig, Renderer, View, ViewOut};
 use worker::robot::{Action, RobotPose};
@@ -59,7 +59,10 @@ pub fn map(ds: &Dataset, p: &Program, t: &Trajectory, title: &str) -> anyhow::Re
     let stops: Vec<[f32; 2]> = t.steps.iter().filter(|s| s.action == Action::Stop as u8).map(|s| [s.x, s.z]).collect();
     let interventions: Vec<[f32; 2]> = t.steps.iter().filter(|s| s.gesture == 2).map(|s| [s.x, s.z]).collect();
     let others: Vec<usize> = scene.instances(p.target).filter(|&i| i != p.target_object).collect();
-    m.path(&path).person([p.human_pos[0], p.human_pos[2]], p.human_yaw).target(p.target_object).other_instances(&others);
+    m.path(&path)
+        .person([p.human_pos[0], p.human_pos[2]], p.human_yaw)
+        .target(p.target_object)
+        .other_instances(&others);
     if !interventions.is_empty() {
         m.interventions(&interventions);
     }
@@ -88,13 +91,20 @@ pub fn views(cfg: &RunConfig, ds: &Dataset, p: &Program, t: &Trajectory, size: u
     let band = (size / 12).max(8);
     let mut frames = Vec::with_capacity(t.steps.len());
     for (i, s) in t.steps.iter().enumerate() {
-        let motion = if s.gesture == 2 { gesture::intervention(s.intervention as usize % gesture::INTERVENTIONS) } else { referencing.clone() };
+        let motion = if s.gesture == 2 {
+            gesture::intervention(s.intervention as usize % gesture::INTERVENTIONS)
+        } else {
+            referencing.clone()
+        };
         let f = if s.gesture == 0 { 0 } else { (i * 3) % gesture::FRAMES };
         let pose = human.pose(motion.frame(f), Point3::from(p.human_pos), p.human_yaw);
         let parts = human.parts(&pose);
         let cam = RobotPose { x: s.x, z: s.z, yaw: s.yaw }.camera(&cfg.env);
         let (mut rgb, mut depth) = (vec![0u8; px * 3], vec![0u16; px]);
-        r.render(&[View { scene: h, camera: cam, dynamic: &parts }], &mut [ViewOut { rgb: &mut rgb, depth: &mut depth, ids: None }])?;
+        r.render(
+            &[View { scene: h, camera: cam, dynamic: &parts }],
+            &mut [ViewOut { rgb: &mut rgb, depth: &mut depth, ids: None }],
+        )?;
         let view = RgbImage::from_raw(size, size, rgb).expect("size");
         let mut frame = RgbImage::from_pixel(size, size + band, Rgb([255, 255, 255]));
         image::imageops::overlay(&mut frame, &view, 0, band as i64);
@@ -121,13 +131,23 @@ pub fn views(cfg: &RunConfig, ds: &Dataset, p: &Program, t: &Trajectory, size: u
 }
 
 /// Draws the chosen episodes of an evaluation's normal pass into `out/trajectories/`.
-pub fn draw(cfg: &RunConfig, ds: &Dataset, split: Split, ev: &Evaluation, _checkpoint: Option<&Path>, out: &Path, n: usize) -> anyhow::Result<()> {
+pub fn draw(
+    cfg: &RunConfig,
+    ds: &Dataset,
+    split: Split,
+    ev: &Evaluation,
+    _checkpoint: Option<&Path>,
+    out: &Path,
+    n: usize,
+) -> anyhow::Result<()> {
     let path = out.join(EvalMode::Normal.name()).join("trajectories.jsonl");
     let trajs = read(&path)?;
     let dir = out.join("trajectories");
     std::fs::create_dir_all(&dir)?;
     let picks = choose(&trajs, ev.programs, n);
-    let mut md = String::from("# Trajectories\n\nTop-down maps: path (blue), person and where they face, the target instance (ring), other instances of its category (thin rings), stops (squares), steps with an intervention gesture (red). GIFs: the robot's view; the band shows the gesture it perceives (blue referencing, red intervention, grey none).\n\n");
+    let mut md = String::from(
+        "# Trajectories\n\nTop-down maps: path (blue), person and where they face, the target instance (ring), other instances of its category (thin rings), stops (squares), steps with an intervention gesture (red). GIFs: the robot's view; the band shows the gesture it perceives (blue referencing, red intervention, grey none).\n\n",
+    );
     for (k, &i) in picks.iter().enumerate() {
         let t = &trajs[i];
         let p = &ev.programs[t.program as usize];
@@ -148,7 +168,7 @@ pub fn draw(cfg: &RunConfig, ds: &Dataset, split: Split, ev: &Evaluation, _check
         write_gif(&dir.join(format!("{name}.gif")), &frames, 150)?;
         md += &format!("## {title}\n\n![map]({name}.png) ![view]({name}.gif)\n\n");
     }
-    worker::util::write_atomic(&dir.join("README.md"), md.as_bytes())?;
+    farm::files::write_atomic(&dir.join("README.md"), md.as_bytes())?;
     eprintln!("[eval] drew {} trajectories in {}", picks.len(), dir.display());
     Ok(())
 }

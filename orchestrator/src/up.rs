@@ -7,10 +7,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Args;
-use worker::config::RunConfig;
-use worker::process;
+use farm::config::RunConfig;
+use farm::process;
 
-use crate::farm::{Farm, FarmSpec, FarmState, PolicyArg, Progress};
+use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
 use crate::run_dir::{self, RunDir};
 
 /// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.
@@ -86,7 +86,8 @@ pub fn prepare_run(
     let dir = RunDir::open(run_dir)?;
     let config_path = dir.config_path();
     if !resume {
-        worker::util::write_atomic(&config_path, cfg.to_toml().as_bytes()).with_context(|| format!("writing {}", config_path.display()))?;
+        farm::files::write_atomic(&config_path, cfg.to_toml().as_bytes())
+            .with_context(|| format!("writing {}", config_path.display()))?;
     }
     dir.write_info(workers, policy.name())?;
     Ok((dir, config_path))
@@ -95,7 +96,7 @@ pub fn prepare_run(
 /// Ends the shared-memory domains of runs whose orchestrator was killed (older than a minute,
 /// no live process).
 pub fn sweep_dead_runs() {
-    let swept = worker::transport::sweep_dead_runs(Duration::from_secs(60));
+    let swept = farm::transport::sweep_dead_runs(Duration::from_secs(60));
     if !swept.is_empty() {
         eprintln!("[up] removed the shared memory of {} dead run(s): {}", swept.len(), swept.join(", "));
     }
@@ -126,7 +127,7 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
     resolve_dataset(&mut cfg, a.synthetic)?;
     let (dir, config_path) = prepare_run(&run_path, &cfg, resume, a.workers, a.policy)?;
     sweep_dead_runs();
-    let mut spec = FarmSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, a.policy);
+    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, a.policy);
     spec.max_seconds = a.seconds;
     spec.max_frames = match (a.frames, a.seconds) {
         (Some(f), _) => Some(f),
@@ -148,15 +149,18 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         a.policy.name(),
         if a.synthetic { ", synthetic envs" } else { "" }
     );
-    let mut farm = Farm::start(spec)?;
+    let mut farm = Crew::start(spec)?;
     let ui = Progressline::new();
     let mut signals_seen = 0;
-    while farm.tick()? == FarmState::Running {
+    while farm.tick()? == CrewState::Running {
         let n = process::termination_count();
         if n > signals_seen {
             signals_seen = n;
             if n == 1 {
-                eprintln!("[up] {}: stopping every process (Ctrl-C again to kill at once)", process::termination_signal().map(|s| s.to_string()).unwrap_or_default());
+                eprintln!(
+                    "[up] {}: stopping every process (Ctrl-C again to kill at once)",
+                    process::termination_signal().map(|s| s.to_string()).unwrap_or_default()
+                );
                 farm.stop();
             } else {
                 farm.kill_now();
@@ -211,7 +215,7 @@ impl Progressline {
         Progressline { bar, last: std::cell::Cell::new(Instant::now()) }
     }
 
-    fn text(farm: &Farm, p: &Progress) -> String {
+    fn text(farm: &Crew, p: &Progress) -> String {
         format!(
             "frames {} ({:.1}/s)  episodes {}  success {}  workers {}/{}  restarts {}{}",
             p.frames,
@@ -225,7 +229,7 @@ impl Progressline {
         )
     }
 
-    fn update(&self, farm: &Farm) {
+    fn update(&self, farm: &Crew) {
         let every = if self.bar.is_some() { Duration::from_millis(500) } else { Duration::from_secs(5) };
         if self.last.get().elapsed() < every {
             return;
@@ -253,7 +257,7 @@ mod tests {
     #[test]
     fn the_embedded_default_config_is_valid() {
         let c = load_config(None).unwrap();
-        assert_eq!(c.run.method, worker::config::Method::Both);
+        assert_eq!(c.run.method, farm::config::Method::Both);
     }
 
     #[test]

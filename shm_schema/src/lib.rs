@@ -28,6 +28,28 @@ pub const GESTURE_FRAMES: usize = 100;
 pub const GESTURE_DIMS: usize = 95;
 /// How many stops an episode summary keeps (metrics at 1, 2, 3 stops).
 pub const SUMMARY_STOPS: usize = 3;
+/// Target categories the policy can be asked for (T3.3 lists 37 distinct ones); the value of
+/// [`EnvRecord::target_category`] is below this.
+pub const TARGET_CATEGORIES: usize = 37;
+
+/// The robot's actions (§4.2), as the action message carries them.
+pub mod action {
+    pub const MOVE_AHEAD: u8 = 0;
+    pub const ROTATE_LEFT: u8 = 1;
+    pub const ROTATE_RIGHT: u8 = 2;
+    pub const STOP: u8 = 3;
+    /// How many there are: the policy's logits.
+    pub const COUNT: usize = 4;
+    /// [`super::EnvRecord::last_action`] and `expert_action` when there is none.
+    pub const NONE: u8 = 255;
+}
+
+/// What [`EnvRecord::gesture_kind`] says the robot perceives.
+pub mod gesture_kind {
+    pub const NONE: u8 = 0;
+    pub const REFERENCING: u8 = 1;
+    pub const INTERVENTION: u8 = 2;
+}
 
 pub const OBS_MAGIC: u32 = 0x4753_4F42; // "GSOB"
 pub const ACT_MAGIC: u32 = 0x4753_4143; // "GSAC"
@@ -136,7 +158,7 @@ pub struct EnvRecord {
     pub success: u8,
     /// The last action was a blocked move.
     pub collided: u8,
-    /// 0 none, 1 referencing, 2 intervention.
+    /// [`gesture_kind`]: none, referencing or intervention.
     pub gesture_kind: u8,
     /// Which of the 20 intervention gestures, when `gesture_kind` is 2.
     pub gesture_index: u8,
@@ -146,7 +168,7 @@ pub struct EnvRecord {
     pub expert_action: u8,
     pub _pad: [u8; 3],
     pub stops: u32,
-    /// Target category index (order of `worker::scene::Category::targets()`).
+    /// Target category index (order of `worker::scene::Category::targets()`), below [`TARGET_CATEGORIES`].
     pub target_category: u32,
     /// Instances of the target category in the room.
     pub target_instances: u32,
@@ -194,7 +216,16 @@ pub struct ActionMsg {
 
 impl Default for ActionMsg {
     fn default() -> Self {
-        ActionMsg { magic: ACT_MAGIC, worker_id: 0, generation: 0, command: command::STEP, step: 0, num_envs: 0, _pad: 0, actions: [0; MAX_ENVS] }
+        ActionMsg {
+            magic: ACT_MAGIC,
+            worker_id: 0,
+            generation: 0,
+            command: command::STEP,
+            step: 0,
+            num_envs: 0,
+            _pad: 0,
+            actions: [0; MAX_ENVS],
+        }
     }
 }
 
@@ -215,7 +246,16 @@ impl ObsLayout {
         let gesture_offset = align64(depth_offset + n * depth_stride);
         let gesture_stride = (GESTURE_FRAMES * GESTURE_DIMS * 2) as u64;
         let total_len = align64(gesture_offset + n * gesture_stride);
-        ObsLayout { records_offset, rgb_offset, rgb_stride, depth_offset, depth_stride, gesture_offset, gesture_stride, total_len }
+        ObsLayout {
+            records_offset,
+            rgb_offset,
+            rgb_stride,
+            depth_offset,
+            depth_stride,
+            gesture_offset,
+            gesture_stride,
+            total_len,
+        }
     }
 }
 
@@ -243,11 +283,8 @@ pub mod service {
     /// found, and cleaned, without touching anything else on the host. Characters that cannot
     /// appear in a file name are replaced by `_`.
     pub fn prefix(run_id: &str) -> String {
-        let id: String = run_id
-            .chars()
-            .take(48)
-            .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })
-            .collect();
+        let id: String =
+            run_id.chars().take(48).map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
         format!("gesthor_{id}_")
     }
 }
@@ -299,7 +336,10 @@ pub mod qos {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum ViewError {
     /// The payload is shorter than the layout's `total_len`.
-    TooShort { len: usize, need: usize },
+    TooShort {
+        len: usize,
+        need: usize,
+    },
     /// The payload does not start on an 8-byte boundary (records need it).
     Misaligned,
     /// The layout does not match `ObsLayout::new(num_envs, width, height)`.
@@ -331,7 +371,12 @@ pub struct ObsShape {
 
 impl ObsShape {
     pub fn new(num_envs: usize, width: u32, height: u32) -> ObsShape {
-        ObsShape { num_envs, width: width as usize, height: height as usize, layout: ObsLayout::new(num_envs as u32, width, height) }
+        ObsShape {
+            num_envs,
+            width: width as usize,
+            height: height as usize,
+            layout: ObsLayout::new(num_envs as u32, width, height),
+        }
     }
 
     /// The shape a received header announces, checked against the layout it carries.
@@ -340,7 +385,10 @@ impl ObsShape {
             return Err(ViewError::TooManyEnvs(h.num_envs as usize));
         }
         let s = ObsShape::new(h.num_envs as usize, h.width, h.height);
-        if s.layout != h.layout || h.gesture_frames as usize != GESTURE_FRAMES || h.gesture_dims as usize != GESTURE_DIMS {
+        if s.layout != h.layout
+            || h.gesture_frames as usize != GESTURE_FRAMES
+            || h.gesture_dims as usize != GESTURE_DIMS
+        {
             return Err(ViewError::Layout);
         }
         Ok(s)
@@ -391,7 +439,12 @@ impl<'a> ObsView<'a> {
         // SAFETY: `check` made sure the payload is long enough and 8-byte aligned, and every
         // section offset is a multiple of 64; EnvRecord is repr(C) plain data valid for any bytes
         // the schema defines (flags are u8, not bool).
-        unsafe { std::slice::from_raw_parts(self.payload.as_ptr().add(l.records_offset as usize) as *const EnvRecord, self.shape.num_envs) }
+        unsafe {
+            std::slice::from_raw_parts(
+                self.payload.as_ptr().add(l.records_offset as usize) as *const EnvRecord,
+                self.shape.num_envs,
+            )
+        }
     }
 
     /// RGB of every env, `[E, H, W, 3]` u8, contiguous.
@@ -410,7 +463,12 @@ impl<'a> ObsView<'a> {
     pub fn depth_all(&self) -> &'a [u16] {
         let l = &self.shape.layout;
         // SAFETY: in bounds (checked length), 2-byte aligned (aligned base + 64-byte offset).
-        unsafe { std::slice::from_raw_parts(self.payload.as_ptr().add(l.depth_offset as usize) as *const u16, self.shape.num_envs * self.shape.pixels()) }
+        unsafe {
+            std::slice::from_raw_parts(
+                self.payload.as_ptr().add(l.depth_offset as usize) as *const u16,
+                self.shape.num_envs * self.shape.pixels(),
+            )
+        }
     }
 
     pub fn depth(&self, env: usize) -> &'a [u16] {
@@ -422,7 +480,12 @@ impl<'a> ObsView<'a> {
     pub fn gesture_bits_all(&self) -> &'a [u16] {
         let l = &self.shape.layout;
         // SAFETY: as for depth.
-        unsafe { std::slice::from_raw_parts(self.payload.as_ptr().add(l.gesture_offset as usize) as *const u16, self.shape.num_envs * GESTURE_FRAMES * GESTURE_DIMS) }
+        unsafe {
+            std::slice::from_raw_parts(
+                self.payload.as_ptr().add(l.gesture_offset as usize) as *const u16,
+                self.shape.num_envs * GESTURE_FRAMES * GESTURE_DIMS,
+            )
+        }
     }
 
     pub fn gesture_bits(&self, env: usize) -> &'a [u16] {
@@ -459,7 +522,10 @@ impl<'a> ObsSections<'a> {
                 records: std::slice::from_raw_parts_mut(base.add(l.records_offset as usize) as *mut EnvRecord, e),
                 rgb: std::slice::from_raw_parts_mut(base.add(l.rgb_offset as usize), e * px * 3),
                 depth: std::slice::from_raw_parts_mut(base.add(l.depth_offset as usize) as *mut u16, e * px),
-                gesture: std::slice::from_raw_parts_mut(base.add(l.gesture_offset as usize) as *mut u16, e * GESTURE_FRAMES * GESTURE_DIMS),
+                gesture: std::slice::from_raw_parts_mut(
+                    base.add(l.gesture_offset as usize) as *mut u16,
+                    e * GESTURE_FRAMES * GESTURE_DIMS,
+                ),
             })
         }
     }
@@ -547,7 +613,15 @@ mod tests {
 
     #[test]
     fn header_shape_must_match_its_layout() {
-        let mut h = ObsHeader { num_envs: 2, width: 64, height: 48, gesture_frames: 100, gesture_dims: 95, layout: ObsLayout::new(2, 64, 48), ..Default::default() };
+        let mut h = ObsHeader {
+            num_envs: 2,
+            width: 64,
+            height: 48,
+            gesture_frames: 100,
+            gesture_dims: 95,
+            layout: ObsLayout::new(2, 64, 48),
+            ..Default::default()
+        };
         assert!(ObsShape::of_header(&h).is_ok());
         h.width = 65;
         assert_eq!(ObsShape::of_header(&h).unwrap_err(), ViewError::Layout);

@@ -14,7 +14,7 @@ use worker::humanoid::Humanoid;
 
 /// A target 1–5 m away within ±100° of the person's heading, drawn from the seed.
 fn scene(seed: u64) -> (Point3<f32>, f32, Point3<f32>) {
-    let f = |k: u64| (worker::util::mix(seed, &[k]) % 10_000) as f32 / 10_000.0;
+    let f = |k: u64| (farm::seed::mix(seed, &[k]) % 10_000) as f32 / 10_000.0;
     let pos = Point3::new(f(1) * 6.0 - 3.0, 0.0, f(2) * 6.0 - 3.0);
     let yaw = f(3) * 360.0;
     let h = heading(yaw + f(4) * 200.0 - 100.0) * (1.0 + 4.0 * f(5));

@@ -84,11 +84,7 @@ impl Camera {
     pub fn in_view(&self, k: &Intrinsics, p: &Point3<f32>, margin: f32) -> bool {
         match self.project(k, p) {
             Some((x, y, z)) => {
-                z < FAR
-                    && x >= margin
-                    && y >= margin
-                    && x <= k.width as f32 - margin
-                    && y <= k.height as f32 - margin
+                z < FAR && x >= margin && y >= margin && x <= k.width as f32 - margin && y <= k.height as f32 - margin
             }
             None => false,
         }

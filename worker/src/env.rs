@@ -15,10 +15,9 @@ use nalgebra::{Point3, Vector2};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use shm_schema::{EnvRecord, EpisodeSummary, GESTURE_DIMS, GESTURE_FRAMES, ObsLayout, StopSummary, SUMMARY_STOPS};
+use shm_schema::{EnvRecord, EpisodeSummary, GESTURE_DIMS, GESTURE_FRAMES, ObsLayout, SUMMARY_STOPS, StopSummary};
 
 use crate::camera::{Camera, Intrinsics};
-use crate::config::{GestureSchedule, RunConfig};
 use crate::dataset::build::RoomContext;
 use crate::dataset::{Dataset, Verify};
 use crate::geometry::{Part, angle_diff_deg, yaw_of};
@@ -31,13 +30,14 @@ use crate::render::{RenderConfig, Renderer, SceneHandle, View, ViewOut, count_id
 use crate::robot::{self, Action, RobotPose};
 use crate::scene::{SceneId, Split, object_id};
 use crate::task::{StepFacts, StepResult, Task};
-use crate::util;
 use crate::visibility;
+use farm::config::{GestureSchedule, RunConfig};
+use farm::seed;
 
 /// Gesture kinds as written into observations.
-pub const GESTURE_NONE: u8 = 0;
-pub const GESTURE_REFERENCING: u8 = 1;
-pub const GESTURE_INTERVENTION: u8 = 2;
+pub use shm_schema::gesture_kind::{
+    INTERVENTION as GESTURE_INTERVENTION, NONE as GESTURE_NONE, REFERENCING as GESTURE_REFERENCING,
+};
 
 /// Motion frames the person advances per environment step (the gesture loops).
 const FRAMES_PER_STEP: usize = 3;
@@ -54,8 +54,20 @@ pub fn gesture_kind(schedule: GestureSchedule, pose: &RobotPose, target: Point3<
     match schedule {
         GestureSchedule::None => GESTURE_NONE,
         GestureSchedule::Referencing => GESTURE_REFERENCING,
-        GestureSchedule::Intervention => if away { GESTURE_INTERVENTION } else { GESTURE_NONE },
-        GestureSchedule::Both => if away { GESTURE_INTERVENTION } else { GESTURE_REFERENCING },
+        GestureSchedule::Intervention => {
+            if away {
+                GESTURE_INTERVENTION
+            } else {
+                GESTURE_NONE
+            }
+        }
+        GestureSchedule::Both => {
+            if away {
+                GESTURE_INTERVENTION
+            } else {
+                GESTURE_REFERENCING
+            }
+        }
     }
 }
 
@@ -128,7 +140,8 @@ impl Env {
         );
         let (grid, cells, field) = room.goal_field(&physics, program.target_object, program.human_xz());
         let t = &room.targets[&program.target_object];
-        let goal = Goal { center: t.center, id: object_id(program.target_object), points: t.points.clone(), cells, field };
+        let goal =
+            Goal { center: t.center, id: object_id(program.target_object), points: t.points.clone(), cells, field };
         let pose = program.robot_start();
         let start_geodesic = goal.geodesic(&grid, pose.xz());
         let mut task = Task::new(cfg.task.clone());
@@ -240,7 +253,16 @@ impl Env {
     /// is one) on whether the target is in view.
     pub fn expert(&self, rendered: bool) -> Action {
         let seen = rendered.then_some(self.visible_pixels >= self.cfg.task.min_visible_pixels);
-        expert_action(&self.grid, &self.physics, &self.cfg.env, &self.k, self.cfg.task.success_distance, &self.goal, &self.pose, seen)
+        expert_action(
+            &self.grid,
+            &self.physics,
+            &self.cfg.env,
+            &self.k,
+            self.cfg.task.success_distance,
+            &self.goal,
+            &self.pose,
+            seen,
+        )
     }
 
     /// Geodesic distance from the robot to the success region now.
@@ -286,7 +308,12 @@ impl Env {
         let s = &self.task.stats;
         let mut stops = [StopSummary::default(); SUMMARY_STOPS];
         for (i, st) in s.stops.iter().take(SUMMARY_STOPS).enumerate() {
-            stops[i] = StopSummary { step: st.step, success: st.success as u32, distance: st.distance, path_length: st.path_length };
+            stops[i] = StopSummary {
+                step: st.step,
+                success: st.success as u32,
+                distance: st.distance,
+                path_length: st.path_length,
+            };
         }
         EpisodeSummary {
             steps: s.steps,
@@ -366,7 +393,13 @@ pub fn eligible_programs(ds: &Dataset, cfg: &RunConfig) -> anyhow::Result<Vec<u6
     if let Some(m) = cfg.run.max_programs {
         out.truncate(m);
     }
-    anyhow::ensure!(!out.is_empty(), "{}: no programs of split `{}` match run.scenes {:?}", ds.dir.display(), split.name(), cfg.run.scenes);
+    anyhow::ensure!(
+        !out.is_empty(),
+        "{}: no programs of split `{}` match run.scenes {:?}",
+        ds.dir.display(),
+        split.name(),
+        cfg.run.scenes
+    );
     Ok(out)
 }
 
@@ -403,7 +436,12 @@ struct Sections<'a> {
 }
 
 fn sections<'a>(payload: &'a mut [u8], l: &ObsLayout, n: usize) -> anyhow::Result<Sections<'a>> {
-    anyhow::ensure!(payload.len() as u64 >= l.total_len, "observation buffer of {} bytes is smaller than the layout's {}", payload.len(), l.total_len);
+    anyhow::ensure!(
+        payload.len() as u64 >= l.total_len,
+        "observation buffer of {} bytes is smaller than the layout's {}",
+        payload.len(),
+        l.total_len
+    );
     anyhow::ensure!(payload.as_ptr() as usize % 64 == 0, "observation buffer is not 64-byte aligned");
     let (head, rest) = payload.split_at_mut(l.rgb_offset as usize);
     let (rgb_all, rest) = rest.split_at_mut((l.depth_offset - l.rgb_offset) as usize);
@@ -450,19 +488,28 @@ impl EnvPool {
 
     pub fn with_dataset(cfg: &RunConfig, spec: PoolSpec, dataset: Arc<Dataset>) -> anyhow::Result<EnvPool> {
         let n = cfg.env.envs_per_worker;
-        let rcfg = RenderConfig { width: cfg.env.width, height: cfg.env.height, fov_deg: cfg.env.fov_deg, max_views_per_submit: n.max(1) };
+        let rcfg = RenderConfig {
+            width: cfg.env.width,
+            height: cfg.env.height,
+            fov_deg: cfg.env.fov_deg,
+            max_views_per_submit: n.max(1),
+        };
         let renderer = Renderer::new(&rcfg).context("starting the renderer")?;
         let eligible = eligible_programs(&dataset, cfg)?;
         let iv = dataset.interventions();
         let interventions = (0..iv.len())
             .map(|i| Motion::from_flat(&iv.motion(i)).map(Arc::new).context("intervention motion has the wrong size"))
             .collect::<anyhow::Result<Vec<_>>>()?;
-        anyhow::ensure!(!interventions.is_empty(), "{}: the dataset holds no intervention gestures", dataset.dir.display());
+        anyhow::ensure!(
+            !interventions.is_empty(),
+            "{}: the dataset holds no intervention gestures",
+            dataset.dir.display()
+        );
         let queue = match &spec.programs {
             ProgramSource::Sample => VecDeque::new(),
             ProgramSource::Sequence(v) => v.iter().copied().collect(),
         };
-        let rng = util::rng(cfg.run.seed, &[SAMPLE_KEY, spec.worker_id as u64, spec.generation as u64]);
+        let rng = seed::rng(cfg.run.seed, &[SAMPLE_KEY, spec.worker_id as u64, spec.generation as u64]);
         let layout = ObsLayout::new(n as u32, cfg.env.width, cfg.env.height);
         let px = (cfg.env.width * cfg.env.height) as usize;
         Ok(EnvPool {
@@ -528,8 +575,18 @@ impl EnvPool {
         let room = self.rooms.get(program.scene_id())?;
         // Evaluation pairs each program with a fixed intervention gesture; training varies it.
         let key = match self.spec.programs {
-            ProgramSource::Sample => util::mix(self.cfg.run.seed, &[INTERVENTION_KEY, program.seed, self.episodes[i], i as u64, self.spec.worker_id as u64, self.spec.generation as u64]),
-            ProgramSource::Sequence(_) => util::mix(self.cfg.run.seed, &[INTERVENTION_KEY, program.seed]),
+            ProgramSource::Sample => seed::mix(
+                self.cfg.run.seed,
+                &[
+                    INTERVENTION_KEY,
+                    program.seed,
+                    self.episodes[i],
+                    i as u64,
+                    self.spec.worker_id as u64,
+                    self.spec.generation as u64,
+                ],
+            ),
+            ProgramSource::Sequence(_) => seed::mix(self.cfg.run.seed, &[INTERVENTION_KEY, program.seed]),
         };
         let iv = (key % self.interventions.len() as u64) as usize;
         let env = Env::new(&self.cfg, room, program, index, motion, (iv as u8, self.interventions[iv].clone()))?;
@@ -554,7 +611,8 @@ impl EnvPool {
                 Slot::Idle => false,
                 Slot::Running(env) if env.is_done() => true,
                 Slot::Running(env) => {
-                    let a = Action::from_index(actions[i]).with_context(|| format!("env {i}: action {} is not one of 0..4", actions[i]))?;
+                    let a = Action::from_index(actions[i])
+                        .with_context(|| format!("env {i}: action {} is not one of 0..4", actions[i]))?;
                     env.step(a);
                     false
                 }
@@ -591,7 +649,14 @@ impl EnvPool {
         }
         let sec = sections(payload, &layout, n)?;
         let Sections { records, rgb, depth, gesture } = sec;
-        let person: Vec<Option<Vec<Part>>> = self.envs.iter().map(|s| match s { Slot::Running(e) => Some(e.person_parts()), Slot::Idle => None }).collect();
+        let person: Vec<Option<Vec<Part>>> = self
+            .envs
+            .iter()
+            .map(|s| match s {
+                Slot::Running(e) => Some(e.person_parts()),
+                Slot::Idle => None,
+            })
+            .collect();
         let mut views = Vec::with_capacity(n);
         let mut outs = Vec::with_capacity(n);
         let mut running = Vec::with_capacity(n);
@@ -645,6 +710,25 @@ impl EnvPool {
     }
 }
 
+/// The simulator's pool of environments is the farm's real stepper.
+impl farm::stepper::Stepper for EnvPool {
+    fn num_envs(&self) -> usize {
+        EnvPool::num_envs(self)
+    }
+    fn layout(&self) -> ObsLayout {
+        EnvPool::layout(self)
+    }
+    fn reset(&mut self, payload: &mut [u8]) -> anyhow::Result<()> {
+        EnvPool::reset(self, payload)
+    }
+    fn step(&mut self, actions: &[u8], payload: &mut [u8]) -> anyhow::Result<()> {
+        EnvPool::step(self, actions, payload)
+    }
+    fn finished(&self) -> bool {
+        EnvPool::finished(self)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -667,8 +751,8 @@ mod tests {
 #[cfg(test)]
 mod pool_tests {
     use super::*;
-    use crate::config::Method;
     use crate::dataset::build::{BuildOptions, build, default_interventions, default_synth};
+    use farm::config::Method;
     use std::path::Path;
     use std::sync::OnceLock;
 
@@ -685,7 +769,14 @@ mod pool_tests {
     }
 
     fn config(method: Method, envs: usize) -> RunConfig {
-        let mut cfg = RunConfig::from_toml(&format!("[run]\nmethod = \"{}\"\nsplit = \"val\"\n", serde_json::to_value(method).unwrap().as_str().unwrap()), "test").unwrap();
+        let mut cfg = RunConfig::from_toml(
+            &format!(
+                "[run]\nmethod = \"{}\"\nsplit = \"val\"\n",
+                serde_json::to_value(method).unwrap().as_str().unwrap()
+            ),
+            "test",
+        )
+        .unwrap();
         cfg.run.dataset = dataset().to_path_buf();
         cfg.env.envs_per_worker = envs;
         cfg.env.width = 64;
@@ -707,11 +798,13 @@ mod pool_tests {
 
     fn records(buf: &AlignedBuf, n: usize) -> Vec<EnvRecord> {
         let b = buf.as_slice();
-        (0..n).map(|i| {
-            let o = i * std::mem::size_of::<EnvRecord>();
-            // SAFETY: the buffer is aligned and holds n records at offset 0.
-            unsafe { std::ptr::read(b[o..].as_ptr() as *const EnvRecord) }
-        }).collect()
+        (0..n)
+            .map(|i| {
+                let o = i * std::mem::size_of::<EnvRecord>();
+                // SAFETY: the buffer is aligned and holds n records at offset 0.
+                unsafe { std::ptr::read(b[o..].as_ptr() as *const EnvRecord) }
+            })
+            .collect()
     }
 
     #[test]
@@ -742,7 +835,8 @@ mod pool_tests {
             if pool.finished() {
                 break;
             }
-            let actions: Vec<u8> = recs.iter().map(|r| if r.expert_action == 255 { 0 } else { r.expert_action }).collect();
+            let actions: Vec<u8> =
+                recs.iter().map(|r| if r.expert_action == 255 { 0 } else { r.expert_action }).collect();
             pool.step(&actions, buf.as_mut_slice()).unwrap();
         }
         assert!(pool.finished(), "the sequence never ran out");
@@ -752,7 +846,12 @@ mod pool_tests {
         for (p, success, s) in &finished {
             assert!(*success == 1, "expert failed program {p}: {s:?}");
             assert_eq!(s.num_stops, 1, "program {p}: the expert stops once");
-            assert!(s.path_length <= 1.3 * s.start_geodesic + 0.5, "program {p}: expert path {} for geodesic {}", s.path_length, s.start_geodesic);
+            assert!(
+                s.path_length <= 1.3 * s.start_geodesic + 0.5,
+                "program {p}: expert path {} for geodesic {}",
+                s.path_length,
+                s.start_geodesic
+            );
         }
     }
 

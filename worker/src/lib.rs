@@ -4,22 +4,16 @@
 //! `humanoid` / `gesture` (motion → skeleton → avatar). `env` composes them.
 
 pub mod camera;
-pub mod config;
 pub mod dataset;
 pub mod env;
-pub mod farm;
 pub mod geometry;
 pub mod gesture;
 pub mod humanoid;
-pub mod metrics;
 pub mod nav;
 pub mod physics;
-pub mod process;
 pub mod program;
 pub mod render;
 pub mod robot;
 pub mod scene;
 pub mod task;
-pub mod transport;
-pub mod util;
 pub mod visibility;

@@ -10,12 +10,12 @@ use std::collections::BinaryHeap;
 use nalgebra::{Point2, Point3, Vector2};
 
 use crate::camera::{Camera, Intrinsics};
-use crate::config::EnvConfig;
 use crate::geometry::{angle_diff_deg, heading, xz};
 use crate::physics::Physics;
 use crate::robot::{Action, RobotPose};
 use crate::scene::Room;
 use crate::visibility;
+use farm::config::EnvConfig;
 
 /// Grid spacing (metres): AI2-THOR's and the dissertation's.
 pub const GRID_STEP: f32 = 0.25;
@@ -363,7 +363,11 @@ pub fn expert_action(
     }
     match best {
         Some((cost, yaw)) if cost < now + 0.01 * 12.0 => {
-            if angle_diff_deg(pose.yaw, yaw).abs() < 1e-2 { Action::MoveAhead } else { turn_towards(pose.yaw, yaw) }
+            if angle_diff_deg(pose.yaw, yaw).abs() < 1e-2 {
+                Action::MoveAhead
+            } else {
+                turn_towards(pose.yaw, yaw)
+            }
         }
         // No step lowers the geodesic distance: off the grid, next to the success region, every
         // step overshoots it (or the robot is boxed in). Face the target and step towards it
@@ -399,7 +403,8 @@ fn local_plan(
     closer_than: f32,
 ) -> Option<Action> {
     use std::collections::{HashSet, VecDeque};
-    let key = |p: &RobotPose| ((p.x * 1000.0).round() as i64, (p.z * 1000.0).round() as i64, (p.yaw * 10.0).round() as i64);
+    let key =
+        |p: &RobotPose| ((p.x * 1000.0).round() as i64, (p.z * 1000.0).round() as i64, (p.yaw * 10.0).round() as i64);
     let mut seen = HashSet::from([key(start)]);
     let mut queue = VecDeque::from([(*start, None::<Action>, 0usize)]);
     while let Some((pose, first, depth)) = queue.pop_front() {
@@ -450,7 +455,9 @@ mod tests {
             objects: vec![],
         };
         let mut parts = scene.structure_parts();
-        parts.push(Part::new(Shape::Box, Point3::new(-2.0, 0.9, 2.0), Vector3::new(0.1, 0.1, 0.1), [1.0, 0.0, 0.0]).with_id(7));
+        parts.push(
+            Part::new(Shape::Box, Point3::new(-2.0, 0.9, 2.0), Vector3::new(0.1, 0.1, 0.1), [1.0, 0.0, 0.0]).with_id(7),
+        );
         (room, parts)
     }
 

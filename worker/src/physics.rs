@@ -115,12 +115,22 @@ impl Physics {
 
     /// Queries of the robot's motion: sensors (see-only parts) do not block it.
     fn query(&self) -> rapier3d::pipeline::QueryPipeline<'_> {
-        self.broad_phase.as_query_pipeline(&DefaultQueryDispatcher, &self.bodies, &self.colliders, QueryFilter::default().exclude_sensors())
+        self.broad_phase.as_query_pipeline(
+            &DefaultQueryDispatcher,
+            &self.bodies,
+            &self.colliders,
+            QueryFilter::default().exclude_sensors(),
+        )
     }
 
     /// Queries of lines of sight: everything that is drawn blocks them.
     fn sight(&self) -> rapier3d::pipeline::QueryPipeline<'_> {
-        self.broad_phase.as_query_pipeline(&DefaultQueryDispatcher, &self.bodies, &self.colliders, QueryFilter::default())
+        self.broad_phase.as_query_pipeline(
+            &DefaultQueryDispatcher,
+            &self.bodies,
+            &self.colliders,
+            QueryFilter::default(),
+        )
     }
 
     fn capsule_pose(&self, xz: Point2<f32>) -> Pose3 {
@@ -143,8 +153,7 @@ impl Physics {
             stop_at_penetration: true,
             compute_impact_geometry_on_penetration: false,
         };
-        q.cast_shape(&self.capsule_pose(from), Vec3::new(delta.x, 0.0, delta.y), self.capsule.as_ref(), opts)
-            .is_none()
+        q.cast_shape(&self.capsule_pose(from), Vec3::new(delta.x, 0.0, delta.y), self.capsule.as_ref(), opts).is_none()
     }
 
     /// The id of the first solid thing a ray from `from` towards `to` hits before reaching
@@ -190,10 +199,7 @@ fn collider_of(p: &Part) -> rapier3d::geometry::Collider {
     };
     let q = p.rotation.into_inner();
     let rot = Rot3::from_xyzw(q.i, q.j, q.k, q.w);
-    ColliderBuilder::new(shape)
-        .position(Pose3::from_parts(v3(p.center), rot))
-        .user_data(p.id as u128)
-        .build()
+    ColliderBuilder::new(shape).position(Pose3::from_parts(v3(p.center), rot)).user_data(p.id as u128).build()
 }
 
 /// Unit helper for callers working in nalgebra.
@@ -242,7 +248,9 @@ mod tests {
 
     #[test]
     fn a_curtain_blocks_sight_not_motion() {
-        let curtain = Part::new(Shape::Box, Point3::new(0.0, 1.0, 1.0), Vector3::new(1.0, 1.0, 0.02), [0.8; 3]).with_id(5).non_solid();
+        let curtain = Part::new(Shape::Box, Point3::new(0.0, 1.0, 1.0), Vector3::new(1.0, 1.0, 0.02), [0.8; 3])
+            .with_id(5)
+            .non_solid();
         let p = Physics::new(&[curtain], RobotBody::default());
         assert!(p.robot_fits(Point2::new(0.0, 1.0)));
         assert!(p.move_is_free(Point2::new(0.0, 0.5), Vector2::new(0.0, 1.0)));

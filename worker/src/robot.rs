@@ -4,9 +4,9 @@ use nalgebra::{Point2, Point3, Vector2};
 use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
-use crate::config::EnvConfig;
 use crate::geometry::{heading, wrap_deg};
 use crate::physics::Physics;
+use farm::config::EnvConfig;
 
 /// The four actions. The discriminant is the action index the policy outputs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -20,7 +20,7 @@ pub enum Action {
 
 impl Action {
     pub const ALL: [Action; 4] = [Action::MoveAhead, Action::RotateLeft, Action::RotateRight, Action::Stop];
-    pub const COUNT: usize = 4;
+    pub const COUNT: usize = shm_schema::action::COUNT;
 
     pub fn from_index(i: u8) -> Option<Action> {
         Action::ALL.get(i as usize).copied()

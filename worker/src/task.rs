@@ -7,8 +7,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::TaskConfig;
 use crate::robot::Action;
+use farm::config::TaskConfig;
 
 /// What the environment observed about one step, the task's inputs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -139,7 +139,15 @@ mod tests {
     use super::*;
 
     fn facts(action: Action, distance: f32, pixels: u32) -> StepFacts {
-        StepFacts { action, moved: false, collided: false, travelled: 0.0, distance, visible_pixels: pixels, progress: 0.0 }
+        StepFacts {
+            action,
+            moved: false,
+            collided: false,
+            travelled: 0.0,
+            distance,
+            visible_pixels: pixels,
+            progress: 0.0,
+        }
     }
 
     #[test]

@@ -20,11 +20,9 @@ pub fn sample_points(parts: &[Part]) -> Vec<Point3<f32>> {
 /// Whether any of `points` (belonging to the thing with instance `id`) is in the frame of
 /// `camera` and not hidden behind something else.
 pub fn visible(physics: &Physics, camera: &Camera, k: &Intrinsics, points: &[Point3<f32>], id: u16) -> bool {
-    points.iter().any(|p| {
-        camera.in_view(k, p, 1.0)
-            && camera.to_eye(p).z < MAX_DEPTH
-            && physics.sees(camera.position, *p, id)
-    })
+    points
+        .iter()
+        .any(|p| camera.in_view(k, p, 1.0) && camera.to_eye(p).z < MAX_DEPTH && physics.sees(camera.position, *p, id))
 }
 
 #[cfg(test)]
@@ -36,7 +34,8 @@ mod tests {
 
     #[test]
     fn occluded_behind_a_wall_and_outside_the_frame() {
-        let cup = Part::new(Shape::Cylinder, Point3::new(0.0, 1.0, 3.0), Vector3::new(0.05, 0.05, 0.05), [1.0; 3]).with_id(5);
+        let cup =
+            Part::new(Shape::Cylinder, Point3::new(0.0, 1.0, 3.0), Vector3::new(0.05, 0.05, 0.05), [1.0; 3]).with_id(5);
         let wall = Part::new(Shape::Box, Point3::new(0.0, 1.0, 1.5), Vector3::new(1.0, 1.0, 0.05), [0.5; 3]).with_id(6);
         let k = Intrinsics { width: 224, height: 224, fov_deg: 90.0 };
         let cam = Camera { position: Point3::new(0.0, 1.5, 0.0), yaw_deg: 0.0, pitch_deg: 0.0 };

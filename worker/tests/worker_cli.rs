@@ -8,7 +8,10 @@ fn a_bad_config_is_one_clear_error() {
     let d = tempfile::tempdir().unwrap();
     let cfg = d.path().join("w.toml");
     std::fs::write(&cfg, "[run]\nmethod = \"nope\"\n").unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_worker")).args(["--config", cfg.to_str().unwrap(), "--run-id", "x"]).output().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_worker"))
+        .args(["--config", cfg.to_str().unwrap(), "--run-id", "x"])
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1));
     assert!(err.contains("w.toml") && err.contains("run.method"), "{err}");

@@ -1,5 +1,5 @@
 //! `worker`: one process of the rollout farm. Steps E environments, writes their observations
-//! straight into shared memory, and waits for the learner's actions (see `worker::transport`).
+//! straight into shared memory, and waits for the learner's actions (see `farm::transport`).
 //! Started by `orchestrator up`; by hand only to debug.
 
 use std::path::{Path, PathBuf};
@@ -9,17 +9,21 @@ use anyhow::Context;
 use clap::Parser;
 use nix::sys::signal::Signal;
 
-use worker::config::RunConfig;
+use farm::config::RunConfig;
+use farm::process;
+use farm::stepper::{Stepper, SyntheticStepper};
+use farm::transport::{self, Exit, WorkerOptions};
 use worker::dataset::{Dataset, Verify};
 use worker::env::{EnvPool, PoolSpec, ProgramSource, eligible_programs};
-use worker::farm::{Stepper, SyntheticStepper};
 use worker::program::Program;
 use worker::render::{RenderConfig, Renderer, bench_views, benchmark_room};
-use worker::process;
-use worker::transport::{self, Exit, WorkerOptions};
 
 #[derive(Parser, Debug)]
-#[command(name = "worker", version, about = "A GesTHOR-RS rollout worker: E simulated environments behind one shared-memory port")]
+#[command(
+    name = "worker",
+    version,
+    about = "A GesTHOR-RS rollout worker: E simulated environments behind one shared-memory port"
+)]
 struct Cli {
     /// Run configuration (TOML).
     #[arg(long)]
@@ -60,7 +64,14 @@ fn read_programs(path: &Path) -> anyhow::Result<Vec<u64>> {
 fn build_stepper(cli: &Cli, cfg: &RunConfig) -> anyhow::Result<Box<dyn Stepper>> {
     let programs = cli.programs.as_deref().map(read_programs).transpose()?;
     if cli.synthetic {
-        return Ok(Box::new(SyntheticStepper::new(cli.worker_id, cfg.env.envs_per_worker, cfg.env.width, cfg.env.height, programs, cli.expert_hints)));
+        return Ok(Box::new(SyntheticStepper::new(
+            cli.worker_id,
+            cfg.env.envs_per_worker,
+            cfg.env.width,
+            cfg.env.height,
+            programs,
+            cli.expert_hints,
+        )));
     }
     let spec = PoolSpec {
         worker_id: cli.worker_id,
@@ -77,7 +88,12 @@ fn build_stepper(cli: &Cli, cfg: &RunConfig) -> anyhow::Result<Box<dyn Stepper>>
 /// as the environments do, as fast as possible: the renderer-only ceiling of the farm.
 fn bench_render(cfg: &RunConfig, seconds: f64) -> anyhow::Result<(f64, String)> {
     let e = cfg.env.envs_per_worker;
-    let rcfg = RenderConfig { width: cfg.env.width, height: cfg.env.height, fov_deg: cfg.env.fov_deg, max_views_per_submit: e.max(1) };
+    let rcfg = RenderConfig {
+        width: cfg.env.width,
+        height: cfg.env.height,
+        fov_deg: cfg.env.fov_deg,
+        max_views_per_submit: e.max(1),
+    };
     let mut renderer = Renderer::new(&rcfg).context("starting the renderer")?;
     let room = Dataset::open(&cfg.run.dataset, Verify::Quick).ok().and_then(|ds| {
         let first = *eligible_programs(&ds, cfg).ok()?.first()?;
@@ -87,7 +103,10 @@ fn bench_render(cfg: &RunConfig, seconds: f64) -> anyhow::Result<(f64, String)> 
     });
     let (parts, what) = room.unwrap_or_else(|| (benchmark_room().parts(), "the benchmark room".into()));
     let views = bench_views(&mut renderer, &parts, e, seconds)?;
-    Ok((views, format!("{what}, {}x{}, {e} views per submit, {}", cfg.env.width, cfg.env.height, renderer.adapter_info())))
+    Ok((
+        views,
+        format!("{what}, {}x{}, {e} views per submit, {}", cfg.env.width, cfg.env.height, renderer.adapter_info()),
+    ))
 }
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
@@ -124,10 +143,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    tracing_subscriber::fmt().with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr())).with_target(false).with_env_filter(
-        tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-    ).init();
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .init();
     if let Err(e) = process::install_termination_handler().and_then(|_| process::die_with_parent(Signal::SIGTERM)) {
         eprintln!("worker: cannot set up signal handling: {e}");
         return ExitCode::from(1);

@@ -19,14 +19,14 @@ use serde::{Deserialize, Serialize};
 
 use super::{BuildParams, GondWriter, Manifest, SplitEntry, write_gond};
 use crate::camera::{Camera, Intrinsics};
-use crate::config::EnvConfig;
 use crate::geometry::{angle_diff_deg, wrap_deg, yaw_of};
 use crate::nav::{Cell, DistanceField, GRID_STEP, NavGrid, visible_headings};
 use crate::physics::{HUMAN_RADIUS, Physics, RobotBody};
 use crate::program::{Hand, Program};
 use crate::scene::{Category, Scene, SceneId, Split};
-use crate::util;
 use crate::visibility;
+use farm::config::EnvConfig;
+use farm::{files, seed};
 
 /// Height of the person's eyes when checking what they see (metres).
 pub const HUMAN_EYE_HEIGHT: f32 = 1.6;
@@ -61,7 +61,9 @@ pub fn default_synth(seed: u64, human: Point3<f32>, yaw: f32, target: Point3<f32
 /// The 20 intervention gestures with their names, stored once per dataset.
 pub fn default_interventions() -> Vec<(String, Vec<f32>)> {
     (0..crate::gesture::INTERVENTIONS)
-        .map(|i| (crate::gesture::INTERVENTION_NAMES[i].to_string(), crate::gesture::intervention(i).as_flat().to_vec()))
+        .map(|i| {
+            (crate::gesture::INTERVENTION_NAMES[i].to_string(), crate::gesture::intervention(i).as_flat().to_vec())
+        })
         .collect()
 }
 
@@ -128,7 +130,7 @@ impl RoomContext {
         let k = Intrinsics::reference(env.fov_deg);
         let mut targets = BTreeMap::new();
         for (i, o) in scene.objects.iter().enumerate() {
-            if !scene.scene_type.targets().contains(&o.category) {
+            if !crate::scene::targets_of(scene.scene_type).contains(&o.category) {
                 continue;
             }
             let parts = o.parts(i);
@@ -158,7 +160,12 @@ impl RoomContext {
 
     /// The success region and distance field of a target with the person standing at `human`.
     /// `physics` must already hold the person.
-    pub fn goal_field(&self, physics: &Physics, target: usize, human: Point2<f32>) -> (NavGrid, Vec<Cell>, DistanceField) {
+    pub fn goal_field(
+        &self,
+        physics: &Physics,
+        target: usize,
+        human: Point2<f32>,
+    ) -> (NavGrid, Vec<Cell>, DistanceField) {
         let t = &self.targets[&target];
         let mut grid = self.grid.clone();
         grid.block_disc(human, HUMAN_RADIUS + self.env.robot_radius);
@@ -170,7 +177,9 @@ impl RoomContext {
             .copied()
             .filter(|&c| grid.is_free(c))
             // the person can hide the target only from cells they stand near
-            .filter(|&c| !near || visible_headings(physics, &self.env, &self.k, grid.point(c), &t.points, id).next().is_some())
+            .filter(|&c| {
+                !near || visible_headings(physics, &self.env, &self.k, grid.point(c), &t.points, id).next().is_some()
+            })
             .collect();
         let field = DistanceField::new(&grid, &cells);
         (grid, cells, field)
@@ -188,9 +197,16 @@ impl RoomContext {
 
 /// Makes program `n` of a room and its motion, or None when the draws of this program find no
 /// valid combination (rare: rooms are checked to have reachable targets).
-pub fn make_program(ctx: &RoomContext, physics: &mut Physics, opts: &BuildOptions, split: Split, n: u64, synth: &Synth) -> Option<(Program, Vec<f32>)> {
-    let seed = util::mix(opts.seed, &[DATASET_KEY, split as u64, ctx.id.floorplan() as u64, n]);
-    let mut rng = util::rng(seed, &[0]);
+pub fn make_program(
+    ctx: &RoomContext,
+    physics: &mut Physics,
+    opts: &BuildOptions,
+    split: Split,
+    n: u64,
+    synth: &Synth,
+) -> Option<(Program, Vec<f32>)> {
+    let seed = seed::mix(opts.seed, &[DATASET_KEY, split as u64, ctx.id.floorplan() as u64, n]);
+    let mut rng = seed::rng(seed, &[0]);
     let cats = ctx.categories();
     let cat_list: Vec<Category> = cats.keys().copied().collect();
     for _ in 0..20 {
@@ -240,7 +256,13 @@ pub fn make_program(ctx: &RoomContext, physics: &mut Physics, opts: &BuildOption
             let yaw = rng.random_range(0..24) as f32 * 15.0;
             let pose = crate::robot::RobotPose { x: p.x, z: p.y, yaw };
             let near = (p - tc).norm() < ctx.success_distance;
-            let seen = visibility::visible(physics, &pose.camera(&ctx.env), &ctx.k, &t.points, crate::scene::object_id(target));
+            let seen = visibility::visible(
+                physics,
+                &pose.camera(&ctx.env),
+                &ctx.k,
+                &t.points,
+                crate::scene::object_id(target),
+            );
             if !(near && seen) {
                 start = Some((pose, field.at_cell(c)));
                 break;
@@ -301,7 +323,14 @@ pub fn per_room(opts: &BuildOptions, split: Split) -> Vec<(SceneId, u64)> {
 }
 
 /// Builds one split into `dir/<split>.gond` and `dir/<split>.json`.
-pub fn build_split(dir: &Path, scenes: &BTreeMap<SceneId, Scene>, opts: &BuildOptions, split: Split, synth: &Synth, progress: &Progress) -> anyhow::Result<(SplitEntry, SplitReport)> {
+pub fn build_split(
+    dir: &Path,
+    scenes: &BTreeMap<SceneId, Scene>,
+    opts: &BuildOptions,
+    split: Split,
+    synth: &Synth,
+    progress: &Progress,
+) -> anyhow::Result<(SplitEntry, SplitReport)> {
     let env = EnvConfig::default();
     let rooms = per_room(opts, split);
     let total: u64 = rooms.iter().map(|r| r.1).sum();
@@ -357,7 +386,7 @@ pub fn build_split(dir: &Path, scenes: &BTreeMap<SceneId, Scene>, opts: &BuildOp
     let idx = format!("{}.json", split.name());
     let mut json = serde_json::to_string_pretty(&index)?;
     json.push('\n');
-    util::write_atomic(&dir.join(&idx), json.as_bytes())?;
+    files::write_atomic(&dir.join(&idx), json.as_bytes())?;
     let share = if report.programs > 0 { report.multi_instance as f64 / report.programs as f64 } else { 0.0 };
     let share = (share * 1e4).round() / 1e4;
     Ok((SplitEntry { programs: total, index: idx, data, checksum, multi_instance_share: share }, report))
@@ -430,7 +459,7 @@ pub fn build(
     };
     let mut json = serde_json::to_string_pretty(&manifest)?;
     json.push('\n');
-    util::write_atomic(&manifest_path, json.as_bytes())?;
+    files::write_atomic(&manifest_path, json.as_bytes())?;
     Ok(manifest)
 }
 
@@ -470,7 +499,8 @@ pub fn verify_program(scene: &Scene, p: &Program, success_distance: f32) -> Resu
     }
     let t = &ctx.targets[&p.target_object];
     let near = (start.xz() - Point2::new(t.center.x, t.center.z)).norm() < success_distance;
-    let seen = visibility::visible(&physics, &start.camera(&env), &ctx.k, &t.points, crate::scene::object_id(p.target_object));
+    let seen =
+        visibility::visible(&physics, &start.camera(&env), &ctx.k, &t.points, crate::scene::object_id(p.target_object));
     if near && seen {
         return Err("robot starts already successful".into());
     }
@@ -488,7 +518,9 @@ mod tests {
 
     /// A stand-in motion maker for builder tests: deterministic in its inputs.
     fn test_synth(seed: u64, _h: Point3<f32>, yaw: f32, _t: Point3<f32>) -> Synthesized {
-        let motion = (0..crate::dataset::MOTION_LEN).map(|i| (((seed % 1000) as f32 + i as f32) * 0.01 + yaw).sin() * 0.5).collect();
+        let motion = (0..crate::dataset::MOTION_LEN)
+            .map(|i| (((seed % 1000) as f32 + i as f32) * 0.01 + yaw).sin() * 0.5)
+            .collect();
         Synthesized { motion, hand: Hand::Right, style: 0, accuracy: 0.5 }
     }
 
@@ -518,18 +550,25 @@ mod tests {
 
     #[test]
     fn same_bytes_with_one_or_two_threads_and_refuses_to_overwrite() {
-        let dirs: Vec<_> = [1usize, 2].iter().map(|&n| {
-            let d = tempfile::tempdir().unwrap();
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
-            pool.install(|| build(d.path(), &small(vec![Split::Test]), false, &test_synth, &interventions(), &|_, _, _| {}).unwrap());
-            d
-        }).collect();
+        let dirs: Vec<_> = [1usize, 2]
+            .iter()
+            .map(|&n| {
+                let d = tempfile::tempdir().unwrap();
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+                pool.install(|| {
+                    build(d.path(), &small(vec![Split::Test]), false, &test_synth, &interventions(), &|_, _, _| {})
+                        .unwrap()
+                });
+                d
+            })
+            .collect();
         for f in ["manifest.json", "test.gond", "test.json", "interventions.gond", "scenes/FloorPlan27.json"] {
             let a = std::fs::read(dirs[0].path().join(f)).unwrap();
             let b = std::fs::read(dirs[1].path().join(f)).unwrap();
             assert!(a == b, "{f} differs between 1 and 2 threads");
         }
-        let err = build(dirs[0].path(), &small(vec![Split::Test]), false, &test_synth, &interventions(), &|_, _, _| {}).unwrap_err();
+        let err = build(dirs[0].path(), &small(vec![Split::Test]), false, &test_synth, &interventions(), &|_, _, _| {})
+            .unwrap_err();
         assert!(err.to_string().contains("--force"), "{err}");
     }
 

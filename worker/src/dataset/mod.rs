@@ -119,12 +119,17 @@ pub struct GondFile {
 
 impl GondFile {
     fn open(path: &Path, expect_count: u64) -> Result<GondFile, DatasetError> {
-        let f = std::fs::File::open(path).map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
+        let f = std::fs::File::open(path)
+            .map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
         // SAFETY: dataset files are written once (atomically renamed into place) and never
         // modified in place; readers only ever map complete files.
-        let map = unsafe { Mmap::map(&f) }.map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
+        let map =
+            unsafe { Mmap::map(&f) }.map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
         if map.len() < HEADER_BYTES {
-            return Err(bad(path, format!("truncated: {} bytes, shorter than the {HEADER_BYTES}-byte header", map.len())));
+            return Err(bad(
+                path,
+                format!("truncated: {} bytes, shorter than the {HEADER_BYTES}-byte header", map.len()),
+            ));
         }
         if map[..8] != MAGIC {
             return Err(bad(path, "not a GOND binary file (bad magic)"));
@@ -144,7 +149,10 @@ impl GondFile {
         }
         let want = HEADER_BYTES as u64 + count * (RECORD_BYTES + MOTION_BYTES) as u64;
         if map.len() as u64 != want {
-            return Err(bad(path, format!("truncated or padded: {} bytes, expected {want} for {count} programs", map.len())));
+            return Err(bad(
+                path,
+                format!("truncated or padded: {} bytes, expected {want} for {count} programs", map.len()),
+            ));
         }
         Ok(GondFile { path: path.to_path_buf(), map, count: count as usize })
     }
@@ -275,7 +283,8 @@ impl Dataset {
         if !mpath.exists() {
             return Err(DatasetError::Missing { path: mpath.display().to_string(), dir: dir.display().to_string() });
         }
-        let text = std::fs::read_to_string(&mpath).map_err(|source| DatasetError::Io { path: mpath.display().to_string(), source })?;
+        let text = std::fs::read_to_string(&mpath)
+            .map_err(|source| DatasetError::Io { path: mpath.display().to_string(), source })?;
         let de = &mut serde_json::Deserializer::from_str(&text);
         let manifest: Manifest = serde_path_to_error::deserialize(de).map_err(|e| DatasetError::Field {
             path: mpath.display().to_string(),
@@ -283,12 +292,18 @@ impl Dataset {
             message: e.inner().to_string(),
         })?;
         if manifest.format != FORMAT || manifest.version != VERSION {
-            return Err(bad(&mpath, format!("format {} v{}, this build reads {FORMAT} v{VERSION}", manifest.format, manifest.version)));
+            return Err(bad(
+                &mpath,
+                format!("format {} v{}, this build reads {FORMAT} v{VERSION}", manifest.format, manifest.version),
+            ));
         }
         let mut splits = BTreeMap::new();
         for (name, e) in &manifest.splits {
-            let split = Split::from_name(name)
-                .ok_or_else(|| DatasetError::Field { path: mpath.display().to_string(), field: format!("splits.{name}"), message: "not a split (train, val, test)".into() })?;
+            let split = Split::from_name(name).ok_or_else(|| DatasetError::Field {
+                path: mpath.display().to_string(),
+                field: format!("splits.{name}"),
+                message: "not a split (train, val, test)".into(),
+            })?;
             let f = GondFile::open(&dir.join(&e.data), e.programs)?;
             check_records(&f)?;
             if verify == Verify::Full {
@@ -341,7 +356,10 @@ fn check_records(f: &GondFile) -> Result<(), DatasetError> {
     for i in 0..f.len() {
         let r = f.record(i);
         if Program::from_record(i as u64, &r).is_none() {
-            return Err(bad(&f.path, format!("program {i}: invalid room FloorPlan{} or category {}", r.floorplan, r.target)));
+            return Err(bad(
+                &f.path,
+                format!("program {i}: invalid room FloorPlan{} or category {}", r.floorplan, r.target),
+            ));
         }
         let finite = r.target_pos.iter().chain(&r.human_pos).chain(&r.robot_pos).all(|v| v.is_finite());
         if !finite || !r.geodesic.is_finite() {
@@ -354,13 +372,17 @@ fn check_records(f: &GondFile) -> Result<(), DatasetError> {
 fn verify_file(f: &GondFile, want: &str) -> Result<(), DatasetError> {
     let got = f.checksum();
     if got != want {
-        return Err(bad(&f.path, format!("checksum {got} does not match the manifest's {want}: the file is corrupted")));
+        return Err(bad(
+            &f.path,
+            format!("checksum {got} does not match the manifest's {want}: the file is corrupted"),
+        ));
     }
     Ok(())
 }
 
 fn read_index(path: &Path) -> Result<Vec<Program>, DatasetError> {
-    let text = std::fs::read_to_string(path).map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
+    let text = std::fs::read_to_string(path)
+        .map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
     let de = &mut serde_json::Deserializer::from_str(&text);
     serde_path_to_error::deserialize(de).map_err(|e| DatasetError::Field {
         path: path.display().to_string(),

@@ -174,7 +174,7 @@ pub fn write_csv_with(path: &Path, m: &Motion, header: CsvHeader) -> std::io::Re
             format!("frame {}, muscle {}: value {} is not finite", i / MUSCLES, i % MUSCLES, m.as_flat()[i]),
         ));
     }
-    crate::util::write_atomic(path, to_csv_with(m, header).as_bytes())
+    farm::files::write_atomic(path, to_csv_with(m, header).as_bytes())
 }
 
 /// A Unity `Vector3` as `JsonUtility` writes it (`{"x": …, "y": …, "z": …}`).
@@ -332,7 +332,7 @@ impl Metadata {
     }
 
     pub fn save(&self, path: &Path) -> std::io::Result<()> {
-        crate::util::write_atomic(path, self.to_json().as_bytes())
+        farm::files::write_atomic(path, self.to_json().as_bytes())
     }
 }
 

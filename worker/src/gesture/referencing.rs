@@ -103,7 +103,7 @@ pub fn referencing_with(
         "referencing gesture needs finite positions and yaw, got person {human_pos:?} yaw {human_yaw} target {target:?}"
     );
     let sk = h.skeleton();
-    let mut r = crate::util::rng(seed, &[KEY_REFERENCING]);
+    let mut r = farm::seed::rng(seed, &[KEY_REFERENCING]);
 
     // This person's way of standing.
     let mut base = STANDING;
@@ -347,7 +347,7 @@ mod tests {
 
     /// A random target around a person: 1–5 m away, within ±100° of their heading, 0–2 m high.
     fn scenario(seed: u64) -> (Point3<f32>, f32, Point3<f32>) {
-        let mut r = crate::util::rng(seed, &[77]);
+        let mut r = farm::seed::rng(seed, &[77]);
         let pos = Point3::new(r.random_range(-3.0..3.0f32), 0.0, r.random_range(-3.0..3.0f32));
         let yaw = r.random_range(0.0..360.0f32);
         let bearing = r.random_range(-100.0..100.0f32);

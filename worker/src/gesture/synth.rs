@@ -161,7 +161,7 @@ impl Idle {
 
     /// A fixed idle for motions without a seed.
     pub fn fixed() -> Idle {
-        let mut r = crate::util::rng(0, &[0x1D1E]);
+        let mut r = farm::seed::rng(0, &[0x1D1E]);
         Idle::new(&mut r)
     }
 

@@ -72,7 +72,7 @@ impl Default for Appearance {
 impl Appearance {
     /// A person's look drawn from `seed` (same seed, same look).
     pub fn seeded(seed: u64) -> Appearance {
-        let mut r = crate::util::rng(seed, &[0xA77E_A2A4]);
+        let mut r = farm::seed::rng(seed, &[0xA77E_A2A4]);
         let pick = |r: &mut rand_chacha::ChaCha8Rng, n: usize| r.random_range(0..n);
         Appearance {
             skin: srgb(SKIN[pick(&mut r, SKIN.len())]),

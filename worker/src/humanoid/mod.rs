@@ -53,7 +53,7 @@ impl Humanoid {
 
     /// A person whose height (1.55–1.90 m) and look are drawn from `seed`.
     pub fn seeded(seed: u64) -> Humanoid {
-        let mut r = crate::util::rng(seed, &[0x4E16_4700]);
+        let mut r = farm::seed::rng(seed, &[0x4E16_4700]);
         let height = (REFERENCE_HEIGHT + r.random_range(-0.15..0.2f32)).clamp(1.55, 1.90);
         Humanoid::new(height, Appearance::seeded(seed))
     }

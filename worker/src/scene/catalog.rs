@@ -9,66 +9,76 @@ use nalgebra::{Point3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{Material, Part, Shape, yaw_rotation};
+use crate::scene::SceneType;
 
-/// The four room types of AI2-THOR / GesTHOR.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-pub enum SceneType {
-    Kitchen,
-    LivingRoom,
-    Bedroom,
-    Bathroom,
-}
-
-impl SceneType {
-    pub const ALL: [SceneType; 4] =
-        [SceneType::Kitchen, SceneType::LivingRoom, SceneType::Bedroom, SceneType::Bathroom];
-
-    /// FloorPlan numbers are `base + 1 ..= base + 30` (1–30, 201–230, 301–330, 401–430).
-    pub const fn floorplan_base(self) -> u32 {
-        match self {
-            SceneType::Kitchen => 0,
-            SceneType::LivingRoom => 200,
-            SceneType::Bedroom => 300,
-            SceneType::Bathroom => 400,
-        }
-    }
-
-    /// Name as the original metadata writes it (`sceneType`).
-    pub const fn name(self) -> &'static str {
-        match self {
-            SceneType::Kitchen => "Kitchen",
-            SceneType::LivingRoom => "LivingRoom",
-            SceneType::Bedroom => "Bedroom",
-            SceneType::Bathroom => "Bathroom",
-        }
-    }
-
-    pub fn from_name(s: &str) -> Option<SceneType> {
-        let k = s.replace([' ', '_'], "").to_ascii_lowercase();
-        SceneType::ALL.into_iter().find(|t| t.name().to_ascii_lowercase() == k)
-    }
-
-    /// Target categories of this scene type (T3.3).
-    pub fn targets(self) -> &'static [Category] {
-        use Category::*;
-        match self {
-            SceneType::Kitchen => &[
-                Apple, Bread, ButterKnife, Chair, Cup, DiningTable, Fork, Knife, PaperTowelRoll,
-                Plate, Potato, RemoteControl, SideTable, Spoon, Tomato, Window,
-            ],
-            SceneType::LivingRoom => &[
-                ArmChair, Box, Chair, CoffeeTable, DeskLamp, DiningTable, FloorLamp, Laptop,
-                Newspaper, Plate, SideTable, Sofa, Television, TissueBox, Window,
-            ],
-            SceneType::Bedroom => &[
-                AlarmClock, Box, Chair, DeskLamp, Laptop, Poster, RemoteControl, SideTable, Sofa,
-                Television, TissueBox, Window,
-            ],
-            SceneType::Bathroom => &[
-                HandTowel, HandTowelHolder, PaperTowelRoll, Plunger, ShowerCurtain, ShowerDoor,
-                SideTable, TissueBox, ToiletPaper, ToiletPaperHanger, Towel, TowelHolder, Window,
-            ],
-        }
+/// Target categories of a scene type (T3.3).
+pub fn targets_of(scene_type: SceneType) -> &'static [Category] {
+    use Category::*;
+    match scene_type {
+        SceneType::Kitchen => &[
+            Apple,
+            Bread,
+            ButterKnife,
+            Chair,
+            Cup,
+            DiningTable,
+            Fork,
+            Knife,
+            PaperTowelRoll,
+            Plate,
+            Potato,
+            RemoteControl,
+            SideTable,
+            Spoon,
+            Tomato,
+            Window,
+        ],
+        SceneType::LivingRoom => &[
+            ArmChair,
+            Box,
+            Chair,
+            CoffeeTable,
+            DeskLamp,
+            DiningTable,
+            FloorLamp,
+            Laptop,
+            Newspaper,
+            Plate,
+            SideTable,
+            Sofa,
+            Television,
+            TissueBox,
+            Window,
+        ],
+        SceneType::Bedroom => &[
+            AlarmClock,
+            Box,
+            Chair,
+            DeskLamp,
+            Laptop,
+            Poster,
+            RemoteControl,
+            SideTable,
+            Sofa,
+            Television,
+            TissueBox,
+            Window,
+        ],
+        SceneType::Bathroom => &[
+            HandTowel,
+            HandTowelHolder,
+            PaperTowelRoll,
+            Plunger,
+            ShowerCurtain,
+            ShowerDoor,
+            SideTable,
+            TissueBox,
+            ToiletPaper,
+            ToiletPaperHanger,
+            Towel,
+            TowelHolder,
+            Window,
+        ],
     }
 }
 
@@ -147,13 +157,10 @@ impl Category {
     pub fn placement(self) -> Placement {
         use Category::*;
         match self {
-            Chair | ArmChair | DiningTable | CoffeeTable | SideTable | FloorLamp | Plunger
-            | Rug => Placement::Floor,
-            Sofa | Fridge | Stove | CounterTop | Bed | Dresser | Desk | TvStand | Shelf | Toilet
-            | Bathtub | Sink | ShowerDoor | ShowerCurtain => Placement::FloorAgainstWall,
-            Window | Poster | HandTowelHolder | TowelHolder | ToiletPaperHanger | Door | Mirror => {
-                Placement::Wall
-            }
+            Chair | ArmChair | DiningTable | CoffeeTable | SideTable | FloorLamp | Plunger | Rug => Placement::Floor,
+            Sofa | Fridge | Stove | CounterTop | Bed | Dresser | Desk | TvStand | Shelf | Toilet | Bathtub | Sink
+            | ShowerDoor | ShowerCurtain => Placement::FloorAgainstWall,
+            Window | Poster | HandTowelHolder | TowelHolder | ToiletPaperHanger | Door | Mirror => Placement::Wall,
             HandTowel => Placement::HangsOn(HandTowelHolder),
             Towel => Placement::HangsOn(TowelHolder),
             _ => Placement::Surface,
@@ -164,10 +171,7 @@ impl Category {
     /// surface is (as a fraction of its height).
     pub fn is_host(self) -> bool {
         use Category::*;
-        matches!(
-            self,
-            DiningTable | CoffeeTable | SideTable | CounterTop | Dresser | Desk | TvStand | Shelf
-        )
+        matches!(self, DiningTable | CoffeeTable | SideTable | CounterTop | Dresser | Desk | TvStand | Shelf)
     }
 
     /// Size range (width x, height y, depth z) in metres: (min, max).
@@ -247,7 +251,8 @@ impl Category {
     pub fn palette(self) -> &'static [[f32; 3]] {
         use Category::*;
         const WOODS: &[[f32; 3]] = &[[0.42, 0.26, 0.13], [0.62, 0.44, 0.26], [0.30, 0.18, 0.10], [0.75, 0.62, 0.45]];
-        const FABRICS: &[[f32; 3]] = &[[0.55, 0.12, 0.10], [0.18, 0.28, 0.50], [0.45, 0.45, 0.42], [0.25, 0.40, 0.22], [0.70, 0.60, 0.45]];
+        const FABRICS: &[[f32; 3]] =
+            &[[0.55, 0.12, 0.10], [0.18, 0.28, 0.50], [0.45, 0.45, 0.42], [0.25, 0.40, 0.22], [0.70, 0.60, 0.45]];
         const CLOTHS: &[[f32; 3]] = &[[0.85, 0.85, 0.80], [0.30, 0.55, 0.75], [0.80, 0.40, 0.45], [0.45, 0.70, 0.50]];
         const METALS: &[[f32; 3]] = &[[0.75, 0.75, 0.78], [0.55, 0.56, 0.58]];
         const WHITES: &[[f32; 3]] = &[[0.92, 0.92, 0.90], [0.85, 0.86, 0.88]];
@@ -374,7 +379,14 @@ pub fn build_parts(
             let tilt = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), -0.35);
             let screen_c = [0.0, 0.0, -hd * 0.75];
             b.rotated(Shape::Box, screen_c, tilt, [hw, hh * 0.85, 0.01], color, M::Metal);
-            b.rotated(Shape::Box, [0.0, 0.0, -hd * 0.75 + 0.012], tilt, [hw * 0.9, hh * 0.75, 0.003], [0.15, 0.25, 0.45], M::Screen);
+            b.rotated(
+                Shape::Box,
+                [0.0, 0.0, -hd * 0.75 + 0.012],
+                tilt,
+                [hw * 0.9, hh * 0.75, 0.003],
+                [0.15, 0.25, 0.45],
+                M::Screen,
+            );
         }
         DeskLamp | FloorLamp => {
             let base_h = if category == FloorLamp { 0.03 } else { hh * 0.08 };
@@ -403,7 +415,12 @@ pub fn build_parts(
             b.boxp([0.0, 0.0, -hd * 0.8], [hw, hh, hd * 0.2], fabric, M::Fabric);
             let arm_h = h * 0.65;
             for s in [-1.0f32, 1.0] {
-                b.boxp([s * hw * 0.9, -hh + arm_h / 2.0, 0.0], [hw * 0.1, arm_h / 2.0, hd], darker(fabric, 0.9), M::Fabric);
+                b.boxp(
+                    [s * hw * 0.9, -hh + arm_h / 2.0, 0.0],
+                    [hw * 0.1, arm_h / 2.0, hd],
+                    darker(fabric, 0.9),
+                    M::Fabric,
+                );
             }
             let cushions = if category == Sofa { 2 + style % 2 } else { 1 };
             let cw = w * 0.8 / cushions as f32;
@@ -445,7 +462,12 @@ pub fn build_parts(
             // a simple composition so posters differ
             let c2 = lighter(color, 1.4);
             b.boxp([0.0, hh * 0.2, hd], [hw * 0.8, hh * 0.55, 0.002], color, M::Paper);
-            b.ellipsoid([hw * 0.25 * ((style % 3) as f32 - 1.0), hh * 0.3, hd * 1.5], [hw * 0.25, hw * 0.25, 0.002], c2, M::Paper);
+            b.ellipsoid(
+                [hw * 0.25 * ((style % 3) as f32 - 1.0), hh * 0.3, hd * 1.5],
+                [hw * 0.25, hw * 0.25, 0.002],
+                c2,
+                M::Paper,
+            );
             b.boxp([0.0, -hh * 0.7, hd], [hw * 0.6, hh * 0.06, 0.002], [0.1, 0.1, 0.1], M::Paper);
         }
         Mirror => {
@@ -533,7 +555,12 @@ pub fn build_parts(
         Bed => {
             let frame_h = h * 0.45;
             b.boxp([0.0, -hh + frame_h / 2.0, 0.0], [hw, frame_h / 2.0, hd], [0.45, 0.3, 0.18], M::Wood);
-            b.boxp([0.0, -hh + frame_h + (h - frame_h) / 2.0, 0.05], [hw * 0.97, (h - frame_h) / 2.0, hd * 0.95], color, M::Fabric);
+            b.boxp(
+                [0.0, -hh + frame_h + (h - frame_h) / 2.0, 0.05],
+                [hw * 0.97, (h - frame_h) / 2.0, hd * 0.95],
+                color,
+                M::Fabric,
+            );
             b.boxp([0.0, 0.15, -hd * 0.97], [hw, hh + 0.15, 0.04], [0.45, 0.3, 0.18], M::Wood);
             for s in [-1.0f32, 1.0] {
                 b.boxp([s * hw * 0.45, hh + 0.04, -hd * 0.75], [hw * 0.38, 0.06, 0.16], [0.95, 0.95, 0.95], M::Fabric);
@@ -607,7 +634,15 @@ struct Builder {
 }
 
 impl Builder {
-    fn rotated(&mut self, shape: Shape, c: [f32; 3], r: UnitQuaternion<f32>, he: [f32; 3], color: [f32; 3], m: Material) {
+    fn rotated(
+        &mut self,
+        shape: Shape,
+        c: [f32; 3],
+        r: UnitQuaternion<f32>,
+        he: [f32; 3],
+        color: [f32; 3],
+        m: Material,
+    ) {
         let center = self.pos + self.rot * Vector3::from(c);
         let _ = self.color;
         self.parts.push(Part {
@@ -650,8 +685,13 @@ mod tests {
     use super::*;
 
     #[test]
+    fn target_count_is_the_wire_constant() {
+        assert_eq!(Category::targets().count(), shm_schema::TARGET_CATEGORIES);
+    }
+
+    #[test]
     fn t33_has_37_distinct_targets_and_every_one_is_listed() {
-        let mut all: Vec<Category> = SceneType::ALL.iter().flat_map(|t| t.targets().iter().copied()).collect();
+        let mut all: Vec<Category> = SceneType::ALL.iter().flat_map(|t| targets_of(*t).iter().copied()).collect();
         all.sort();
         all.dedup();
         assert_eq!(all.len(), 37);
@@ -659,10 +699,10 @@ mod tests {
         for c in Category::targets() {
             assert!(all.contains(&c), "{c:?} is a target but in no scene type");
         }
-        assert_eq!(SceneType::Kitchen.targets().len(), 16);
-        assert_eq!(SceneType::LivingRoom.targets().len(), 15);
-        assert_eq!(SceneType::Bedroom.targets().len(), 12);
-        assert_eq!(SceneType::Bathroom.targets().len(), 13);
+        assert_eq!(targets_of(SceneType::Kitchen).len(), 16);
+        assert_eq!(targets_of(SceneType::LivingRoom).len(), 15);
+        assert_eq!(targets_of(SceneType::Bedroom).len(), 12);
+        assert_eq!(targets_of(SceneType::Bathroom).len(), 13);
     }
 
     #[test]

@@ -18,9 +18,9 @@ use super::{Category, Object, Room, Scene, SceneId, SceneType, Surface};
 use crate::geometry::{Material, heading};
 use crate::nav::{GRID_STEP, NavGrid};
 use crate::physics::{Physics, RobotBody};
-use crate::util;
+use farm::seed;
 
-/// Stream key of scene generation (`util::rng(seed, &[SCENE_KEY, floorplan, attempt])`).
+/// Stream key of scene generation (`seed::rng(seed, &[SCENE_KEY, floorplan, attempt])`).
 const SCENE_KEY: u64 = 0x5C3E_0001;
 
 /// Generates all 120 rooms in parallel; the result does not depend on the thread count.
@@ -32,7 +32,7 @@ pub fn generate_all(seed: u64) -> Vec<Scene> {
 /// Generates one room.
 pub fn generate(id: SceneId, seed: u64) -> Scene {
     for attempt in 0..64u64 {
-        let mut rng = util::rng(seed, &[SCENE_KEY, id.floorplan() as u64, attempt]);
+        let mut rng = seed::rng(seed, &[SCENE_KEY, id.floorplan() as u64, attempt]);
         let scene = layout(id, seed, &mut rng);
         if navigable(&scene) {
             return scene;
@@ -98,7 +98,10 @@ impl Rect {
         Rect { min: c - h, max: c + h }
     }
     fn overlaps(&self, o: &Rect, gap: f32) -> bool {
-        self.min.x < o.max.x + gap && o.min.x < self.max.x + gap && self.min.y < o.max.y + gap && o.min.y < self.max.y + gap
+        self.min.x < o.max.x + gap
+            && o.min.x < self.max.x + gap
+            && self.min.y < o.max.y + gap
+            && o.min.y < self.max.y + gap
     }
 }
 
@@ -149,7 +152,10 @@ impl Layout<'_> {
 
     fn floor_free(&self, r: &Rect, gap: f32) -> bool {
         let (hx, hz) = self.room.half();
-        r.min.x >= -hx - 1e-3 && r.max.x <= hx + 1e-3 && r.min.y >= -hz - 1e-3 && r.max.y <= hz + 1e-3
+        r.min.x >= -hx - 1e-3
+            && r.max.x <= hx + 1e-3
+            && r.min.y >= -hz - 1e-3
+            && r.max.y <= hz + 1e-3
             && self.floor.iter().all(|(o, _)| !o.overlaps(r, gap))
     }
 
@@ -236,7 +242,13 @@ impl Layout<'_> {
                 continue;
             }
             let u = self.rng.random_range(-half..=half);
-            let span = WallSpan { wall: w, u0: u - size[0] / 2.0 - 0.05, u1: u + size[0] / 2.0 + 0.05, y0: y - size[1] / 2.0, y1: y + size[1] / 2.0 };
+            let span = WallSpan {
+                wall: w,
+                u0: u - size[0] / 2.0 - 0.05,
+                u1: u + size[0] / 2.0 + 0.05,
+                y0: y - size[1] / 2.0,
+                y1: y + size[1] / 2.0,
+            };
             if !self.wall_free(&span) {
                 continue;
             }
@@ -259,14 +271,16 @@ impl Layout<'_> {
             let host = self.objects[h].clone();
             let (hw, hd) = (host.size[0] / 2.0 - 0.04, host.size[2] / 2.0 - 0.04);
             // things with a front (TVs, laptops, clocks, lamps) face where the host faces
-            let fronted = matches!(c, Category::Television | Category::Laptop | Category::AlarmClock | Category::DeskLamp);
+            let fronted =
+                matches!(c, Category::Television | Category::Laptop | Category::AlarmClock | Category::DeskLamp);
             let yaw_local = if fronted { 0.0 } else { *[0.0f32, 90.0, 180.0, 270.0].choose(self.rng).unwrap() };
             let fp = Self::footprint(yaw_local, Point2::origin(), size);
             let (ex, ez) = (fp.max.x, fp.max.y);
             if ex >= hw || ez >= hd {
                 continue;
             }
-            let local = Vector2::new(self.rng.random_range(-hw + ex..=hw - ex), self.rng.random_range(-hd + ez..=hd - ez));
+            let local =
+                Vector2::new(self.rng.random_range(-hw + ex..=hw - ex), self.rng.random_range(-hd + ez..=hd - ez));
             let local_rect = Rect::around(Point2::from(local), 2.0 * ex, 2.0 * ez);
             if self.on_host.iter().any(|(o, r)| *o == h && r.overlaps(&local_rect, 0.02)) {
                 continue;
@@ -291,7 +305,13 @@ impl Layout<'_> {
         let n = heading(hd.yaw);
         let off = hd.size[2] / 2.0 + size[2] / 2.0 - 0.02;
         let y = hd.position[1] - size[1] / 2.0 + hd.size[1] * 0.3;
-        self.push(c, [hd.position[0] + n.x * off, y.max(size[1] / 2.0 + 0.05), hd.position[2] + n.y * off], hd.yaw, size, Some(holder))
+        self.push(
+            c,
+            [hd.position[0] + n.x * off, y.max(size[1] / 2.0 + 0.05), hd.position[2] + n.y * off],
+            hd.yaw,
+            size,
+            Some(holder),
+        )
     }
 
     fn chance(&mut self, p: f64) -> bool {
@@ -396,7 +416,8 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
     let height = rng.random_range(2.6..=3.0f32);
     let (floor, walls, ceiling) = surfaces(rng, t);
     let room = Room { width, depth, height, floor, walls, ceiling };
-    let mut l = Layout { rng, room, objects: Vec::new(), floor: Vec::new(), wall_spans: Vec::new(), on_host: Vec::new() };
+    let mut l =
+        Layout { rng, room, objects: Vec::new(), floor: Vec::new(), wall_spans: Vec::new(), on_host: Vec::new() };
     let main = *Wall::ALL.choose(l.rng).unwrap();
 
     match t {
@@ -492,7 +513,9 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
                 l.against_wall(Sofa, None);
             }
             if l.chance(0.9) {
-                if let Some(tv) = l.against_wall(TvStand, Some(main.opposite())).or_else(|| l.against_wall(TvStand, None)) {
+                if let Some(tv) =
+                    l.against_wall(TvStand, Some(main.opposite())).or_else(|| l.against_wall(TvStand, None))
+                {
                     hosts.push(tv);
                     l.on_host(Television, &[tv]);
                 }
@@ -530,7 +553,15 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
                 l.on_wall(Poster, None);
             }
             l.on_wall(Door, None);
-            for (c, p) in [(Laptop, 0.6), (Newspaper, 0.6), (Plate, 0.45), (TissueBox, 0.6), (Box, 0.35), (DeskLamp, 0.3), (RemoteControl, 0.3)] {
+            for (c, p) in [
+                (Laptop, 0.6),
+                (Newspaper, 0.6),
+                (Plate, 0.45),
+                (TissueBox, 0.6),
+                (Box, 0.35),
+                (DeskLamp, 0.3),
+                (RemoteControl, 0.3),
+            ] {
                 if l.chance(p) {
                     l.on_host(c, &hosts);
                 }
@@ -598,7 +629,15 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
                 l.on_wall(Window, None);
             }
             l.on_wall(Door, None);
-            for (c, p) in [(AlarmClock, 0.35), (DeskLamp, 0.35), (Laptop, 0.3), (RemoteControl, 0.75), (TissueBox, 0.7), (Box, 0.45), (Television, 0.25)] {
+            for (c, p) in [
+                (AlarmClock, 0.35),
+                (DeskLamp, 0.35),
+                (Laptop, 0.3),
+                (RemoteControl, 0.75),
+                (TissueBox, 0.7),
+                (Box, 0.45),
+                (Television, 0.25),
+            ] {
                 if l.chance(p) {
                     l.on_host(c, &hosts);
                 }
@@ -632,7 +671,13 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
                 let (ylo, yhi) = ToiletPaperHanger.wall_height().unwrap();
                 let y = l.rng.random_range(ylo..=yhi);
                 let uh = u_t + side * (to.size[0] / 2.0 + 0.2);
-                let span = WallSpan { wall: toilet_wall, u0: uh - hs[0] / 2.0, u1: uh + hs[0] / 2.0, y0: y - 0.05, y1: y + 0.05 };
+                let span = WallSpan {
+                    wall: toilet_wall,
+                    u0: uh - hs[0] / 2.0,
+                    u1: uh + hs[0] / 2.0,
+                    y0: y - 0.05,
+                    y1: y + 0.05,
+                };
                 if l.wall_free(&span) && uh.abs() < toilet_wall.length(&l.room) / 2.0 - 0.15 {
                     let p = toilet_wall.point(&l.room, uh, hs[2] / 2.0);
                     let h = l.push(ToiletPaperHanger, [p.x, y, p.y], toilet_wall.yaw(), hs, None);
@@ -650,14 +695,16 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
                     l.on_floor_at(Plunger, q, toilet_wall.yaw(), ps, 0.02);
                 }
             }
-            let sink_wall = *walls_left.iter().filter(|w| **w != toilet_wall).collect::<Vec<_>>().choose(l.rng).unwrap().to_owned();
+            let sink_wall =
+                *walls_left.iter().filter(|w| **w != toilet_wall).collect::<Vec<_>>().choose(l.rng).unwrap().to_owned();
             if let Some(sink) = l.against_wall(Sink, Some(sink_wall)).or_else(|| l.against_wall(Sink, None)) {
                 hosts.push(sink);
                 let s = l.objects[sink].clone();
                 let w = wall_of(s.yaw);
                 let u_s = along(&l.room, w, Point2::new(s.position[0], s.position[2]));
                 let ms = l.size(Mirror);
-                let span = WallSpan { wall: w, u0: u_s - ms[0] / 2.0, u1: u_s + ms[0] / 2.0, y0: 1.15, y1: 1.15 + ms[1] };
+                let span =
+                    WallSpan { wall: w, u0: u_s - ms[0] / 2.0, u1: u_s + ms[0] / 2.0, y0: 1.15, y1: 1.15 + ms[1] };
                 if l.wall_free(&span) {
                     let p = w.point(&l.room, u_s, ms[2] / 2.0);
                     l.push(Mirror, [p.x, 1.15 + ms[1] / 2.0, p.y], w.yaw(), ms, None);
@@ -716,6 +763,7 @@ fn wall_of(yaw: f32) -> Wall {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::targets_of;
     use std::collections::{BTreeMap, BTreeSet};
 
     #[test]
@@ -755,7 +803,7 @@ mod tests {
             s.validate().unwrap_or_else(|(f, m)| panic!("{}: {f}: {m}", s.name));
             let mut counts: BTreeMap<Category, usize> = BTreeMap::new();
             for o in &s.objects {
-                if s.scene_type.targets().contains(&o.category) {
+                if targets_of(s.scene_type).contains(&o.category) {
                     *counts.entry(o.category).or_default() += 1;
                     seen.entry(s.scene_type).or_default().insert(o.category);
                 }
@@ -767,7 +815,7 @@ mod tests {
         }
         for t in SceneType::ALL {
             let have = &seen[&t];
-            for c in t.targets() {
+            for c in targets_of(t) {
                 assert!(have.contains(c), "{t:?} never has a {c:?} in 30 rooms");
             }
             let rep = repeated.get(&t).copied().unwrap_or(0);

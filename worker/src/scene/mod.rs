@@ -13,92 +13,10 @@ use std::path::Path;
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
-pub use catalog::{Category, Placement, SceneType};
+pub use catalog::{Category, Placement, targets_of};
+pub use farm::rooms::{SceneId, SceneType, Split};
 
 use crate::geometry::{ID_FIRST_OBJECT, ID_STRUCTURE, Material, Part, Shape, yaw_rotation};
-
-/// Train/val/test fold.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Split {
-    Train,
-    Val,
-    Test,
-}
-
-impl Split {
-    pub const ALL: [Split; 3] = [Split::Train, Split::Val, Split::Test];
-
-    pub const fn name(self) -> &'static str {
-        match self {
-            Split::Train => "train",
-            Split::Val => "val",
-            Split::Test => "test",
-        }
-    }
-
-    pub fn from_name(s: &str) -> Option<Split> {
-        Split::ALL.into_iter().find(|x| x.name() == s)
-    }
-
-    /// Room indices (1..=30 within a type) of this fold: 20 train, 5 val, 5 test per type.
-    pub fn room_indices(self) -> std::ops::RangeInclusive<u32> {
-        match self {
-            Split::Train => 1..=20,
-            Split::Val => 21..=25,
-            Split::Test => 26..=30,
-        }
-    }
-}
-
-/// One of the 120 rooms: a scene type and an index 1..=30 within it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-pub struct SceneId {
-    pub scene_type: SceneType,
-    pub index: u32,
-}
-
-impl SceneId {
-    pub fn new(scene_type: SceneType, index: u32) -> Self {
-        assert!((1..=30).contains(&index), "room index {index} outside 1..=30");
-        SceneId { scene_type, index }
-    }
-
-    /// All 120 rooms in a fixed order.
-    pub fn all() -> impl Iterator<Item = SceneId> {
-        SceneType::ALL.into_iter().flat_map(|t| (1..=30).map(move |i| SceneId::new(t, i)))
-    }
-
-    pub fn of_split(split: Split) -> impl Iterator<Item = SceneId> {
-        SceneType::ALL.into_iter().flat_map(move |t| split.room_indices().map(move |i| SceneId::new(t, i)))
-    }
-
-    pub fn floorplan(self) -> u32 {
-        self.scene_type.floorplan_base() + self.index
-    }
-
-    /// "FloorPlan201" and so on.
-    pub fn name(self) -> String {
-        format!("FloorPlan{}", self.floorplan())
-    }
-
-    pub fn split(self) -> Split {
-        Split::ALL.into_iter().find(|s| s.room_indices().contains(&self.index)).expect("index 1..=30")
-    }
-
-    /// Parses "FloorPlan201" (also "201").
-    pub fn parse(s: &str) -> Option<SceneId> {
-        let n: u32 = s.strip_prefix("FloorPlan").unwrap_or(s).parse().ok()?;
-        let (t, i) = match n {
-            1..=30 => (SceneType::Kitchen, n),
-            201..=230 => (SceneType::LivingRoom, n - 200),
-            301..=330 => (SceneType::Bedroom, n - 300),
-            401..=430 => (SceneType::Bathroom, n - 400),
-            _ => return None,
-        };
-        Some(SceneId::new(t, i))
-    }
-}
 
 /// A surface's look.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -251,7 +169,7 @@ impl Scene {
     }
 
     pub fn save(&self, path: &Path) -> std::io::Result<()> {
-        crate::util::write_atomic(path, self.to_json().as_bytes())
+        farm::files::write_atomic(path, self.to_json().as_bytes())
     }
 
     /// Checks what serde cannot: sizes, positions inside the room, references.
@@ -288,7 +206,10 @@ impl Scene {
             }
             let [x, y, z] = o.position;
             if x.abs() > hx + 0.01 || z.abs() > hz + 0.01 || y < -0.01 || y > r.height + 0.01 {
-                return Err((f("position"), format!("{:?} lies outside the {}×{}×{} m room", o.position, r.width, r.height, r.depth)));
+                return Err((
+                    f("position"),
+                    format!("{:?} lies outside the {}×{}×{} m room", o.position, r.width, r.height, r.depth),
+                ));
             }
             if let Some(h) = o.on {
                 if h >= self.objects.len() || h == i {
@@ -311,7 +232,9 @@ impl Scene {
         let t = WALL_THICKNESS;
         let mut out = Vec::with_capacity(8 + self.walls.len());
         let s = |shape, c: [f32; 3], he: [f32; 3], surf: &Surface| {
-            Part::new(shape, Point3::from(c), Vector3::from(he), surf.color).with_material(surf.material).with_id(ID_STRUCTURE)
+            Part::new(shape, Point3::from(c), Vector3::from(he), surf.color)
+                .with_material(surf.material)
+                .with_id(ID_STRUCTURE)
         };
         out.push(s(Shape::Box, [0.0, -t / 2.0, 0.0], [hx + t, t / 2.0, hz + t], &r.floor));
         out.push(s(Shape::Box, [0.0, r.height + t / 2.0, 0.0], [hx + t, t / 2.0, hz + t], &r.ceiling));
@@ -386,7 +309,13 @@ mod tests {
         assert_eq!(ids[119].name(), "FloorPlan430");
         for s in Split::ALL {
             let n = SceneId::of_split(s).count();
-            assert_eq!(n, match s { Split::Train => 80, _ => 20 });
+            assert_eq!(
+                n,
+                match s {
+                    Split::Train => 80,
+                    _ => 20,
+                }
+            );
         }
         assert_eq!(SceneId::parse("FloorPlan321").unwrap().split(), Split::Val);
         assert_eq!(SceneId::parse("FloorPlan430").unwrap().split(), Split::Test);

@@ -29,10 +29,13 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use nix::sys::signal::Signal;
-use shm_schema::{ACT_MAGIC, ActionMsg, GESTURE_DIMS, GESTURE_FRAMES, OBS_MAGIC, ObsHeader, ObsLayout, SCHEMA_VERSION, command, qos, service};
+use shm_schema::{
+    ACT_MAGIC, ActionMsg, GESTURE_DIMS, GESTURE_FRAMES, OBS_MAGIC, ObsHeader, ObsLayout, SCHEMA_VERSION, command, qos,
+    service,
+};
 
-use crate::farm::Stepper;
 use crate::process;
+use crate::stepper::Stepper;
 
 pub type IpcService = ipc::Service;
 pub type ObsService = publish_subscribe::PortFactory<IpcService, [u8], ObsHeader>;
@@ -149,7 +152,10 @@ fn open_obs_ready(node: &Node<IpcService>, run_id: &str, deadline: Instant) -> R
             Ok(s) => return Ok(s),
             Err(e) => {
                 if Instant::now() > deadline || process::termination_signal().is_some() {
-                    return Err(TransportError::Ipc { what: format!("opening {name} (the learner creates it)"), detail: format!("{e:?}") });
+                    return Err(TransportError::Ipc {
+                        what: format!("opening {name} (the learner creates it)"),
+                        detail: format!("{e:?}"),
+                    });
                 }
                 std::thread::sleep(Duration::from_millis(20));
             }
@@ -220,7 +226,10 @@ pub fn run_files(run_id: &str) -> Vec<std::path::PathBuf> {
 pub fn end_run_domain(run_id: &str) -> Result<Vec<std::path::PathBuf>, TransportError> {
     let cleanup = clean_dead_nodes(run_id)?;
     if cleanup.alive > 0 {
-        return Err(TransportError::Ipc { what: "ending the run's iceoryx2 domain".into(), detail: format!("{} node(s) of the run are still alive", cleanup.alive) });
+        return Err(TransportError::Ipc {
+            what: "ending the run's iceoryx2 domain".into(),
+            detail: format!("{} node(s) of the run are still alive", cleanup.alive),
+        });
     }
     let cfg = run_config(run_id)?;
     // SAFETY: no process of this run is alive (checked above), and the prefix is the run's own.
@@ -241,18 +250,23 @@ pub fn sweep_dead_runs(min_age: Duration) -> Vec<String> {
     let mut runs = std::collections::BTreeSet::new();
     for e in rd.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let Some(rest) = name.strip_prefix(marker.trim_end_matches('_')).and_then(|r| r.strip_prefix('_')) else { continue };
+        let Some(rest) = name.strip_prefix(marker.trim_end_matches('_')).and_then(|r| r.strip_prefix('_')) else {
+            continue;
+        };
         if !name.ends_with(".global_mgmt") {
             continue;
         }
-        let old = e.metadata().and_then(|m| m.modified()).ok().and_then(|t| t.elapsed().ok()).is_some_and(|a| a >= min_age);
+        let old =
+            e.metadata().and_then(|m| m.modified()).ok().and_then(|t| t.elapsed().ok()).is_some_and(|a| a >= min_age);
         if let Some(run) = rest.split('_').next().filter(|r| !r.is_empty())
             && old
         {
             runs.insert(run.to_string());
         }
     }
-    runs.into_iter().filter(|run| matches!(clean_dead_nodes(run), Ok(c) if c.alive == 0) && end_run_domain(run).is_ok()).collect()
+    runs.into_iter()
+        .filter(|run| matches!(clean_dead_nodes(run), Ok(c) if c.alive == 0) && end_run_domain(run).is_ok())
+        .collect()
 }
 
 /// How a worker loop ended without error.
@@ -313,8 +327,13 @@ impl WorkerPorts {
         let act = open_act_service(&node, &opts.run_id, k)?;
         let act_ready_service = open_act_ready(&node, &opts.run_id, k)?;
         // Subscribe to actions before any observation goes out, so no answer can be missed.
-        let subscriber = act.subscriber_builder().buffer_size(qos::ACT_SUBSCRIBER_BUFFER).create().map_err(ipc("creating the action subscriber"))?;
-        let act_ready = act_ready_service.listener_builder().create().map_err(ipc("creating the act_ready listener"))?;
+        let subscriber = act
+            .subscriber_builder()
+            .buffer_size(qos::ACT_SUBSCRIBER_BUFFER)
+            .create()
+            .map_err(ipc("creating the action subscriber"))?;
+        let act_ready =
+            act_ready_service.listener_builder().create().map_err(ipc("creating the act_ready listener"))?;
         let publisher = obs
             .publisher_builder()
             .initial_max_slice_len(layout.total_len as usize)
@@ -322,7 +341,10 @@ impl WorkerPorts {
             .create()
             .map_err(ipc("creating the observation publisher"))?;
         let deadline = Instant::now() + opts.connect_timeout;
-        let obs_ready = open_obs_ready(&node, &opts.run_id, deadline)?.notifier_builder().create().map_err(ipc("creating the obs_ready notifier"))?;
+        let obs_ready = open_obs_ready(&node, &opts.run_id, deadline)?
+            .notifier_builder()
+            .create()
+            .map_err(ipc("creating the obs_ready notifier"))?;
         Ok(WorkerPorts { obs, act, publisher, subscriber, obs_ready, act_ready, _node: node })
     }
 
@@ -339,7 +361,10 @@ impl WorkerPorts {
                 return Ok(None);
             }
             if start.elapsed() > opts.connect_timeout {
-                return Err(TransportError::NoLearner { service: service::obs(&opts.run_id, opts.worker_id), secs: opts.connect_timeout.as_secs() });
+                return Err(TransportError::NoLearner {
+                    service: service::obs(&opts.run_id, opts.worker_id),
+                    secs: opts.connect_timeout.as_secs(),
+                });
             }
             std::thread::sleep(Duration::from_millis(10));
         }
@@ -347,7 +372,12 @@ impl WorkerPorts {
 
     /// Loans a sample, lets the stepper write the observation into it in place (reset when
     /// `actions` is `None`, else step), stamps the header, sends it.
-    fn send_observation(&self, header: ObsHeader, stepper: &mut dyn Stepper, actions: Option<&[u8]>) -> Result<(), TransportError> {
+    fn send_observation(
+        &self,
+        header: ObsHeader,
+        stepper: &mut dyn Stepper,
+        actions: Option<&[u8]>,
+    ) -> Result<(), TransportError> {
         let len = header.layout.total_len as usize;
         let mut sample = self.publisher.loan_slice_uninit(len).map_err(ipc("loaning an observation sample"))?;
         {
@@ -448,12 +478,17 @@ pub fn serve(stepper: &mut dyn Stepper, opts: &WorkerOptions) -> Result<Exit, Tr
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::farm::SyntheticStepper;
+    use crate::stepper::SyntheticStepper;
     use shm_schema::{ObsShape, ObsView};
 
     fn shm_files(prefix: &str) -> Vec<String> {
         std::fs::read_dir("/dev/shm")
-            .map(|d| d.filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).filter(|n| n.starts_with(prefix)).collect())
+            .map(|d| {
+                d.filter_map(|e| e.ok())
+                    .map(|e| e.file_name().to_string_lossy().into_owned())
+                    .filter(|n| n.starts_with(prefix))
+                    .collect()
+            })
             .unwrap_or_default()
     }
 
@@ -478,7 +513,12 @@ mod tests {
             }
         });
         std::thread::sleep(Duration::from_millis(200));
-        let sub = obs.subscriber_builder().buffer_size(qos::OBS_SUBSCRIBER_BUFFER).history_request(qos::OBS_HISTORY).create().unwrap();
+        let sub = obs
+            .subscriber_builder()
+            .buffer_size(qos::OBS_SUBSCRIBER_BUFFER)
+            .history_request(qos::OBS_HISTORY)
+            .create()
+            .unwrap();
         let publisher = act.publisher_builder().create().unwrap();
         let shape = ObsShape::new(2, 16, 12);
         for t in 0..25u64 {
@@ -494,7 +534,8 @@ mod tests {
             assert_eq!(*view.shape(), shape);
             assert!(view.records().iter().all(|r| r.env_step == t));
             let cmd = if t == 24 { command::SHUTDOWN } else { command::STEP };
-            let msg = ActionMsg { worker_id: 0, generation: 3, command: cmd, step: t, num_envs: 2, ..Default::default() };
+            let msg =
+                ActionMsg { worker_id: 0, generation: 3, command: cmd, step: t, num_envs: 2, ..Default::default() };
             // a stale answer (older generation) first: the worker must ignore it
             publisher.send_copy(ActionMsg { generation: 2, command: command::SHUTDOWN, ..msg }).unwrap();
             publisher.send_copy(msg).unwrap();

@@ -81,7 +81,14 @@ impl Trajectory {
         if let Some(prev) = self.steps.last_mut() {
             prev.action = r.last_action.min(255) as u8;
         }
-        self.steps.push(TrajectoryStep { x: r.robot[0], z: r.robot[1], yaw: r.robot[2], action: 255, gesture: r.gesture_kind, intervention: r.gesture_index });
+        self.steps.push(TrajectoryStep {
+            x: r.robot[0],
+            z: r.robot[1],
+            yaw: r.robot[2],
+            action: 255,
+            gesture: r.gesture_kind,
+            intervention: r.gesture_index,
+        });
         if r.terminated != 0 || r.truncated != 0 {
             self.success = r.summary.success != 0;
             return Some(std::mem::take(self));
@@ -112,7 +119,12 @@ impl EpisodeResult {
                 .stops
                 .iter()
                 .take((s.num_stops as usize).min(SUMMARY_STOPS))
-                .map(|st| Stop { step: st.step, success: st.success != 0, distance: st.distance, path_length: st.path_length })
+                .map(|st| Stop {
+                    step: st.step,
+                    success: st.success != 0,
+                    distance: st.distance,
+                    path_length: st.path_length,
+                })
                 .collect(),
         }
     }

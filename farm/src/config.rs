@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::scene::Split;
+use crate::rooms::Split;
 
 /// The six methods of T4.2.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -343,14 +343,20 @@ pub struct ConfigError {
 impl RunConfig {
     pub fn load(path: &Path) -> Result<RunConfig, ConfigError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ConfigError { file: file.clone(), field: "(file)".into(), message: e.to_string() })?;
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            file: file.clone(),
+            field: "(file)".into(),
+            message: e.to_string(),
+        })?;
         RunConfig::from_toml(&text, &file)
     }
 
     pub fn from_toml(text: &str, file: &str) -> Result<RunConfig, ConfigError> {
-        let de = toml::Deserializer::parse(text)
-            .map_err(|e| ConfigError { file: file.into(), field: "(syntax)".into(), message: e.to_string() })?;
+        let de = toml::Deserializer::parse(text).map_err(|e| ConfigError {
+            file: file.into(),
+            field: "(syntax)".into(),
+            message: e.to_string(),
+        })?;
         let cfg: RunConfig = serde_path_to_error::deserialize(de).map_err(|e| ConfigError {
             file: file.into(),
             field: e.path().to_string(),
@@ -406,7 +412,7 @@ impl RunConfig {
             return e("model.rgb", "at least one of model.rgb and model.depth must be on".into());
         }
         for (i, s) in self.run.scenes.iter().enumerate() {
-            if crate::scene::SceneId::parse(s).is_none() {
+            if crate::rooms::SceneId::parse(s).is_none() {
                 return e(&format!("run.scenes[{i}]"), format!("`{s}` is not a room name like FloorPlan201"));
             }
         }
@@ -435,7 +441,8 @@ mod tests {
 
     #[test]
     fn typo_names_the_field_and_file() {
-        let err = RunConfig::from_toml("[run]\nmethod = \"both\"\n[ppo]\nlearning_rate = 1.0\n", "cfg/x.toml").unwrap_err();
+        let err =
+            RunConfig::from_toml("[run]\nmethod = \"both\"\n[ppo]\nlearning_rate = 1.0\n", "cfg/x.toml").unwrap_err();
         let s = err.to_string();
         assert!(s.contains("cfg/x.toml") && s.contains("learning_rate"), "{s}");
         let err = RunConfig::from_toml("[run]\nmethod = \"telepathy\"\n", "x.toml").unwrap_err();

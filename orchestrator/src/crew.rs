@@ -1,12 +1,12 @@
 //! A running farm: one learner and N workers of one run, supervised.
 //!
-//! [`Farm::start`] spawns the learner, then the workers (they wait for the learner's ports).
-//! [`Farm::tick`] reaps children that ended and acts: a worker that crashed is restarted at once
+//! [`Crew::start`] spawns the learner, then the workers (they wait for the learner's ports).
+//! [`Crew::tick`] reaps children that ended and acts: a worker that crashed is restarted at once
 //! as generation + 1 (after the iceoryx2 resources it left are removed); a worker that exits 0
-//! was told to shut down and stays down; when the learner ends, the run ends. [`Farm::stop`]
+//! was told to shut down and stays down; when the learner ends, the run ends. [`Crew::stop`]
 //! stops everything in order: SIGINT to the learner (it checkpoints and tells the workers to
 //! shut down) and SIGTERM to the workers, SIGTERM again after the grace period, SIGKILL just
-//! before the 5 s mark. [`Farm::finish`] then ends the run's iceoryx2 domain, so nothing of
+//! before the 5 s mark. [`Crew::finish`] then ends the run's iceoryx2 domain, so nothing of
 //! the run remains in `/dev/shm`.
 //!
 //! Used by `orchestrator up`, `orchestrator bench farm` and evaluation.
@@ -16,14 +16,14 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use farm::config::RunConfig;
+use farm::transport;
 use nix::sys::signal::Signal;
 use nix::unistd::Pid;
 use serde::Deserialize;
-use worker::config::RunConfig;
-use worker::transport;
 
 use crate::binaries;
-use crate::supervise::{self, Child, Ended};
+use crate::child::{self, Child, Ended};
 
 /// The policy the learner serves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -48,7 +48,7 @@ impl PolicyArg {
 
 /// Everything a farm needs to start.
 #[derive(Clone, Debug)]
-pub struct FarmSpec {
+pub struct CrewSpec {
     pub run_dir: PathBuf,
     pub run_id: String,
     /// The config file the children read (the run directory's copy).
@@ -76,9 +76,16 @@ pub struct FarmSpec {
     pub bin_dir: Option<PathBuf>,
 }
 
-impl FarmSpec {
-    pub fn new(run_dir: &Path, run_id: &str, config_path: &Path, cfg: RunConfig, workers: usize, policy: PolicyArg) -> FarmSpec {
-        FarmSpec {
+impl CrewSpec {
+    pub fn new(
+        run_dir: &Path,
+        run_id: &str,
+        config_path: &Path,
+        cfg: RunConfig,
+        workers: usize,
+        policy: PolicyArg,
+    ) -> CrewSpec {
+        CrewSpec {
             run_dir: run_dir.into(),
             run_id: run_id.into(),
             config_path: config_path.into(),
@@ -122,7 +129,7 @@ pub struct Progress {
 
 /// How a farm ended.
 #[derive(Debug)]
-pub struct FarmOutcome {
+pub struct CrewOutcome {
     pub learner: Option<Ended>,
     /// Workers restarted by the orchestrator.
     pub restarts: u64,
@@ -131,7 +138,7 @@ pub struct FarmOutcome {
     /// Files of the run iceoryx2 did not remove by itself (deleted by the orchestrator).
     pub leftovers: Vec<PathBuf>,
     pub seconds: f64,
-    /// The run was stopped from outside (signal / [`Farm::stop`]) rather than ending by itself.
+    /// The run was stopped from outside (signal / [`Crew::stop`]) rather than ending by itself.
     pub stopped: bool,
 }
 
@@ -155,14 +162,14 @@ const KILL_AFTER: Duration = Duration::from_millis(4500);
 
 /// Whether the farm is still running.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FarmState {
+pub enum CrewState {
     Running,
     /// Every child has ended.
     Ended,
 }
 
-pub struct Farm {
-    spec: FarmSpec,
+pub struct Crew {
+    spec: CrewSpec,
     worker_bin: PathBuf,
     learner_bin: PathBuf,
     learner: Option<Child>,
@@ -176,9 +183,9 @@ pub struct Farm {
     fatal: Option<anyhow::Error>,
 }
 
-impl Farm {
+impl Crew {
     /// Spawns the learner and the workers.
-    pub fn start(spec: FarmSpec) -> anyhow::Result<Farm> {
+    pub fn start(spec: CrewSpec) -> anyhow::Result<Crew> {
         let worker_bin = binaries::sibling_in(spec.bin_dir.as_deref(), "worker")?;
         let learner_bin = binaries::sibling_in(spec.bin_dir.as_deref(), "learner")?;
         if spec.workers == 0 {
@@ -187,8 +194,10 @@ impl Farm {
         if let Some(p) = &spec.programs {
             anyhow::ensure!(p.len() == spec.workers, "{} program lists for {} workers", p.len(), spec.workers);
         }
-        let mut farm = Farm {
-            workers: (0..spec.workers).map(|_| WorkerSlot { child: None, generation: 0, quick_failures: 0, done: false }).collect(),
+        let mut farm = Crew {
+            workers: (0..spec.workers)
+                .map(|_| WorkerSlot { child: None, generation: 0, quick_failures: 0, done: false })
+                .collect(),
             spec,
             worker_bin,
             learner_bin,
@@ -213,7 +222,7 @@ impl Farm {
         Ok(farm)
     }
 
-    pub fn spec(&self) -> &FarmSpec {
+    pub fn spec(&self) -> &CrewSpec {
         &self.spec
     }
 
@@ -256,7 +265,7 @@ impl Farm {
         args.extend(s.learner_args.iter().cloned());
         let log = self.log_path("learner");
         append_line(&log, &format!("=== learner, run {} ===", s.run_id));
-        let child = supervise::spawn(&self.learner_bin, &args, &[], &log, Signal::SIGINT)
+        let child = child::spawn(&self.learner_bin, &args, &[], &log, Signal::SIGINT)
             .with_context(|| format!("starting {}", self.learner_bin.display()))?;
         self.learner = Some(child);
         Ok(())
@@ -293,7 +302,7 @@ impl Farm {
             let dir = s.run_dir.join("programs");
             std::fs::create_dir_all(&dir)?;
             let p = dir.join(format!("worker-{k}-g{g}.json"));
-            worker::util::write_atomic(&p, serde_json::to_string(&programs)?.as_bytes())?;
+            farm::files::write_atomic(&p, serde_json::to_string(&programs)?.as_bytes())?;
             args.extend(["--programs".into(), p.into()]);
         }
         if s.policy == PolicyArg::Expert {
@@ -304,7 +313,7 @@ impl Farm {
         }
         let log = self.log_path(&format!("worker-{k}"));
         append_line(&log, &format!("=== worker {k}, generation {g} ==="));
-        let child = supervise::spawn(&self.worker_bin, &args, &self.renderer_env(), &log, Signal::SIGTERM)
+        let child = child::spawn(&self.worker_bin, &args, &self.renderer_env(), &log, Signal::SIGTERM)
             .with_context(|| format!("starting {}", self.worker_bin.display()))?;
         self.workers[k].child = Some(child);
         Ok(())
@@ -330,15 +339,19 @@ impl Farm {
 
     /// Reaps what ended, restarts crashed workers, escalates a stop. Call it often (every
     /// few tens of milliseconds).
-    pub fn tick(&mut self) -> anyhow::Result<FarmState> {
+    pub fn tick(&mut self) -> anyhow::Result<CrewState> {
         if let Some(l) = &self.learner
-            && let Some(ended) = supervise::reap(l.pid)
+            && let Some(ended) = child::reap(l.pid)
         {
             self.learner = None;
             self.learner_ended = Some(ended);
             if !ended.success() && self.stopping.is_none() {
                 let log = self.log_path("learner");
-                self.fatal = Some(anyhow::anyhow!("the learner {ended}; last lines of {}:\n{}", log.display(), supervise::tail(&log, 15)));
+                self.fatal = Some(anyhow::anyhow!(
+                    "the learner {ended}; last lines of {}:\n{}",
+                    log.display(),
+                    child::tail(&log, 15)
+                ));
             }
             if self.stopping.is_none() {
                 self.begin_stop();
@@ -347,7 +360,7 @@ impl Farm {
         let mut crashed = vec![];
         for k in 0..self.workers.len() {
             let Some(c) = &self.workers[k].child else { continue };
-            let Some(ended) = supervise::reap(c.pid) else { continue };
+            let Some(ended) = child::reap(c.pid) else { continue };
             let ran = c.started.elapsed();
             let pid = c.pid;
             self.workers[k].child = None;
@@ -366,12 +379,16 @@ impl Farm {
                     "worker {k} failed {MAX_QUICK_FAILURES} times within {} s of starting (last: pid {pid} {ended}); last lines of {}:\n{}",
                     QUICK_FAILURE.as_secs(),
                     log.display(),
-                    supervise::tail(&log, 15)
+                    child::tail(&log, 15)
                 ));
                 self.begin_stop();
                 break;
             }
-            eprintln!("[up] worker {k} (pid {pid}, generation {}) {ended}; restarting it as generation {}", slot.generation, slot.generation + 1);
+            eprintln!(
+                "[up] worker {k} (pid {pid}, generation {}) {ended}; restarting it as generation {}",
+                slot.generation,
+                slot.generation + 1
+            );
             crashed.push(k);
         }
         if !crashed.is_empty() {
@@ -399,16 +416,16 @@ impl Farm {
             }
         }
         let alive = self.learner.is_some() || self.workers.iter().any(|w| w.child.is_some());
-        Ok(if alive { FarmState::Running } else { FarmState::Ended })
+        Ok(if alive { CrewState::Running } else { CrewState::Ended })
     }
 
     fn signal_all(&self, sig: Signal) {
         if let Some(l) = &self.learner {
-            supervise::signal(l, sig);
+            child::signal(l, sig);
         }
         for w in &self.workers {
             if let Some(c) = &w.child {
-                supervise::signal(c, sig);
+                child::signal(c, sig);
             }
         }
     }
@@ -419,17 +436,17 @@ impl Farm {
         }
         self.stopping = Some(Instant::now());
         if let Some(l) = &self.learner {
-            supervise::signal(l, Signal::SIGINT);
+            child::signal(l, Signal::SIGINT);
         }
         for w in &self.workers {
             if let Some(c) = &w.child {
-                supervise::signal(c, Signal::SIGTERM);
+                child::signal(c, Signal::SIGTERM);
             }
         }
     }
 
     /// Stops the run from outside (Ctrl-C): SIGINT to the learner so it checkpoints, SIGTERM
-    /// to the workers; [`Farm::tick`] escalates to SIGTERM and SIGKILL.
+    /// to the workers; [`Crew::tick`] escalates to SIGTERM and SIGKILL.
     pub fn stop(&mut self) {
         if self.stopping.is_none() {
             self.stopped_from_outside = true;
@@ -472,17 +489,17 @@ impl Farm {
         read_last_progress(&self.spec.run_dir)
     }
 
-    /// Runs [`Farm::tick`] until every child has ended (stopping first if asked), then ends the
+    /// Runs [`Crew::tick`] until every child has ended (stopping first if asked), then ends the
     /// run's shared-memory domain.
-    pub fn finish(mut self) -> anyhow::Result<FarmOutcome> {
-        while self.tick()? == FarmState::Running {
+    pub fn finish(mut self) -> anyhow::Result<CrewOutcome> {
+        while self.tick()? == CrewState::Running {
             std::thread::sleep(Duration::from_millis(20));
         }
         let leftovers = transport::end_run_domain(&self.spec.run_id).context("cleaning up the run's shared memory")?;
         if let Some(e) = self.fatal.take() {
             return Err(e);
         }
-        Ok(FarmOutcome {
+        Ok(CrewOutcome {
             learner: self.learner_ended,
             restarts: self.restarts,
             progress: read_last_progress(&self.spec.run_dir),
@@ -498,7 +515,7 @@ impl Farm {
     }
 }
 
-impl Drop for Farm {
+impl Drop for Crew {
     fn drop(&mut self) {
         // Never leave children behind, whatever path dropped the farm.
         if self.learner.is_some() || self.workers.iter().any(|w| w.child.is_some()) {

@@ -7,10 +7,10 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
+use farm::process::SUPERVISOR_PID_ENV;
 use nix::sys::signal::{Signal, killpg};
 use nix::sys::wait::{WaitPidFlag, WaitStatus, waitpid};
 use nix::unistd::{Pid, getpid, getppid};
-use worker::process::SUPERVISOR_PID_ENV;
 
 /// How a child ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -44,12 +44,23 @@ pub struct Child {
 /// Starts `program args` with stdout and stderr appended to `log`, in a process group of its
 /// own (a terminal's Ctrl-C reaches only the orchestrator, which then stops the children in
 /// order), with `death_signal` delivered if the orchestrator dies.
-pub fn spawn(program: &Path, args: &[OsString], env: &[(&str, String)], log: &Path, death_signal: Signal) -> std::io::Result<Child> {
+pub fn spawn(
+    program: &Path,
+    args: &[OsString],
+    env: &[(&str, String)],
+    log: &Path,
+    death_signal: Signal,
+) -> std::io::Result<Child> {
     let out = std::fs::OpenOptions::new().create(true).append(true).open(log)?;
     let err = out.try_clone()?;
     let parent = getpid();
     let mut cmd = Command::new(program);
-    cmd.args(args).stdin(Stdio::null()).stdout(out).stderr(err).process_group(0).env(SUPERVISOR_PID_ENV, parent.to_string());
+    cmd.args(args)
+        .stdin(Stdio::null())
+        .stdout(out)
+        .stderr(err)
+        .process_group(0)
+        .env(SUPERVISOR_PID_ENV, parent.to_string());
     cmd.envs(env.iter().map(|(k, v)| (k, v)));
     // SAFETY: runs in the forked child before exec; prctl and getppid are async-signal-safe
     // system calls, and nothing here allocates or takes locks.
@@ -125,7 +136,14 @@ mod tests {
     fn spawn_reap_and_signal() {
         let d = tempfile::tempdir().unwrap();
         let log = d.path().join("x.log");
-        let c = spawn(Path::new("/bin/sh"), &["-c".into(), "echo hello $X; exit 3".into()], &[("X", "world".into())], &log, Signal::SIGTERM).unwrap();
+        let c = spawn(
+            Path::new("/bin/sh"),
+            &["-c".into(), "echo hello $X; exit 3".into()],
+            &[("X", "world".into())],
+            &log,
+            Signal::SIGTERM,
+        )
+        .unwrap();
         let ended = loop {
             if let Some(e) = reap(c.pid) {
                 break e;

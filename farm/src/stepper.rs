@@ -1,7 +1,7 @@
 //! The worker's role in the rollout farm, apart from how messages travel: something that
 //! writes observations of E environments into a buffer it is given ([`Stepper`]).
 //!
-//! The simulator's `EnvPool` is the real stepper; [`SyntheticStepper`] writes counters and
+//! The simulator's `worker::env::EnvPool` is the real stepper; [`SyntheticStepper`] writes counters and
 //! patterned frames without simulating anything, so that the farm's plumbing (transport,
 //! supervision, batching) can be tested and measured on its own.
 
@@ -20,25 +20,6 @@ pub trait Stepper {
     fn step(&mut self, actions: &[u8], payload: &mut [u8]) -> anyhow::Result<()>;
     /// Every env is idle: its assigned programs are done (evaluation).
     fn finished(&self) -> bool;
-}
-
-/// The simulator's pool of environments is the farm's real stepper.
-impl Stepper for crate::env::EnvPool {
-    fn num_envs(&self) -> usize {
-        crate::env::EnvPool::num_envs(self)
-    }
-    fn layout(&self) -> ObsLayout {
-        crate::env::EnvPool::layout(self)
-    }
-    fn reset(&mut self, payload: &mut [u8]) -> anyhow::Result<()> {
-        crate::env::EnvPool::reset(self, payload)
-    }
-    fn step(&mut self, actions: &[u8], payload: &mut [u8]) -> anyhow::Result<()> {
-        crate::env::EnvPool::step(self, actions, payload)
-    }
-    fn finished(&self) -> bool {
-        crate::env::EnvPool::finished(self)
-    }
 }
 
 /// Per-env state of the synthetic stepper.
@@ -64,7 +45,14 @@ pub struct SyntheticStepper {
 }
 
 impl SyntheticStepper {
-    pub fn new(worker_id: u32, num_envs: usize, width: u32, height: u32, programs: Option<Vec<u64>>, expert_hints: bool) -> Self {
+    pub fn new(
+        worker_id: u32,
+        num_envs: usize,
+        width: u32,
+        height: u32,
+        programs: Option<Vec<u64>>,
+        expert_hints: bool,
+    ) -> Self {
         SyntheticStepper {
             shape: ObsShape::new(num_envs, width, height),
             worker_id,
@@ -153,7 +141,12 @@ impl SyntheticStepper {
                 r.reward += 1.0;
             }
             let mut stops = [StopSummary::default(); SUMMARY_STOPS];
-            stops[0] = StopSummary { step: r.episode_step, success: success as u32, distance: r.distance, path_length: 0.25 * r.episode_step as f32 };
+            stops[0] = StopSummary {
+                step: r.episode_step,
+                success: success as u32,
+                distance: r.distance,
+                path_length: 0.25 * r.episode_step as f32,
+            };
             r.summary = EpisodeSummary {
                 steps: r.episode_step,
                 success: success as u32,

@@ -1,0 +1,24 @@
+//! What every process of the rollout farm shares — the worker, the learner and the orchestrator
+//! all link this crate, and only the worker (and the orchestrator's in-process commands) link
+//! the simulator:
+//!
+//! - [`config`]: the run configuration (one TOML file read by every role)
+//! - [`rooms`]: the 120 rooms by name, scene type and split
+//! - [`seed`]: seeded random streams keyed by what they are for
+//! - [`process`]: signals and parent-death plumbing of a role's process
+//! - [`transport`]: iceoryx2 nodes, services and the worker's serving loop
+//! - [`stepper`]: what a worker drives ([`stepper::Stepper`]) and a synthetic one for tests
+//! - [`checkpoints`]: where a run's checkpoints live and how they are named
+//! - [`metrics`]: SR, SPL, DTS at k stops, episode results and trajectories
+//! - [`files`], [`font`]: atomic writes and the one compiled-in font
+
+pub mod checkpoints;
+pub mod config;
+pub mod files;
+pub mod font;
+pub mod metrics;
+pub mod process;
+pub mod rooms;
+pub mod seed;
+pub mod stepper;
+pub mod transport;
