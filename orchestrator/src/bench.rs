@@ -7,16 +7,16 @@ use crate::bench_sim::{self, SimArgs};
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCmd {
-    /// Crew scaling: aggregate frames/s, CPU per worker and step latency for several worker
+    /// Farm scaling: aggregate frames/s, CPU per worker and step latency for several worker
     /// counts, against a renderer-only ceiling.
-    Crew(BenchFarmArgs),
+    Farm(BenchFarmArgs),
     /// The simulator's speed in one process: renderer, env steps, env loop with rendering.
     Sim(SimArgs),
 }
 
 pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
     match cmd {
-        BenchCmd::Crew(a) => bench_farm::run(a),
+        BenchCmd::Farm(a) => bench_farm::run(a),
         BenchCmd::Sim(a) => bench_sim::run(a),
     }
 }

@@ -79,20 +79,20 @@ fn cpu(pids: &[Option<Pid>]) -> Vec<Option<f64>> {
 
 /// Ticks the farm until `pred` holds for its progress, or `timeout`.
 fn wait_for(
-    farm: &mut Crew,
+    crew: &mut Crew,
     timeout: Duration,
     what: &str,
     mut pred: impl FnMut(&Progress) -> bool,
 ) -> anyhow::Result<Progress> {
     let start = Instant::now();
     loop {
-        if farm.tick()? == CrewState::Ended || farm.is_stopping() {
+        if crew.tick()? == CrewState::Ended || crew.is_stopping() {
             anyhow::bail!("the farm ended while waiting for {what}");
         }
         if process::termination_signal().is_some() {
             anyhow::bail!("interrupted");
         }
-        if let Some(p) = farm.progress()
+        if let Some(p) = crew.progress()
             && pred(&p)
         {
             return Ok(p);
@@ -113,39 +113,39 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
     spec.check = true;
     // A safety net: the learner ends the run by itself should this process hang.
     spec.max_seconds = Some(300.0 + a.warmup + a.seconds);
-    let mut farm = Crew::start(spec)?;
+    let mut crew = Crew::start(spec)?;
     let result = (|| -> anyhow::Result<Row> {
         let startup = Duration::from_secs(60 + 10 * n as u64);
-        wait_for(&mut farm, startup, "first observation from every worker", |p| p.workers_seen == n && p.frames > 0)?;
+        wait_for(&mut crew, startup, "first observation from every worker", |p| p.workers_seen == n && p.frames > 0)?;
         let warm_until = Instant::now() + Duration::from_secs_f64(a.warmup);
         while Instant::now() < warm_until {
-            farm.tick()?;
+            crew.tick()?;
             std::thread::sleep(Duration::from_millis(50));
         }
-        let p0 = farm.progress().context("no progress record")?;
-        let p0 = wait_for(&mut farm, Duration::from_secs(10), "a fresh progress record", |p| p.t > p0.t)?;
+        let p0 = crew.progress().context("no progress record")?;
+        let p0 = wait_for(&mut crew, Duration::from_secs(10), "a fresh progress record", |p| p.t > p0.t)?;
         let (w0, c0, l0, g0) = (
             Instant::now(),
-            cpu(&farm.worker_pids()),
-            farm.learner_pid().and_then(child::cpu_seconds),
-            farm.generations(),
+            cpu(&crew.worker_pids()),
+            crew.learner_pid().and_then(child::cpu_seconds),
+            crew.generations(),
         );
         let m0 = child::machine_cpu_seconds();
         let until = Instant::now() + Duration::from_secs_f64(a.seconds);
         while Instant::now() < until {
-            if farm.tick()? == CrewState::Ended {
+            if crew.tick()? == CrewState::Ended {
                 anyhow::bail!("the farm ended during the measurement");
             }
             anyhow::ensure!(process::termination_signal().is_none(), "interrupted");
             std::thread::sleep(Duration::from_millis(50));
         }
-        let p1 = farm.progress().context("no progress record")?;
-        let p1 = wait_for(&mut farm, Duration::from_secs(10), "a fresh progress record", |p| p.t > p1.t)?;
+        let p1 = crew.progress().context("no progress record")?;
+        let p1 = wait_for(&mut crew, Duration::from_secs(10), "a fresh progress record", |p| p.t > p1.t)?;
         let (wall, c1, l1, g1) = (
             w0.elapsed().as_secs_f64(),
-            cpu(&farm.worker_pids()),
-            farm.learner_pid().and_then(child::cpu_seconds),
-            farm.generations(),
+            cpu(&crew.worker_pids()),
+            crew.learner_pid().and_then(child::cpu_seconds),
+            crew.generations(),
         );
         let m1 = child::machine_cpu_seconds();
         let per_worker: Vec<f64> =
@@ -172,12 +172,12 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
             latency_ms: (dl > 0).then(|| 1000.0 * (p1.latency_sum_s - p0.latency_sum_s) / dl as f64),
             frames: p1.frames - p0.frames,
             window_s: dt,
-            restarts: farm.restarts(),
+            restarts: crew.restarts(),
             integrity_errors: p1.lost + p1.duplicates + p1.corrupt,
         })
     })();
-    farm.stop();
-    let outcome = farm.finish();
+    crew.stop();
+    let outcome = crew.finish();
     let row = result?;
     outcome?;
     Ok(row)
@@ -211,7 +211,7 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "# Crew scaling\n\n{}x{} RGB-D frames, {} envs per worker, random policy{}; {} s measured per row after {} s of warm-up; {} CPU cores. CPU % is of one core; \"other processes\" is what the rest of the machine used meanwhile (a busy machine lowers the figures).\n",
+        "# Farm scaling\n\n{}x{} RGB-D frames, {} envs per worker, random policy{}; {} s measured per row after {} s of warm-up; {} CPU cores. CPU % is of one core; \"other processes\" is what the rest of the machine used meanwhile (a busy machine lowers the figures).\n",
         cfg.env.width,
         cfg.env.height,
         cfg.env.envs_per_worker,

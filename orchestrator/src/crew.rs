@@ -194,7 +194,7 @@ impl Crew {
         if let Some(p) = &spec.programs {
             anyhow::ensure!(p.len() == spec.workers, "{} program lists for {} workers", p.len(), spec.workers);
         }
-        let mut farm = Crew {
+        let mut crew = Crew {
             workers: (0..spec.workers)
                 .map(|_| WorkerSlot { child: None, generation: 0, quick_failures: 0, done: false })
                 .collect(),
@@ -211,15 +211,15 @@ impl Crew {
             fatal: None,
         };
         // A previous run in this folder may have been killed: remove what it left.
-        let _ = transport::clean_dead_nodes(&farm.spec.run_id);
-        farm.spawn_learner()?;
-        for k in 0..farm.spec.workers {
-            if let Err(e) = farm.spawn_worker(k) {
-                farm.kill_now();
+        let _ = transport::clean_dead_nodes(&crew.spec.run_id);
+        crew.spawn_learner()?;
+        for k in 0..crew.spec.workers {
+            if let Err(e) = crew.spawn_worker(k) {
+                crew.kill_now();
                 return Err(e);
             }
         }
-        Ok(farm)
+        Ok(crew)
     }
 
     pub fn spec(&self) -> &CrewSpec {

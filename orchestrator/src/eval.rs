@@ -260,8 +260,8 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             spec.learner_args = args;
         }
         let t = Instant::now();
-        let farm = Crew::start(spec)?;
-        let outcome = farm.finish()?;
+        let crew = Crew::start(spec)?;
+        let outcome = crew.finish()?;
         let secs = t.elapsed().as_secs_f64();
         let ok = outcome.learner.as_ref().is_some_and(|e| e.success());
         let finished = outcome.progress.as_ref().and_then(|p| p.stop_reason.clone()).unwrap_or_default();

@@ -149,10 +149,10 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         a.policy.name(),
         if a.synthetic { ", synthetic envs" } else { "" }
     );
-    let mut farm = Crew::start(spec)?;
+    let mut crew = Crew::start(spec)?;
     let ui = Progressline::new();
     let mut signals_seen = 0;
-    while farm.tick()? == CrewState::Running {
+    while crew.tick()? == CrewState::Running {
         let n = process::termination_count();
         if n > signals_seen {
             signals_seen = n;
@@ -161,17 +161,17 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
                     "[up] {}: stopping every process (Ctrl-C again to kill at once)",
                     process::termination_signal().map(|s| s.to_string()).unwrap_or_default()
                 );
-                farm.stop();
+                crew.stop();
             } else {
-                farm.kill_now();
+                crew.kill_now();
             }
         }
-        ui.update(&farm);
+        ui.update(&crew);
         std::thread::sleep(Duration::from_millis(50));
     }
     ui.clear();
     let stopped_by_signal = process::termination_signal();
-    let out = farm.finish()?;
+    let out = crew.finish()?;
     if !out.leftovers.is_empty() {
         eprintln!("[up] removed {} shared-memory file(s) the run left behind", out.leftovers.len());
     }
@@ -215,7 +215,7 @@ impl Progressline {
         Progressline { bar, last: std::cell::Cell::new(Instant::now()) }
     }
 
-    fn text(farm: &Crew, p: &Progress) -> String {
+    fn text(crew: &Crew, p: &Progress) -> String {
         format!(
             "frames {} ({:.1}/s)  episodes {}  success {}  workers {}/{}  restarts {}{}",
             p.frames,
@@ -223,20 +223,20 @@ impl Progressline {
             p.episodes,
             p.success_rate.map(|s| format!("{:.1}%", 100.0 * s)).unwrap_or_else(|| "-".into()),
             p.workers_live,
-            farm.spec().workers,
-            farm.restarts(),
+            crew.spec().workers,
+            crew.restarts(),
             p.latency_ms.map(|l| format!("  step {l:.1} ms")).unwrap_or_default()
         )
     }
 
-    fn update(&self, farm: &Crew) {
+    fn update(&self, crew: &Crew) {
         let every = if self.bar.is_some() { Duration::from_millis(500) } else { Duration::from_secs(5) };
         if self.last.get().elapsed() < every {
             return;
         }
         self.last.set(Instant::now());
-        let Some(p) = farm.progress() else { return };
-        let line = Self::text(farm, &p);
+        let Some(p) = crew.progress() else { return };
+        let line = Self::text(crew, &p);
         match &self.bar {
             Some(b) => b.set_message(line),
             None => eprintln!("[up] {:.0} s  {line}", p.t),
