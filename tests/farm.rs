@@ -295,9 +295,9 @@ fn evaluation_runs_each_assigned_program_once_and_ends_by_itself() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg_path = tiny_config(tmp.path(), 2);
     let mut cfg = farm::config::RunConfig::load(&cfg_path).unwrap();
-    orchestrator::up::resolve_dataset(&mut cfg, false).unwrap();
+    orchestrator::launch::resolve_dataset(&mut cfg, false).unwrap();
     let (dir, config_path) =
-        orchestrator::up::prepare_run(&tmp.path().join("eval"), &cfg, false, 2, PolicyArg::Expert).unwrap();
+        orchestrator::launch::prepare_run(&tmp.path().join("eval"), &cfg, false, 2, PolicyArg::Expert).unwrap();
     let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg, 2, PolicyArg::Expert);
     spec.bin_dir = Some(bin_dir());
     spec.programs = Some(vec![vec![0, 1, 2], vec![3, 4]]);

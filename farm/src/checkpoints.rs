@@ -23,6 +23,11 @@ pub fn update_of(path: &Path) -> Option<u64> {
     name.strip_prefix("ckpt-")?.strip_suffix(".safetensors")?.parse().ok()
 }
 
+/// The newest complete checkpoint of the run directory `run_dir`.
+pub fn latest_in_run(run_dir: &Path) -> Option<PathBuf> {
+    latest(&dir_of(run_dir))
+}
+
 /// Complete checkpoints in `dir`, oldest first.
 pub fn list(dir: &Path) -> Vec<(u64, PathBuf)> {
     let mut found: Vec<(u64, PathBuf)> = std::fs::read_dir(dir)

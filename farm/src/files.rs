@@ -1,7 +1,10 @@
-//! Files every role writes: atomically, so that a reader sees the old file or the whole new one.
+//! Files every role writes and reads: atomic writes (a reader sees the old file or the whole new
+//! one) and JSON-lines records.
 
 use std::io::Write;
 use std::path::Path;
+
+use anyhow::Context;
 
 /// Writes `bytes` to `path` so that a reader sees either the old file or the whole new one:
 /// write a temporary file beside it, fsync, rename over.
@@ -20,6 +23,16 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
         let _ = d.sync_all();
     }
     Ok(())
+}
+
+/// Every line of a JSON-lines file, a bad line named by its number.
+pub fn read_jsonl<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| serde_json::from_str(l).with_context(|| format!("{}: line {}", path.display(), i + 1)))
+        .collect()
 }
 
 #[cfg(test)]

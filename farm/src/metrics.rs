@@ -8,7 +8,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use shm_schema::{EnvRecord, SUMMARY_STOPS};
+use shm_schema::{EnvRecord, SUMMARY_STOPS, action};
 
 /// One finished episode, as the learner records it (`episodes.jsonl`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -79,13 +79,13 @@ impl Trajectory {
             *self = Trajectory { program: r.program, worker, env, success: false, steps: Vec::with_capacity(128) };
         }
         if let Some(prev) = self.steps.last_mut() {
-            prev.action = r.last_action.min(255) as u8;
+            prev.action = r.last_action.min(action::NONE as u32) as u8;
         }
         self.steps.push(TrajectoryStep {
             x: r.robot[0],
             z: r.robot[1],
             yaw: r.robot[2],
-            action: 255,
+            action: action::NONE,
             gesture: r.gesture_kind,
             intervention: r.gesture_index,
         });

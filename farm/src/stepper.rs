@@ -5,7 +5,9 @@
 //! patterned frames without simulating anything, so that the farm's plumbing (transport,
 //! supervision, batching) can be tested and measured on its own.
 
-use shm_schema::{EnvRecord, EpisodeSummary, ObsLayout, ObsSections, ObsShape, SUMMARY_STOPS, StopSummary};
+use shm_schema::{
+    EnvRecord, EpisodeSummary, ObsLayout, ObsSections, ObsShape, SUMMARY_STOPS, StopSummary, action, gesture_kind,
+};
 
 /// What the worker loop drives: E environments that write their observations straight into a
 /// payload buffer (shared memory in the farm) laid out as [`Stepper::layout`] says.
@@ -98,14 +100,14 @@ impl SyntheticStepper {
                 r.episode = started;
                 r.program = p;
                 r.episode_step = 0;
-                r.last_action = 255;
+                r.last_action = action::NONE as u32;
                 r.reward = 0.0;
                 r.terminated = 0;
                 r.truncated = 0;
                 r.episode_start = 1;
                 r.success = 0;
                 r.collided = 0;
-                r.gesture_kind = 1;
+                r.gesture_kind = gesture_kind::REFERENCING;
                 r.idle = 0;
                 r.stops = 0;
                 r.target_category = (p % 38) as u32;
@@ -171,7 +173,8 @@ impl SyntheticStepper {
         let g = shm_schema::GESTURE_FRAMES * shm_schema::GESTURE_DIMS;
         for (e, env) in self.envs.iter_mut().enumerate() {
             let r = &mut env.record;
-            r.expert_action = if self.expert_hints { (r.episode_step % 4) as u8 } else { 255 };
+            r.expert_action =
+                if self.expert_hints { (r.episode_step as usize % action::COUNT) as u8 } else { action::NONE };
             s.records[e] = *r;
             // A diagonal band that moves one pixel per step: consecutive frames differ.
             let shift = (r.env_step as usize + e * 17) % w.max(1);

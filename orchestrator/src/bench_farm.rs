@@ -20,7 +20,7 @@ use nix::unistd::Pid;
 use crate::binaries;
 use crate::child;
 use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
-use crate::up;
+use crate::launch;
 
 /// The bench's configuration when none is given: the dissertation's 224×224 RGB-D frames.
 pub const BENCH_CONFIG: &str = r#"# Embedded configuration of `orchestrator bench farm`: 224x224 RGB-D, 4 envs per worker.
@@ -106,7 +106,7 @@ fn wait_for(
 
 fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::Result<Row> {
     let run_dir = out.join(format!("w{n}"));
-    let (dir, config_path) = up::prepare_run(&run_dir, cfg, false, n, PolicyArg::Random)?;
+    let (dir, config_path) = launch::prepare_run(&run_dir, cfg, false, n, PolicyArg::Random)?;
     let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), n, PolicyArg::Random);
     spec.synthetic = a.synthetic;
     spec.report_every = 0.5;
@@ -302,8 +302,8 @@ pub fn run(a: BenchFarmArgs) -> anyhow::Result<()> {
         Some(p) => RunConfig::load(p)?,
         None => RunConfig::from_toml(BENCH_CONFIG, "(embedded bench config)")?,
     };
-    up::resolve_dataset(&mut cfg, a.synthetic)?;
-    up::sweep_dead_runs();
+    launch::resolve_dataset(&mut cfg, a.synthetic)?;
+    launch::sweep_dead_runs();
     let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-farm"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let config_path = out.join("config.toml");

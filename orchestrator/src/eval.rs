@@ -23,8 +23,8 @@ use worker::program::Program;
 use worker::scene::Split;
 
 use crate::crew::{Crew, CrewSpec, PolicyArg};
+use crate::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
 use crate::tables::{EvalMode, Evaluation, compare};
-use crate::up::{prepare_run, resolve_dataset, sweep_dead_runs};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
@@ -79,28 +79,13 @@ pub struct EvalArgs {
 
 /// The `episodes.jsonl` of an evaluation pass.
 pub fn read_episodes(path: &Path) -> anyhow::Result<Vec<EpisodeResult>> {
-    read_jsonl(path)
-}
-
-/// Every line of a JSON-lines file, a bad line named by its number.
-pub fn read_jsonl<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| serde_json::from_str(l).with_context(|| format!("{}: line {}", path.display(), i + 1)))
-        .collect()
-}
-
-/// The newest complete checkpoint of a run directory.
-pub fn latest_checkpoint(run: &Path) -> Option<PathBuf> {
-    farm::checkpoints::latest(&farm::checkpoints::dir_of(run))
+    farm::files::read_jsonl(path)
 }
 
 /// Resolves `--checkpoint` into (checkpoint file, run directory holding its config).
 fn locate(path: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
     if path.is_dir() {
-        let ckpt = latest_checkpoint(path)
+        let ckpt = farm::checkpoints::latest_in_run(path)
             .with_context(|| format!("{}: no checkpoint in {}/checkpoints yet", path.display(), path.display()))?;
         return Ok((ckpt, path.to_path_buf()));
     }
@@ -373,7 +358,7 @@ mod tests {
     }
 
     #[test]
-    fn latest_checkpoint_ignores_unfinished_files() {
+    fn locate_takes_the_newest_complete_checkpoint() {
         let d = tempfile::tempdir().unwrap();
         let c = d.path().join("checkpoints");
         std::fs::create_dir_all(&c).unwrap();
@@ -385,7 +370,6 @@ mod tests {
         ] {
             std::fs::write(c.join(f), b"x").unwrap();
         }
-        assert_eq!(latest_checkpoint(d.path()).unwrap(), c.join("ckpt-00000020.safetensors"));
         assert_eq!(locate(d.path()).unwrap().0, c.join("ckpt-00000020.safetensors"));
     }
 }

@@ -13,6 +13,7 @@ pub mod crew;
 pub mod dataset_cmd;
 pub mod eval;
 pub mod fonts;
+pub mod launch;
 pub mod map;
 pub mod plot;
 pub mod program_cmd;

@@ -25,7 +25,7 @@ use crate::map::TopDownMap;
 use crate::tables::{EvalMode, Evaluation};
 
 pub fn read(path: &Path) -> anyhow::Result<Vec<Trajectory>> {
-    crate::eval::read_jsonl(path)
+    farm::files::read_jsonl(path)
 }
 
 /// Picks `n` episodes to draw: successes and failures alternately, preferring episodes that

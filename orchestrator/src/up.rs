@@ -5,13 +5,13 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use anyhow::Context;
 use clap::Args;
 use farm::config::RunConfig;
 use farm::process;
 
 use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
-use crate::run_dir::{self, RunDir};
+use crate::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
+use crate::run_dir;
 
 /// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.
 pub const DEFAULT_CONFIG: &str = include_str!("../../configs/tiny/both.toml");
@@ -58,50 +58,6 @@ pub fn load_config(path: Option<&Path>) -> anyhow::Result<RunConfig> {
     })
 }
 
-/// Makes the dataset path absolute (children may run elsewhere) and checks it is a dataset.
-pub fn resolve_dataset(cfg: &mut RunConfig, synthetic: bool) -> anyhow::Result<()> {
-    if cfg.run.dataset.is_relative() {
-        cfg.run.dataset = std::env::current_dir()?.join(&cfg.run.dataset);
-    }
-    let manifest = cfg.run.dataset.join("manifest.json");
-    if !synthetic && !manifest.is_file() {
-        anyhow::bail!(
-            "no dataset at {} (missing {}); build one with `orchestrator dataset build --out {}` or set run.dataset in the config",
-            cfg.run.dataset.display(),
-            manifest.display(),
-            cfg.run.dataset.display()
-        );
-    }
-    Ok(())
-}
-
-/// Creates and locks the run directory, writes the config copy and `run.json`.
-pub fn prepare_run(
-    run_dir: &Path,
-    cfg: &RunConfig,
-    resume: bool,
-    workers: usize,
-    policy: PolicyArg,
-) -> anyhow::Result<(RunDir, PathBuf)> {
-    let dir = RunDir::open(run_dir)?;
-    let config_path = dir.config_path();
-    if !resume {
-        farm::files::write_atomic(&config_path, cfg.to_toml().as_bytes())
-            .with_context(|| format!("writing {}", config_path.display()))?;
-    }
-    dir.write_info(workers, policy.name())?;
-    Ok((dir, config_path))
-}
-
-/// Ends the shared-memory domains of runs whose orchestrator was killed (older than a minute,
-/// no live process).
-pub fn sweep_dead_runs() {
-    let swept = farm::transport::sweep_dead_runs(Duration::from_secs(60));
-    if !swept.is_empty() {
-        eprintln!("[up] removed the shared memory of {} dead run(s): {}", swept.len(), swept.join(", "));
-    }
-}
-
 pub fn run(a: UpArgs) -> anyhow::Result<i32> {
     process::install_termination_handler()?;
     let resume = a.resume.is_some();
@@ -116,7 +72,7 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         }
         None => (a.run_dir.clone().unwrap_or_else(|| run_dir::default_path("up")), load_config(a.config.as_deref())?),
     };
-    if !resume && let Some(c) = crate::eval::latest_checkpoint(&run_path) {
+    if !resume && let Some(c) = farm::checkpoints::latest_in_run(&run_path) {
         anyhow::bail!(
             "{} already holds a training run ({}): continue it with `orchestrator up --resume {}`, or choose another --run-dir",
             run_path.display(),

@@ -1,0 +1,56 @@
+//! What every command that starts a crew does first (`up`, `eval`, `bench farm`): make the
+//! dataset path absolute and check it, create and lock the run directory with its config copy,
+//! and sweep the shared memory of runs whose orchestrator was killed.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::Context;
+use farm::config::RunConfig;
+
+use crate::crew::PolicyArg;
+use crate::run_dir::RunDir;
+
+/// Makes the dataset path absolute (children may run elsewhere) and checks it is a dataset.
+pub fn resolve_dataset(cfg: &mut RunConfig, synthetic: bool) -> anyhow::Result<()> {
+    if cfg.run.dataset.is_relative() {
+        cfg.run.dataset = std::env::current_dir()?.join(&cfg.run.dataset);
+    }
+    let manifest = cfg.run.dataset.join("manifest.json");
+    if !synthetic && !manifest.is_file() {
+        anyhow::bail!(
+            "no dataset at {} (missing {}); build one with `orchestrator dataset build --out {}` or set run.dataset in the config",
+            cfg.run.dataset.display(),
+            manifest.display(),
+            cfg.run.dataset.display()
+        );
+    }
+    Ok(())
+}
+
+/// Creates and locks the run directory, writes the config copy and `run.json`.
+pub fn prepare_run(
+    run_dir: &Path,
+    cfg: &RunConfig,
+    resume: bool,
+    workers: usize,
+    policy: PolicyArg,
+) -> anyhow::Result<(RunDir, PathBuf)> {
+    let dir = RunDir::open(run_dir)?;
+    let config_path = dir.config_path();
+    if !resume {
+        farm::files::write_atomic(&config_path, cfg.to_toml().as_bytes())
+            .with_context(|| format!("writing {}", config_path.display()))?;
+    }
+    dir.write_info(workers, policy.name())?;
+    Ok((dir, config_path))
+}
+
+/// Ends the shared-memory domains of runs whose orchestrator was killed (older than a minute,
+/// no live process).
+pub fn sweep_dead_runs() {
+    let swept = farm::transport::sweep_dead_runs(Duration::from_secs(60));
+    if !swept.is_empty() {
+        eprintln!("[up] removed the shared memory of {} dead run(s): {}", swept.len(), swept.join(", "));
+    }
+}
