@@ -22,6 +22,11 @@ pub trait Stepper {
     fn step(&mut self, actions: &[u8], payload: &mut [u8]) -> anyhow::Result<()>;
     /// Every env is idle: its assigned programs are done (evaluation).
     fn finished(&self) -> bool;
+    /// Nanoseconds spent rendering since this stepper was made (part of `reset` and `step`), for
+    /// the training profile; 0 for steppers that do not render.
+    fn render_ns(&self) -> u64 {
+        0
+    }
 }
 
 /// Per-env state of the synthetic stepper.

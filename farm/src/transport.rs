@@ -30,8 +30,8 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 use nix::sys::signal::Signal;
 use shm_schema::{
-    ACT_MAGIC, ActionMsg, GESTURE_DIMS, GESTURE_FRAMES, OBS_MAGIC, ObsHeader, ObsLayout, SCHEMA_VERSION, command, qos,
-    service,
+    ACT_MAGIC, ActionMsg, GESTURE_DIMS, GESTURE_FRAMES, OBS_MAGIC, ObsHeader, ObsLayout, SCHEMA_VERSION, WorkerTiming,
+    command, qos, service,
 };
 
 use crate::process;
@@ -377,9 +377,13 @@ impl WorkerPorts {
         header: ObsHeader,
         stepper: &mut dyn Stepper,
         actions: Option<&[u8]>,
+        timing: &mut WorkerTiming,
     ) -> Result<(), TransportError> {
+        let t0 = Instant::now();
+        let render_before = stepper.render_ns();
         let len = header.layout.total_len as usize;
         let mut sample = self.publisher.loan_slice_uninit(len).map_err(ipc("loaning an observation sample"))?;
+        let t1 = Instant::now();
         {
             let payload = sample.payload_mut();
             // SAFETY: the payload lies in the publisher's shared-memory data segment, which is
@@ -393,12 +397,17 @@ impl WorkerPorts {
             }
             .map_err(TransportError::Env)?;
         }
+        let t2 = Instant::now();
+        let render = stepper.render_ns().saturating_sub(render_before);
+        timing.render_ns += render;
+        timing.sim_ns += nanos(t2 - t1).saturating_sub(render);
         *sample.user_header_mut() = ObsHeader { finished: stepper.finished() as u32, ..header };
         // SAFETY: see above; every byte of the payload is initialised.
         let sample = unsafe { sample.assume_init() };
         sample.send().map_err(ipc("sending an observation"))?;
         // A failed wake-up only delays the learner until its next timeout; not fatal.
         let _ = self.obs_ready.notify();
+        timing.send_ns += nanos(t1 - t0) + nanos(t2.elapsed());
         Ok(())
     }
 
@@ -457,22 +466,31 @@ pub fn serve(stepper: &mut dyn Stepper, opts: &WorkerOptions) -> Result<Exit, Tr
         gesture_dims: GESTURE_DIMS as u32,
         finished: 0,
         layout,
+        timing: WorkerTiming::default(),
     };
     let mut actions = vec![0u8; e];
     let mut step = 0u64;
+    let mut timing = WorkerTiming::default();
     loop {
         if let Some(sig) = process::termination_signal() {
             return Ok(Exit::Terminated(sig));
         }
-        let h = ObsHeader { step, ..header };
-        ports.send_observation(h, stepper, if step == 0 { None } else { Some(&actions) })?;
-        match ports.wait_for_action(opts, step)? {
+        let h = ObsHeader { step, timing, ..header };
+        ports.send_observation(h, stepper, if step == 0 { None } else { Some(&actions) }, &mut timing)?;
+        let waiting = Instant::now();
+        let answer = ports.wait_for_action(opts, step)?;
+        timing.wait_ns += nanos(waiting.elapsed());
+        match answer {
             None => return Ok(Exit::Terminated(process::termination_signal().unwrap_or(Signal::SIGTERM))),
             Some(m) if m.command == command::SHUTDOWN => return Ok(Exit::Shutdown),
             Some(m) => actions.copy_from_slice(&m.actions[..e]),
         }
         step += 1;
     }
+}
+
+fn nanos(d: Duration) -> u64 {
+    d.as_nanos().min(u64::MAX as u128) as u64
 }
 
 #[cfg(test)]
@@ -521,6 +539,7 @@ mod tests {
             .unwrap();
         let publisher = act.publisher_builder().create().unwrap();
         let shape = ObsShape::new(2, 16, 12);
+        let mut last_timing = WorkerTiming::default();
         for t in 0..25u64 {
             let sample = loop {
                 if let Some(s) = sub.receive().unwrap() {
@@ -530,6 +549,16 @@ mod tests {
             };
             let h = *sample.user_header();
             assert_eq!((h.magic, h.worker_id, h.generation, h.step), (OBS_MAGIC, 0, 3, t));
+            // the profile's sums only grow; the synthetic stepper renders nothing
+            let g = h.timing;
+            assert!(
+                g.sim_ns >= last_timing.sim_ns && g.send_ns >= last_timing.send_ns && g.wait_ns >= last_timing.wait_ns
+            );
+            assert_eq!(g.render_ns, 0);
+            if t > 0 {
+                assert!(g.sim_ns > 0 && g.wait_ns > 0, "{g:?}");
+            }
+            last_timing = g;
             let view = ObsView::new(ObsShape::of_header(&h).unwrap(), sample.payload()).unwrap();
             assert_eq!(*view.shape(), shape);
             assert!(view.records().iter().all(|r| r.env_step == t));

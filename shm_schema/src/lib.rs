@@ -53,7 +53,7 @@ pub mod gesture_kind {
 
 pub const OBS_MAGIC: u32 = 0x4753_4F42; // "GSOB"
 pub const ACT_MAGIC: u32 = 0x4753_4143; // "GSAC"
-pub const SCHEMA_VERSION: u32 = 1;
+pub const SCHEMA_VERSION: u32 = 2;
 
 /// Byte offsets of the payload sections (from the start of the `[u8]` payload), each aligned
 /// to 64 bytes.
@@ -95,6 +95,24 @@ pub struct ObsHeader {
     /// 1 once every env of this worker has run out of assigned programs (evaluation).
     pub finished: u32,
     pub layout: ObsLayout,
+    /// Where this worker process's time went so far (for the training profile).
+    pub timing: WorkerTiming,
+}
+
+/// Cumulative nanoseconds a worker process spent, since it started, on each part of its loop.
+/// Observation `step` carries the sums up to the start of its own step.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[type_name("gesthor::WorkerTiming")]
+pub struct WorkerTiming {
+    /// Stepping the envs (physics, task, gestures) and writing observations, rendering excluded.
+    pub sim_ns: u64,
+    /// Rendering the envs' views.
+    pub render_ns: u64,
+    /// Loaning, sending and notifying (the observation's way out).
+    pub send_ns: u64,
+    /// Waiting for the learner's actions.
+    pub wait_ns: u64,
 }
 
 /// One stop of an episode (for SR/SPL/DTS at k stops).
@@ -552,7 +570,8 @@ mod tests {
         assert_eq!(std::mem::size_of::<StopSummary>(), 16);
         assert_eq!(std::mem::size_of::<EpisodeSummary>(), 40 + 48);
         assert_eq!(std::mem::size_of::<EnvRecord>(), 184);
-        assert_eq!(std::mem::size_of::<ObsHeader>(), 48 + 64);
+        assert_eq!(std::mem::size_of::<ObsHeader>(), 48 + 64 + 32);
+        assert_eq!(std::mem::size_of::<WorkerTiming>(), 32);
         assert_eq!(std::mem::size_of::<ActionMsg>(), 32 + MAX_ENVS);
     }
 
@@ -562,6 +581,7 @@ mod tests {
         assert_eq!(offset_of!(ObsHeader, step), 16);
         assert_eq!(offset_of!(ObsHeader, finished), 44);
         assert_eq!(offset_of!(ObsHeader, layout), 48);
+        assert_eq!(offset_of!(ObsHeader, timing), 112);
         assert_eq!(offset_of!(ObsLayout, total_len), 56);
         assert_eq!(offset_of!(EnvRecord, reward), 32);
         assert_eq!(offset_of!(EnvRecord, terminated), 36);

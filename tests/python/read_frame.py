@@ -26,7 +26,7 @@ import numpy as np
 import iceoryx2 as iox2
 
 OBS_MAGIC = 0x4753_4F42
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 GESTURE_FRAMES, GESTURE_DIMS = 100, 95
 SUMMARY_STOPS = 3
 
@@ -58,6 +58,19 @@ class ObsLayout(ctypes.Structure):
         return "gesthor::ObsLayout"
 
 
+class WorkerTiming(ctypes.Structure):
+    _fields_ = [
+        ("sim_ns", ctypes.c_uint64),
+        ("render_ns", ctypes.c_uint64),
+        ("send_ns", ctypes.c_uint64),
+        ("wait_ns", ctypes.c_uint64),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "gesthor::WorkerTiming"
+
+
 class ObsHeader(ctypes.Structure):
     _fields_ = [
         ("magic", ctypes.c_uint32),
@@ -72,6 +85,7 @@ class ObsHeader(ctypes.Structure):
         ("gesture_dims", ctypes.c_uint32),
         ("finished", ctypes.c_uint32),
         ("layout", ObsLayout),
+        ("timing", WorkerTiming),
     ]
 
     @staticmethod
@@ -135,7 +149,7 @@ class EnvRecord(ctypes.Structure):
 
 
 # The sizes readers hard-code (shm_schema's record_sizes_are_stable test pins the Rust side).
-assert ctypes.sizeof(ObsHeader) == 112 and ctypes.sizeof(EnvRecord) == 184, "layout drifted from shm_schema"
+assert ctypes.sizeof(ObsHeader) == 144 and ctypes.sizeof(EnvRecord) == 184, "layout drifted from shm_schema"
 
 
 def write_png(path: str, rgb: np.ndarray) -> None:
