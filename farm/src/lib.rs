@@ -10,6 +10,7 @@
 //! - [`stepper`]: what a worker drives ([`stepper::Stepper`]) and a synthetic one for tests
 //! - [`checkpoints`]: where a run's checkpoints live and how they are named
 //! - [`metrics`]: SR, SPL, DTS at k stops, episode results and trajectories
+//! - [`profile`]: where a training run's time goes (learner timeline, worker loops)
 //! - [`files`], [`font`]: atomic writes and the one compiled-in font
 
 pub mod checkpoints;
@@ -18,6 +19,7 @@ pub mod files;
 pub mod font;
 pub mod metrics;
 pub mod process;
+pub mod profile;
 pub mod rooms;
 pub mod seed;
 pub mod stepper;

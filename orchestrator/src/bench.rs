@@ -4,6 +4,7 @@ use clap::Subcommand;
 
 use crate::bench_farm::{self, BenchFarmArgs};
 use crate::bench_sim::{self, SimArgs};
+use crate::bench_train::{self, BenchTrainArgs};
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCmd {
@@ -12,11 +13,15 @@ pub enum BenchCmd {
     Farm(BenchFarmArgs),
     /// The simulator's speed in one process: renderer, env steps, env loop with rendering.
     Sim(SimArgs),
+    /// Training throughput end to end for a fixed frame count, and where the time went
+    /// (learner: update, inference, waiting; workers: env step, render, transport).
+    Train(BenchTrainArgs),
 }
 
 pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
     match cmd {
         BenchCmd::Farm(a) => bench_farm::run(a),
         BenchCmd::Sim(a) => bench_sim::run(a),
+        BenchCmd::Train(a) => bench_train::run(a),
     }
 }

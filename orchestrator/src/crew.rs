@@ -125,6 +125,8 @@ pub struct Progress {
     pub duplicates: u64,
     pub corrupt: u64,
     pub stop_reason: Option<String>,
+    /// Where the time went so far (learners that write it).
+    pub profile: Option<farm::profile::Profile>,
 }
 
 /// How a farm ended.

@@ -7,6 +7,7 @@
 pub mod bench;
 pub mod bench_farm;
 pub mod bench_sim;
+pub mod bench_train;
 pub mod binaries;
 pub mod child;
 pub mod crew;

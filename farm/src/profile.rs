@@ -1,0 +1,82 @@
+//! Where a training run's time goes: the learner's timeline and its workers' loops, as cumulative
+//! seconds. The learner writes one into every progress record (`farm.jsonl`, field `profile`);
+//! `orchestrator bench train` reads the last one.
+
+use serde::{Deserialize, Serialize};
+use shm_schema::WorkerTiming;
+
+/// Cumulative seconds since the learner started.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LearnerTime {
+    /// Waiting for the workers' observations (they step, render and send meanwhile).
+    pub wait_s: f64,
+    /// Taking observations in: integrity checks, batching, records.
+    pub receive_s: f64,
+    /// The policy's forward pass and sampling (acting).
+    pub infer_s: f64,
+    /// Sending actions and waking the workers.
+    pub send_s: f64,
+    /// PPO updates (the workers wait meanwhile unless collection overlaps learning).
+    pub update_s: f64,
+}
+
+impl LearnerTime {
+    pub fn total(&self) -> f64 {
+        self.wait_s + self.receive_s + self.infer_s + self.send_s + self.update_s
+    }
+}
+
+/// Cumulative seconds of the workers' loops, summed over the workers' current processes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct WorkerTime {
+    /// Stepping envs (physics, task, gestures) and writing observations, rendering excluded.
+    pub sim_s: f64,
+    pub render_s: f64,
+    /// Loaning, sending, notifying.
+    pub send_s: f64,
+    /// Waiting for the learner's actions.
+    pub wait_s: f64,
+}
+
+impl WorkerTime {
+    /// Adds one worker's cumulative timing as its observation header carries it.
+    pub fn add(&mut self, t: &WorkerTiming) {
+        let s = |ns: u64| ns as f64 * 1e-9;
+        self.sim_s += s(t.sim_ns);
+        self.render_s += s(t.render_ns);
+        self.send_s += s(t.send_ns);
+        self.wait_s += s(t.wait_ns);
+    }
+
+    pub fn total(&self) -> f64 {
+        self.sim_s + self.render_s + self.send_s + self.wait_s
+    }
+}
+
+/// The profile of a run so far.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Profile {
+    pub learner: LearnerTime,
+    pub workers: WorkerTime,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn worker_nanoseconds_add_up_as_seconds() {
+        let mut w = WorkerTime::default();
+        let t = WorkerTiming { sim_ns: 1_500_000_000, render_ns: 500_000_000, send_ns: 0, wait_ns: 2_000_000_000 };
+        w.add(&t);
+        w.add(&t);
+        assert_eq!((w.sim_s, w.render_s, w.wait_s), (3.0, 1.0, 4.0));
+        assert_eq!(w.total(), 8.0);
+        let p: Profile = serde_json::from_str(r#"{"learner": {"update_s": 2.5}}"#).unwrap();
+        assert_eq!(p.learner.update_s, 2.5);
+        assert_eq!(p.workers, WorkerTime::default());
+    }
+}

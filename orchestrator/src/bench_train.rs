@@ -1,0 +1,182 @@
+//! `orchestrator bench train`: end-to-end training throughput of a configuration (the embedded
+//! default of `up` when none is given) over a fixed number of frames, and where the time went.
+//!
+//! The run is an ordinary training run (PPO, checkpoints off); its learner's last progress record
+//! carries the profile (`farm::profile`): the learner's timeline (waiting for observations,
+//! receiving, inference, sending, updates) and the workers' loops (env step, render, transport,
+//! waiting for actions), cumulative seconds. Frame-limited, so a row can be repeated.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use clap::Args;
+use farm::config::RunConfig;
+use farm::process;
+use farm::profile::Profile;
+
+use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
+use crate::launch;
+use crate::up;
+
+#[derive(Args, Debug)]
+pub struct BenchTrainArgs {
+    /// Run configuration (default: the embedded default of `up`, tiny +Both).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Worker processes.
+    #[arg(long, default_value_t = 4)]
+    pub workers: usize,
+    /// Frames to train for (the run stops at the first update boundary past it).
+    #[arg(long, default_value_t = 50_000)]
+    pub frames: u64,
+    /// Where the run goes (default: runs/bench-train-<UTC time>); the table is written there.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Also write the table (Markdown) here, e.g. docs/bench/train.md.
+    #[arg(long)]
+    pub table: Option<PathBuf>,
+}
+
+/// What one bench run measured.
+#[derive(Clone, Debug, Default)]
+pub struct TrainBench {
+    pub frames: u64,
+    pub seconds: f64,
+    pub updates: u64,
+    pub profile: Profile,
+    pub workers: usize,
+}
+
+impl TrainBench {
+    pub fn fps(&self) -> f64 {
+        self.frames as f64 / self.seconds.max(1e-9)
+    }
+
+    /// Frames per second while collecting (the wall time outside updates).
+    pub fn collection_fps(&self) -> f64 {
+        self.frames as f64 / (self.seconds - self.profile.learner.update_s).max(1e-9)
+    }
+
+    /// Update seconds per 4,096 frames (the embedded default's rollout: 32 envs × 128 steps).
+    pub fn update_s_per_4096(&self) -> f64 {
+        self.profile.learner.update_s * 4096.0 / self.frames.max(1) as f64
+    }
+}
+
+fn share(part: f64, whole: f64) -> String {
+    if whole > 0.0 { format!("{:.1}%", 100.0 * part / whole) } else { "-".into() }
+}
+
+/// The bench's table as Markdown.
+pub fn report(b: &TrainBench, cfg: &RunConfig, command: &str) -> String {
+    let l = &b.profile.learner;
+    let w = &b.profile.workers;
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "# Training throughput\n\n`{command}`\n\n{} ({}, {}×{} RGB-D, encoder {:?}), {} workers × {} envs, {} CPU cores; \
+         {} frames in {:.1} s, {} PPO updates.\n",
+        cfg.run.method.label(),
+        cfg.run.dataset.display(),
+        cfg.env.width,
+        cfg.env.height,
+        cfg.model.encoder,
+        b.workers,
+        cfg.env.envs_per_worker,
+        std::thread::available_parallelism().map(|n| n.get()).unwrap_or(0),
+        b.frames,
+        b.seconds,
+        b.updates,
+    );
+    let _ = writeln!(md, "| measure | value |\n|---|---:|");
+    let _ = writeln!(md, "| end-to-end frames/s | **{:.0}** |", b.fps());
+    let _ = writeln!(md, "| frames/s while collecting (outside updates) | {:.0} |", b.collection_fps());
+    let _ = writeln!(md, "| update seconds per 4,096 frames | {:.2} |", b.update_s_per_4096());
+    let _ = writeln!(md);
+    let _ = writeln!(md, "The learner's wall time ({:.1} s):\n", l.total());
+    let _ = writeln!(md, "| learner | seconds | share |\n|---|---:|---:|");
+    for (name, v) in [
+        ("PPO update (workers wait)", l.update_s),
+        ("waiting for observations (workers step, render, send)", l.wait_s),
+        ("inference (forward + sampling)", l.infer_s),
+        ("receiving (checks, batching, records)", l.receive_s),
+        ("sending actions", l.send_s),
+    ] {
+        let _ = writeln!(md, "| {name} | {v:.1} | {} |", share(v, l.total()));
+    }
+    let _ = writeln!(md);
+    let _ = writeln!(md, "The workers' wall time, summed over {} workers ({:.1} s):\n", b.workers, w.total());
+    let _ = writeln!(md, "| workers | seconds | share |\n|---|---:|---:|");
+    for (name, v) in [
+        ("env step (physics, task, gestures, writing observations)", w.sim_s),
+        ("render", w.render_s),
+        ("transport (loan, send, notify)", w.send_s),
+        ("waiting for actions (learner infers or updates)", w.wait_s),
+    ] {
+        let _ = writeln!(md, "| {name} | {v:.1} | {} |", share(v, w.total()));
+    }
+    md
+}
+
+/// Runs the crew until it ends by itself at `frames` (or is interrupted).
+fn train(a: &BenchTrainArgs, cfg: &RunConfig, out: &std::path::Path) -> anyhow::Result<(Progress, f64)> {
+    let run_dir = out.join("run");
+    let (dir, config_path) = launch::prepare_run(&run_dir, cfg, false, a.workers, PolicyArg::Ppo)?;
+    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, PolicyArg::Ppo);
+    spec.max_frames = Some(a.frames);
+    spec.report_every = 1.0;
+    let start = Instant::now();
+    let mut crew = Crew::start(spec)?;
+    let mut last_line = Instant::now();
+    while crew.tick()? == CrewState::Running {
+        if process::termination_signal().is_some() && !crew.is_stopping() {
+            crew.stop();
+        }
+        if last_line.elapsed() > Duration::from_secs(10)
+            && let Some(p) = crew.progress()
+        {
+            eprintln!("[bench] {} of {} frames, {:.0} frames/s", p.frames, a.frames, p.fps);
+            last_line = Instant::now();
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let outcome = crew.finish()?;
+    anyhow::ensure!(!outcome.stopped, "interrupted before {} frames", a.frames);
+    let p = outcome.progress.context("the learner wrote no progress record")?;
+    Ok((p, start.elapsed().as_secs_f64()))
+}
+
+pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
+    process::install_termination_handler()?;
+    anyhow::ensure!(a.workers > 0, "--workers: give a positive count");
+    anyhow::ensure!(a.frames > 0, "--frames: give a positive count");
+    let mut cfg = up::load_config(a.config.as_deref())?;
+    cfg.checkpoint.every_updates = u64::MAX;
+    launch::resolve_dataset(&mut cfg, false)?;
+    launch::sweep_dead_runs();
+    let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-train"));
+    let (p, wall) = train(&a, &cfg, &out)?;
+    let metrics: Vec<serde_json::Value> = farm::files::read_jsonl(&out.join("run/metrics.jsonl")).unwrap_or_default();
+    let bench = TrainBench {
+        frames: p.frames,
+        // the learner's own clock: from its start to its last record (process start-up excluded)
+        seconds: if p.t > 0.0 { p.t } else { wall },
+        updates: metrics.len() as u64,
+        profile: p.profile.unwrap_or_default(),
+        workers: a.workers,
+    };
+    let mut command = format!("orchestrator bench train --workers {} --frames {}", a.workers, a.frames);
+    if let Some(c) = &a.config {
+        let _ = write!(command, " --config {}", c.display());
+    }
+    let md = report(&bench, &cfg, &command);
+    print!("{md}");
+    farm::files::write_atomic(&out.join("bench_train.md"), md.as_bytes())?;
+    if let Some(t) = &a.table {
+        farm::files::write_atomic(t, md.as_bytes()).with_context(|| format!("writing {}", t.display()))?;
+    }
+    eprintln!("[bench] written {}", out.join("bench_train.md").display());
+    Ok(())
+}
