@@ -15,9 +15,10 @@ use clap::Args;
 use rand::Rng;
 
 use farm::config::RunConfig;
+use farm::stepper::PayloadBuf;
 use worker::dataset::build::{BuildOptions, build, default_interventions, default_synth};
 use worker::dataset::{Dataset, Verify};
-use worker::env::{AlignedBuf, Env, EnvPool, PoolSpec, ProgramSource, Rooms};
+use worker::env::{Env, EnvPool, PoolSpec, ProgramSource, Rooms};
 use worker::gesture::Motion;
 use worker::humanoid::Humanoid;
 use worker::program::Program;
@@ -107,11 +108,11 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     // 3. env loop with rendering
     let spec = PoolSpec { worker_id: 0, generation: 0, programs: ProgramSource::Sample, expert_hints: false };
     let mut pool = EnvPool::with_dataset(&cfg, spec, ds.clone())?;
-    let mut buf = AlignedBuf::new(pool.layout().total_len as usize);
-    pool.reset(buf.as_mut_slice())?;
+    let mut buf = PayloadBuf::new(&pool.layout());
+    pool.reset(buf.bytes_mut())?;
     let mut actions = vec![0u8; a.envs];
     for _ in 0..3 {
-        pool.step(&actions, buf.as_mut_slice())?; // warm-up: first uploads of rooms
+        pool.step(&actions, buf.bytes_mut())?; // warm-up: first uploads of rooms
     }
     let t = Instant::now();
     let mut frames = 0u64;
@@ -119,7 +120,7 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
         for x in actions.iter_mut() {
             *x = rng.random_range(0..4);
         }
-        pool.step(&actions, buf.as_mut_slice())?;
+        pool.step(&actions, buf.bytes_mut())?;
         frames += a.envs as u64;
     }
     let v = frames as f64 / t.elapsed().as_secs_f64();

@@ -1,5 +1,6 @@
 //! The pinhole camera shared by the renderer and the CPU visibility checks, so that "in view"
-//! means the same thing to both.
+//! means the same thing to both: its basis, intrinsics, projection, clip planes, and the
+//! encoding of the depth image it sees.
 //!
 //! Frame: x right, y up, z forward (left-handed, as in Unity). At yaw 0 the camera looks along +z
 //! and +x is on the right of the image; pitch > 0 looks up. Pixel (0, 0) is the top-left corner.
@@ -11,6 +12,17 @@ pub const NEAR: f32 = 0.02;
 pub const FAR: f32 = 20.0;
 /// Depth images are linear in 0..MAX_DEPTH metres (§3.2.2).
 pub const MAX_DEPTH: f32 = 10.0;
+
+/// Linear depth (metres) to the 16-bit value of the depth image: 0..10 m → 0..65535, clamped.
+/// The renderer's shader (scene.wgsl, `fs_main`) packs depth the same way.
+pub fn encode_depth(metres: f32) -> u16 {
+    ((metres / MAX_DEPTH).clamp(0.0, 1.0) * 65535.0 + 0.5) as u16
+}
+
+/// The inverse of `encode_depth` (to the nearest step of 10 m / 65535).
+pub fn decode_depth(value: u16) -> f32 {
+    value as f32 / 65535.0 * MAX_DEPTH
+}
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
@@ -124,5 +136,14 @@ mod tests {
         let (x, _, _) = cam(0.0).project(&K, &Point3::new(2.0, 1.5, 2.0)).unwrap();
         assert!((x - 224.0).abs() < 1e-3);
         assert!(!cam(0.0).in_view(&K, &Point3::new(0.0, 1.5, -1.0), 0.0));
+    }
+
+    #[test]
+    fn depth_encoding_is_linear_and_saturates() {
+        assert_eq!(encode_depth(0.0), 0);
+        assert_eq!(encode_depth(10.0), 65535);
+        assert_eq!(encode_depth(25.0), 65535);
+        assert_eq!(encode_depth(5.0), 32768);
+        assert!((decode_depth(encode_depth(2.0)) - 2.0).abs() < 1e-3);
     }
 }

@@ -7,20 +7,23 @@ use crate::camera::Camera;
 use crate::geometry::{heading, wrap_deg};
 use crate::physics::Physics;
 use farm::config::EnvConfig;
+use shm_schema::action;
 
-/// The four actions. The discriminant is the action index the policy outputs.
+/// The four actions. The discriminant is the action index the policy outputs and the action
+/// message carries (`shm_schema::action`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[repr(u8)]
 pub enum Action {
-    MoveAhead = 0,
-    RotateLeft = 1,
-    RotateRight = 2,
-    Stop = 3,
+    MoveAhead = action::MOVE_AHEAD,
+    RotateLeft = action::ROTATE_LEFT,
+    RotateRight = action::ROTATE_RIGHT,
+    Stop = action::STOP,
 }
 
 impl Action {
-    pub const ALL: [Action; 4] = [Action::MoveAhead, Action::RotateLeft, Action::RotateRight, Action::Stop];
-    pub const COUNT: usize = shm_schema::action::COUNT;
+    pub const COUNT: usize = action::COUNT;
+    /// Every action, in the order of its index.
+    pub const ALL: [Action; Action::COUNT] = [Action::MoveAhead, Action::RotateLeft, Action::RotateRight, Action::Stop];
 
     pub fn from_index(i: u8) -> Option<Action> {
         Action::ALL.get(i as usize).copied()
@@ -151,6 +154,16 @@ mod tests {
             prop_assert!(!m.moved && m.collided);
             prop_assert_eq!(p, before);
         }
+    }
+
+    #[test]
+    fn indices_are_the_wire_indices() {
+        for (i, a) in Action::ALL.into_iter().enumerate() {
+            assert_eq!(a as usize, i, "{a:?} is not at its index in Action::ALL");
+            assert_eq!(Action::from_index(a as u8), Some(a));
+        }
+        assert_eq!(Action::from_index(action::COUNT as u8), None);
+        assert_eq!(Action::from_index(action::NONE), None);
     }
 
     #[test]

@@ -6,7 +6,8 @@ use std::time::Instant;
 
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 
-use super::{Camera, RenderError, Renderer, View, ViewOut};
+use super::{RenderError, Renderer, View, ViewOut};
+use crate::camera::Camera;
 use crate::geometry::{ID_HUMAN, ID_STRUCTURE, Material, Part, Shape, yaw_rotation};
 use crate::scene::{Category, Object, Room, Scene, SceneType, Surface};
 

@@ -3,7 +3,8 @@
 use nalgebra::{Point3, Vector3};
 
 use super::*;
-use crate::geometry::{ID_HUMAN, ID_NONE, Shape};
+use crate::camera::{Camera, decode_depth};
+use crate::geometry::{ID_HUMAN, ID_NONE, Part, Shape};
 
 /// A renderer, or None (with a note) on a machine without any wgpu adapter.
 fn renderer(cfg: &RenderConfig) -> Option<Renderer> {

@@ -1,4 +1,6 @@
-//! The camera and its projection, shared by the shader and by CPU visibility checks.
+//! The camera's projection as the renderer applies it: the per-view uniform block the shader
+//! reads (view basis, projection scales, reversed-Z coefficients) and [`project`], the same
+//! math on the CPU.
 //!
 //! The world is left-handed (x right, y up, z forward): a camera at yaw 0 looks along +z and
 //! sees +x on the right of its image. The view basis is (right, up, forward) and a point's
@@ -6,10 +8,10 @@
 //! NDC x = right, NDC y = up, and the forward offset is the linear depth the robot's depth
 //! image reports (eye-space z, not the ray length, as a depth buffer gives it, §3.2.2).
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 
-use super::RenderConfig;
-pub use crate::camera::{Camera, FAR, MAX_DEPTH as MAX_DEPTH_M, NEAR};
+use super::config::RenderConfig;
+use crate::camera::{Camera, FAR, NEAR};
 
 /// Scale factors of the projection: (x, y) multipliers of view x and y before the divide.
 pub fn projection_scale(cfg: &RenderConfig) -> (f32, f32) {
@@ -64,60 +66,6 @@ pub fn project(camera: &Camera, cfg: &RenderConfig, point: Point3<f32>) -> Optio
     ((NEAR..=FAR).contains(&zv) && px >= 0.0 && px < w && py >= 0.0 && py < h).then_some((px, py, zv))
 }
 
-/// The view volume of a camera, for skipping parts that cannot appear in its image.
-#[derive(Clone, Copy, Debug)]
-pub struct Frustum {
-    eye: Vector3<f32>,
-    right: Vector3<f32>,
-    up: Vector3<f32>,
-    forward: Vector3<f32>,
-    /// Projection scales and 1/√(s² + 1), the length of the side planes' normals.
-    sx: f32,
-    sy: f32,
-    nx: f32,
-    ny: f32,
-}
-
-impl Frustum {
-    pub fn new(camera: &Camera, cfg: &RenderConfig) -> Frustum {
-        let (right, up, forward) = camera.basis();
-        let (sx, sy) = projection_scale(cfg);
-        Frustum {
-            eye: camera.position.coords,
-            right,
-            up,
-            forward,
-            sx,
-            sy,
-            nx: 1.0 / (sx * sx + 1.0).sqrt(),
-            ny: 1.0 / (sy * sy + 1.0).sqrt(),
-        }
-    }
-
-    /// Whether a sphere may show in the image. Conservative (a centimetre of slack on every
-    /// plane): it never drops a sphere the rasteriser would draw, so culling cannot change
-    /// a single pixel.
-    pub fn may_see_sphere(&self, center: [f32; 3], radius: f32) -> bool {
-        let d = Vector3::from(center) - self.eye;
-        let r = radius + 0.01;
-        let (x, y, z) = (d.dot(&self.right), d.dot(&self.up), d.dot(&self.forward));
-        z + r >= NEAR
-            && z - r <= FAR
-            && (x.abs() * self.sx - z) * self.nx <= r
-            && (y.abs() * self.sy - z) * self.ny <= r
-    }
-}
-
-/// Linear depth (metres) to the 16-bit value of the depth image: 0..10 m → 0..65535, clamped.
-pub fn encode_depth(metres: f32) -> u16 {
-    ((metres / MAX_DEPTH_M).clamp(0.0, 1.0) * 65535.0 + 0.5) as u16
-}
-
-/// The inverse of `encode_depth` (to the nearest step of 10 m / 65535).
-pub fn decode_depth(value: u16) -> f32 {
-    value as f32 / 65535.0 * MAX_DEPTH_M
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -169,49 +117,5 @@ mod tests {
         let c = Camera { position: Point3::new(0.0, 1.5, 0.0), yaw_deg: 0.0, pitch_deg: 20.0 };
         let (_, py, _) = project(&c, &cfg(), Point3::new(0.0, 1.5, 2.0)).unwrap();
         assert!(py > 112.0);
-    }
-
-    #[test]
-    fn frustum_keeps_every_sphere_with_a_visible_point() {
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let c = RenderConfig { width: 160, height: 96, fov_deg: 75.0, max_views_per_submit: 1 };
-        let mut culled = 0;
-        for _ in 0..2000 {
-            let cam = Camera {
-                position: Point3::new(rng.random_range(-2.0..2.0), 1.5, rng.random_range(-2.0..2.0)),
-                yaw_deg: rng.random_range(0.0..360.0),
-                pitch_deg: rng.random_range(-30.0..30.0),
-            };
-            let f = Frustum::new(&cam, &c);
-            let center = [rng.random_range(-6.0..6.0), rng.random_range(-1.0..4.0), rng.random_range(-6.0..6.0)];
-            let radius = rng.random_range(0.01..1.0f32);
-            if f.may_see_sphere(center, radius) {
-                continue;
-            }
-            culled += 1;
-            for _ in 0..200 {
-                let v = Vector3::new(
-                    rng.random_range(-1.0..1.0f32),
-                    rng.random_range(-1.0..1.0),
-                    rng.random_range(-1.0..1.0),
-                );
-                if v.norm() > 1.0 {
-                    continue;
-                }
-                let p = Point3::from(center) + v * radius;
-                assert!(project(&cam, &c, p).is_none(), "culled sphere {center:?} r {radius} has visible point {p:?}");
-            }
-        }
-        assert!(culled > 500, "{culled}");
-    }
-
-    #[test]
-    fn depth_encoding_is_linear_and_saturates() {
-        assert_eq!(encode_depth(0.0), 0);
-        assert_eq!(encode_depth(10.0), 65535);
-        assert_eq!(encode_depth(25.0), 65535);
-        assert_eq!(encode_depth(5.0), 32768);
-        assert!((decode_depth(encode_depth(2.0)) - 2.0).abs() < 1e-3);
     }
 }
