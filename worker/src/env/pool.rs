@@ -97,6 +97,8 @@ pub struct EnvPool {
     episodes: Vec<u64>,
     ids: Vec<Vec<u16>>,
     shape: ObsShape,
+    /// Time spent in the renderer since the pool was made (the training profile).
+    render_time: std::time::Duration,
 }
 
 impl EnvPool {
@@ -147,6 +149,7 @@ impl EnvPool {
             episodes: vec![0; n],
             ids: vec![vec![0; px]; n],
             shape,
+            render_time: std::time::Duration::ZERO,
         })
     }
 
@@ -294,7 +297,9 @@ impl EnvPool {
                 }
             }
         }
+        let t = std::time::Instant::now();
         self.renderer.render(&views, &mut outs)?;
+        self.render_time += t.elapsed();
         drop(outs);
         for &i in &running {
             if let Slot::Running(e) = &mut self.envs[i] {
@@ -346,6 +351,9 @@ impl farm::stepper::Stepper for EnvPool {
     }
     fn finished(&self) -> bool {
         EnvPool::finished(self)
+    }
+    fn render_ns(&self) -> u64 {
+        self.render_time.as_nanos() as u64
     }
 }
 
