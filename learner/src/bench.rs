@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use farm::config::RunConfig;
 use rand::Rng;
+use shm_schema::action;
 use tch::{Device, nn};
 
 use crate::LearnerError;
@@ -53,7 +54,7 @@ pub fn random_obs(n: usize, side: usize, seed: u64) -> OwnedObs {
         *e = EnvStep {
             episode_start: true,
             gesture: GestureKind::Referencing,
-            target: (i as i64 * 5) % crate::model::target_count(),
+            target: (i as i64 * 5) % shm_schema::TARGET_CATEGORIES as i64,
             ..Default::default()
         };
     }
@@ -118,8 +119,8 @@ pub fn fill_rollout(t: &mut Trainer, seed: u64) -> Result<(), LearnerError> {
     for _ in 0..t.rollout.steps {
         let starts: Vec<bool> = (0..n).map(|_| rng.random::<f32>() < 1.0 / 30.0).collect();
         let acted = Actions {
-            actions: (0..n).map(|_| rng.random_range(0..4)).collect(),
-            log_probs: vec![(0.25f32).ln(); n],
+            actions: (0..n).map(|_| rng.random_range(0..action::COUNT as i64)).collect(),
+            log_probs: vec![(1.0 / action::COUNT as f32).ln(); n],
             values: (0..n).map(|_| rng.random::<f32>() - 0.5).collect(),
         };
         t.rollout.push(&x, &starts, &acted, &vec![true; n]);

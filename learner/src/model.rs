@@ -24,16 +24,10 @@ use rand_chacha::ChaCha8Rng;
 use tch::nn::{self, RNN};
 use tch::{Device, Kind, Tensor};
 
-use crate::obs::{GESTURE_FEATURES, GESTURE_FRAMES, ObsBatch, ObsError};
+use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
+
+use crate::obs::{ObsBatch, ObsError};
 use crate::resnet::{self, CONV5_CHANNELS, Resnet18, WeightsError};
-
-/// MoveAhead, RotateLeft, RotateRight, Stop (§4.2).
-pub const ACTIONS: i64 = shm_schema::action::COUNT as i64;
-
-/// Size of the target-category vocabulary (37 targets of T3.3).
-pub fn target_count() -> i64 {
-    shm_schema::TARGET_CATEGORIES as i64
-}
 
 /// What the network looks like for a run: which inputs, which encoder, how wide.
 #[derive(Clone, Debug, PartialEq)]
@@ -405,8 +399,9 @@ impl PolicyNet {
         let depth = spec.depth.then(|| visual("depth", 1));
         let gesture = spec
             .gesture
-            .then(|| nn::linear(&root / "gesture", (GESTURE_FRAMES * GESTURE_FEATURES) as i64, h, Default::default()));
-        let target = spec.semantic.then(|| nn::embedding(&root / "target", target_count(), h, Default::default()));
+            .then(|| nn::linear(&root / "gesture", (GESTURE_FRAMES * GESTURE_DIMS) as i64, h, Default::default()));
+        let target =
+            spec.semantic.then(|| nn::embedding(&root / "target", TARGET_CATEGORIES as i64, h, Default::default()));
         let pose = spec.pose.then(|| nn::linear(&root / "pose", 3, h, Default::default()));
         let gru_cfg = nn::RNNConfig {
             num_layers: spec.gru_layers,
@@ -425,7 +420,7 @@ impl PolicyNet {
             target,
             pose,
             gru,
-            actor: Mlp::new(&(&root / "actor"), h, h, 2, ACTIONS, 0.01),
+            actor: Mlp::new(&(&root / "actor"), h, h, 2, action::COUNT as i64, 0.01),
             critic: Mlp::new(&(&root / "critic"), h, h, 2, 1, 1.0),
         }
     }
@@ -508,12 +503,12 @@ impl PolicyNet {
         (Tensor::cat(&outs, 0), h)
     }
 
-    /// GRU output → (logits `[.., 4]`, value `[..]`).
+    /// GRU output → (logits `[.., action::COUNT]`, value `[..]`).
     fn heads(&self, h: &Tensor) -> (Tensor, Tensor) {
         (self.actor.forward(h), self.critic.forward(h).squeeze_dim(-1))
     }
 
-    /// Whole sequences for PPO: inputs `[T, B, ..]` → (logits `[T, B, 4]`, values `[T, B]`).
+    /// Whole sequences for PPO: inputs `[T, B, ..]` → (logits `[T, B, action::COUNT]`, values `[T, B]`).
     pub fn evaluate(&self, x: &Inputs, h0: &Tensor, keep: &Tensor, any_start: &[bool]) -> (Tensor, Tensor) {
         let size = x.fields().iter().find_map(|(_, t)| t.map(|t| t.size())).expect("network has inputs");
         let (t, b) = (size[0], size[1]);
@@ -534,7 +529,7 @@ pub enum ModelError {
 /// Actions chosen for one step of N envs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Actions {
-    /// 0 MoveAhead, 1 RotateLeft, 2 RotateRight, 3 Stop.
+    /// Indices of [`shm_schema::action`]: MoveAhead, RotateLeft, RotateRight, Stop.
     pub actions: Vec<i64>,
     pub log_probs: Vec<f32>,
     pub values: Vec<f32>,
@@ -550,7 +545,7 @@ pub enum ActMode {
 /// One forward at one step, not yet committed to the recurrent state.
 #[derive(Debug)]
 pub(crate) struct Forward {
-    /// `[N * 4]` on the host.
+    /// `[N * action::COUNT]` on the host.
     pub logits: Vec<f32>,
     pub values: Vec<f32>,
     pub hidden: Tensor,
@@ -705,7 +700,7 @@ impl Policy {
         let n = self.n_envs;
         if self.spec.random() {
             return Forward {
-                logits: vec![0.0; n * 4],
+                logits: vec![0.0; n * action::COUNT],
                 values: vec![0.0; n],
                 hidden: self.hidden.shallow_clone(),
                 starts,
@@ -729,14 +724,16 @@ impl Policy {
         let n = self.n_envs;
         let mut out =
             Actions { actions: Vec::with_capacity(n), log_probs: Vec::with_capacity(n), values: fwd.values.clone() };
+        let count = action::COUNT;
         for i in 0..n {
-            let logp = log_softmax(&fwd.logits[i * 4..i * 4 + 4]);
+            let logp = log_softmax(&fwd.logits[i * count..(i + 1) * count]);
             let a = if mode == ActMode::Greedy && !self.spec.random() {
-                (0..4).max_by(|&a, &b| logp[a].total_cmp(&logp[b])).unwrap()
+                (0..count).max_by(|&a, &b| logp[a].total_cmp(&logp[b])).unwrap()
             } else {
                 let u: f32 = self.rng.random();
                 let mut acc = 0.0;
-                let mut pick = 3;
+                // where rounding leaves the cumulative sum under `u`: the last action, Stop
+                let mut pick = action::STOP as usize;
                 for (k, lp) in logp.iter().enumerate() {
                     acc += lp.exp();
                     if u < acc {

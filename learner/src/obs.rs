@@ -21,28 +21,26 @@
 //!   unknown: t−1 and t are kept out of the loss, and the env's memory is reset at the next step.
 
 use half::f16;
+use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, gesture_kind};
 use tch::{Device, Kind, Tensor};
 
-/// Gesture clip length (frames) and width (Unity muscles), §4.3.3.
-pub const GESTURE_FRAMES: usize = 100;
-pub const GESTURE_FEATURES: usize = 95;
-
-/// Which gesture the robot sees now; `None` zeroes the gesture input.
+/// Which gesture the robot sees now ([`shm_schema::gesture_kind`]); `None` zeroes the gesture input.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[repr(u8)]
 pub enum GestureKind {
     #[default]
-    None = 0,
-    Referencing = 1,
-    Intervention = 2,
+    None = gesture_kind::NONE,
+    Referencing = gesture_kind::REFERENCING,
+    Intervention = gesture_kind::INTERVENTION,
 }
 
 impl GestureKind {
+    /// The kind an [`shm_schema::EnvRecord::gesture_kind`] names, if it names one.
     pub fn from_u8(v: u8) -> Option<GestureKind> {
         match v {
-            0 => Some(GestureKind::None),
-            1 => Some(GestureKind::Referencing),
-            2 => Some(GestureKind::Intervention),
+            gesture_kind::NONE => Some(GestureKind::None),
+            gesture_kind::REFERENCING => Some(GestureKind::Referencing),
+            gesture_kind::INTERVENTION => Some(GestureKind::Intervention),
             _ => None,
         }
     }
@@ -159,7 +157,7 @@ impl ObsBatch<'_> {
             let checks = [
                 ("rgb", f.rgb.len(), f.envs * px * 3),
                 ("depth", f.depth.len(), f.envs * px),
-                ("gesture", f.gesture.len(), f.envs * GESTURE_FRAMES * GESTURE_FEATURES),
+                ("gesture", f.gesture.len(), f.envs * GESTURE_FRAMES * GESTURE_DIMS),
             ];
             for (what, got, want) in checks {
                 if got != want {
@@ -170,7 +168,7 @@ impl ObsBatch<'_> {
                 }
             }
         }
-        let count = crate::model::target_count();
+        let count = TARGET_CATEGORIES as i64;
         for (env, e) in self.envs.iter().enumerate() {
             if !e.lost && !(0..count).contains(&e.target) {
                 return Err(ObsError::Target { env, target: e.target, count });
@@ -202,7 +200,7 @@ impl ObsBatch<'_> {
 
     /// Gestures `[N, 100, 95]` in half precision on `device`.
     pub(crate) fn gesture_tensor(&self, device: Device) -> Tensor {
-        let shape = |e: usize| [e as i64, GESTURE_FRAMES as i64, GESTURE_FEATURES as i64];
+        let shape = |e: usize| [e as i64, GESTURE_FRAMES as i64, GESTURE_DIMS as i64];
         let t = self.gather(device, |f| match f.gesture {
             // SAFETY: as for rgb.
             GestureView::F16(s) => unsafe {
@@ -262,7 +260,7 @@ impl OwnedObs {
             width,
             rgb: vec![0; n * height * width * 3],
             depth: vec![0; n * height * width],
-            gesture: vec![f16::ZERO; n * GESTURE_FRAMES * GESTURE_FEATURES],
+            gesture: vec![f16::ZERO; n * GESTURE_FRAMES * GESTURE_DIMS],
             envs: vec![EnvStep { episode_start: true, ..Default::default() }; n],
         }
     }
@@ -289,7 +287,7 @@ impl OwnedObs {
     /// The batch split into groups of `per_group` envs, as workers would send it.
     pub fn batch_grouped(&self, per_group: usize) -> ObsBatch<'_> {
         let px = self.height * self.width;
-        let g = GESTURE_FRAMES * GESTURE_FEATURES;
+        let g = GESTURE_FRAMES * GESTURE_DIMS;
         let mut frames = Vec::new();
         let mut start = 0;
         while start < self.n() {

@@ -3,17 +3,16 @@
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use shm_schema::action;
 
 use crate::batch::ObsBatchView;
-
-/// Actions are 0 MoveAhead, 1 RotateLeft, 2 RotateRight, 3 Stop (§4.2).
-pub const NUM_ACTIONS: u8 = 4;
 
 /// A policy served to the farm.
 pub trait FarmPolicy {
     /// Short name for logs.
     fn name(&self) -> &str;
-    /// One action per env of `batch`, in the order of [`ObsBatchView::envs`].
+    /// One action per env of `batch` (an index of [`shm_schema::action`], §4.2), in the order of
+    /// [`ObsBatchView::envs`].
     fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>>;
     /// Whether the server should gather every live worker into one batch before acting (a
     /// network amortises its forward pass over the batch, and PPO's rollout wants every env at
@@ -45,7 +44,7 @@ impl FarmPolicy for RandomPolicy {
     }
 
     fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>> {
-        Ok((0..batch.num_envs()).map(|_| self.rng.random_range(0..NUM_ACTIONS)).collect())
+        Ok((0..batch.num_envs()).map(|_| self.rng.random_range(0..action::COUNT as u8)).collect())
     }
 
     fn wants_full_batches(&self) -> bool {
@@ -70,7 +69,7 @@ impl FarmPolicy for ExpertPolicy {
         batch
             .envs()
             .map(|(w, e, r)| match r.expert_action {
-                a if a < NUM_ACTIONS => Ok(a),
+                a if (a as usize) < action::COUNT => Ok(a),
                 // No expert from a final observation or an idle env: the worker ignores the
                 // action answered to those.
                 _ if r.idle != 0 || r.terminated != 0 || r.truncated != 0 => Ok(0),

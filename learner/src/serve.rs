@@ -27,10 +27,12 @@ use farm::metrics::{EpisodeResult, Trajectory};
 use farm::process;
 use farm::transport::TransportError;
 use serde::{Deserialize, Serialize};
-use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, OBS_MAGIC, ObsShape, ObsView, SCHEMA_VERSION, command};
+use shm_schema::{
+    ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, OBS_MAGIC, ObsShape, ObsView, SCHEMA_VERSION, action, command,
+};
 
 use crate::batch::{ObsBatchView, WorkerObs};
-use crate::policy::{FarmPolicy, NUM_ACTIONS};
+use crate::policy::FarmPolicy;
 use crate::transport::{LearnerPorts, ObsSample};
 
 /// How to serve a run.
@@ -535,12 +537,13 @@ impl Server<'_> {
         let actions =
             self.policy.act(&batch).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
         self.totals.policy_sum_s += t.elapsed().as_secs_f64();
-        if actions.len() != batch.num_envs() || actions.iter().any(|&a| a >= NUM_ACTIONS) {
+        if actions.len() != batch.num_envs() || actions.iter().any(|&a| a as usize >= action::COUNT) {
             return Err(ServeError::Policy {
                 name: self.policy.name().into(),
                 source: anyhow::anyhow!(
-                    "returned {} actions (values < {NUM_ACTIONS}) for {} envs",
+                    "returned {} actions (values < {}) for {} envs",
                     actions.len(),
+                    action::COUNT,
                     batch.num_envs()
                 ),
             });

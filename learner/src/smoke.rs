@@ -16,12 +16,13 @@ use farm::config::RunConfig;
 use half::f16;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
 use tch::Device;
 
 use crate::LearnerError;
 use crate::metrics::UpdateMetrics;
 use crate::model::{ActMode, Policy};
-use crate::obs::{EnvStep, GESTURE_FEATURES, GESTURE_FRAMES, GestureKind, ObsBatch, OwnedObs};
+use crate::obs::{EnvStep, GestureKind, ObsBatch, OwnedObs};
 use crate::ppo::Trainer;
 
 /// N copies of the cue task, stepped together.
@@ -68,7 +69,7 @@ impl CueTask {
         let e = &mut self.obs.envs[k];
         e.episode_start = true;
         e.gesture = GestureKind::Referencing;
-        e.target = self.rng.random_range(0..crate::model::target_count());
+        e.target = self.rng.random_range(0..TARGET_CATEGORIES as i64);
     }
 
     fn render(&mut self, k: usize) {
@@ -84,12 +85,12 @@ impl CueTask {
         }
         let d = ((self.pos[k] + 3) as f32 / 6.0 * 65535.0) as u16;
         self.obs.depth[k * px..(k + 1) * px].iter_mut().for_each(|v| *v = d);
-        let g = GESTURE_FRAMES * GESTURE_FEATURES;
-        let half = GESTURE_FEATURES / 2;
+        let g = GESTURE_FRAMES * GESTURE_DIMS;
+        let half = GESTURE_DIMS / 2;
         for f in 0..GESTURE_FRAMES {
-            for c in 0..GESTURE_FEATURES {
+            for c in 0..GESTURE_DIMS {
                 let on = if self.cue[k] < 0 { c < half } else { c >= half };
-                self.obs.gesture[k * g + f * GESTURE_FEATURES + c] = f16::from_f32(if on { 0.5 } else { 0.0 });
+                self.obs.gesture[k * g + f * GESTURE_DIMS + c] = f16::from_f32(if on { 0.5 } else { 0.0 });
             }
         }
     }
@@ -107,16 +108,16 @@ impl CueTask {
             } else {
                 self.steps[k] += 1;
                 e.reward = -0.001;
-                match a {
-                    1 => self.pos[k] = (self.pos[k] - 1).max(-3),
-                    2 => self.pos[k] = (self.pos[k] + 1).min(3),
-                    3 if self.pos[k] == 2 * self.cue[k] => {
+                match a as u8 {
+                    action::ROTATE_LEFT => self.pos[k] = (self.pos[k] - 1).max(-3),
+                    action::ROTATE_RIGHT => self.pos[k] = (self.pos[k] + 1).min(3),
+                    action::STOP if self.pos[k] == 2 * self.cue[k] => {
                         e.reward += 1.0;
                         e.terminated = true;
                         e.success = true;
                         e.spl = 3.0 / self.steps[k].max(3) as f32;
                     }
-                    3 => e.reward -= 0.01,
+                    action::STOP => e.reward -= 0.01,
                     _ => {}
                 }
                 if e.terminated {
