@@ -11,7 +11,7 @@ use shm_schema::action;
 use tch::{Device, nn};
 
 use crate::LearnerError;
-use crate::model::{Actions, Policy};
+use crate::agent::{Actions, Agent, AgentError};
 use crate::obs::{EnvStep, GestureKind, OwnedObs};
 use crate::ppo::Trainer;
 
@@ -39,7 +39,7 @@ pub fn random_resnet_weights(dir: &Path) -> Result<PathBuf, LearnerError> {
     let vs = nn::VarStore::new(Device::Cpu);
     let _net = crate::resnet::Resnet18::new(&vs.root());
     let path = dir.join("resnet18-random.safetensors");
-    vs.save(&path).map_err(|e| crate::model::ModelError::Config(format!("{}: {e}", path.display())))?;
+    vs.save(&path).map_err(|e| AgentError::Config(format!("{}: {e}", path.display())))?;
     Ok(path)
 }
 
@@ -91,7 +91,7 @@ fn median_ms(mut f: impl FnMut(), reps: usize) -> f64 {
 
 /// Acting on one step of `batch` envs: frames in, actions out (the frozen trunk included).
 pub fn forward(name: &str, cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> Result<Figure, LearnerError> {
-    let mut p = Policy::new(cfg, batch, device)?;
+    let mut p = Agent::new(cfg, batch, device)?;
     let o = random_obs(batch, cfg.env.width as usize, 1);
     let mut err = None;
     let ms = median_ms(
@@ -113,9 +113,9 @@ pub fn forward(name: &str, cfg: &RunConfig, batch: usize, device: Device, reps: 
 pub fn fill_rollout(t: &mut Trainer, seed: u64) -> Result<(), LearnerError> {
     let n = t.rollout.envs;
     let o = random_obs(n, t.cfg.env.width as usize, seed);
-    let (x, _) = t.policy.prepare(&o.batch())?;
+    let (x, _) = t.agent.prepare(&o.batch())?;
     let mut rng = farm::seed::rng(seed, &[1]);
-    t.rollout.begin(t.policy.hidden());
+    t.rollout.begin(t.agent.hidden());
     for _ in 0..t.rollout.steps {
         let starts: Vec<bool> = (0..n).map(|_| rng.random::<f32>() < 1.0 / 30.0).collect();
         let acted = Actions {

@@ -281,7 +281,7 @@ fn smoke_run(dev: tch::Device, updates: u64, envs: usize, run_dir: PathBuf, resu
     if let Some(e) = failure {
         return Err(e);
     }
-    for n in trainer.policy.notes() {
+    for n in trainer.agent.notes() {
         println!("{n}");
     }
     log.plot()?;

@@ -3,8 +3,8 @@
 //! One message per step for N environments. Frames and gestures are read *in place* from the
 //! buffers the caller hands over (shared memory, in the farm): a [`FrameView`] per group of
 //! environments (one worker's sample), turned into tensors with `from_blob` and copied once,
-//! straight into the rollout storage or onto the GPU. The small per-environment fields come as a
-//! slice of [`EnvStep`] in environment order.
+//! straight into the rollout storage or onto the GPU (see `crate::inputs`). The small
+//! per-environment fields come as a slice of [`EnvStep`] in environment order.
 //!
 //! ## The step protocol (Gymnasium's terminated vs truncated, next-step autoreset)
 //! The message at step t carries, for each env, the *feedback* of the action sent at t−1
@@ -22,7 +22,6 @@
 
 use half::f16;
 use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, gesture_kind};
-use tch::{Device, Kind, Tensor};
 
 /// Which gesture the robot sees now ([`shm_schema::gesture_kind`]); `None` zeroes the gesture input.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -176,69 +175,6 @@ impl ObsBatch<'_> {
         }
         Ok(())
     }
-
-    /// RGB as one u8 tensor `[N, H, W, 3]` on `device` (see `gather` for when it is a copy).
-    pub(crate) fn rgb_tensor(&self, device: Device) -> Tensor {
-        // (may alias the batch's buffer, see `gather`)
-        let (h, w) = (self.height as i64, self.width as i64);
-        self.gather(device, |f| {
-            // SAFETY: `validate` checked the slice holds E*H*W*3 bytes; the tensor lives no longer
-            // than the batch's buffers (`Prepared<'a>`), or is copied (`to_device`, `cat`).
-            unsafe { Tensor::from_blob(f.rgb.as_ptr(), &[f.envs as i64, h, w, 3], &[], Kind::Uint8, Device::Cpu) }
-        })
-    }
-
-    /// Depth as raw 16-bit patterns in an Int16 tensor `[N, H, W]` (torch has no u16; the model
-    /// reinterprets the bits).
-    pub(crate) fn depth_tensor(&self, device: Device) -> Tensor {
-        let (h, w) = (self.height as i64, self.width as i64);
-        self.gather(device, |f| unsafe {
-            // SAFETY: as for rgb; u16 and i16 have the same size and alignment.
-            Tensor::from_blob(f.depth.as_ptr() as *const u8, &[f.envs as i64, h, w], &[], Kind::Int16, Device::Cpu)
-        })
-    }
-
-    /// Gestures `[N, 100, 95]` in half precision on `device`.
-    pub(crate) fn gesture_tensor(&self, device: Device) -> Tensor {
-        let shape = |e: usize| [e as i64, GESTURE_FRAMES as i64, GESTURE_DIMS as i64];
-        let t = self.gather(device, |f| match f.gesture {
-            // SAFETY: as for rgb.
-            GestureView::F16(s) => unsafe {
-                Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Half, Device::Cpu)
-            },
-            GestureView::F32(s) => {
-                unsafe { Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Float, Device::Cpu) }
-                    .to_kind(Kind::Half)
-            }
-        });
-        t.to_kind(Kind::Half)
-    }
-
-    /// Per-env gesture mask (1 where a gesture is shown), `[N]` f32.
-    pub(crate) fn gesture_mask(&self, device: Device) -> Tensor {
-        let m: Vec<f32> =
-            self.envs.iter().map(|e| if e.gesture == GestureKind::None || e.lost { 0.0 } else { 1.0 }).collect();
-        Tensor::from_slice(&m).to_device(device)
-    }
-
-    pub(crate) fn target_tensor(&self, device: Device) -> Tensor {
-        let t: Vec<i64> = self.envs.iter().map(|e| if e.lost { 0 } else { e.target }).collect();
-        Tensor::from_slice(&t).to_device(device)
-    }
-
-    pub(crate) fn pose_tensor(&self, device: Device) -> Tensor {
-        let p: Vec<f32> = self.envs.iter().flat_map(|e| e.person_pose).collect();
-        Tensor::from_slice(&p).view([self.n() as i64, 3]).to_device(device)
-    }
-
-    /// One tensor for all groups: on the GPU a copy; on the CPU with one group, the caller's
-    /// buffer itself (no host copy) — hence [`crate::model::Prepared`] carries the batch's
-    /// lifetime.
-    fn gather(&self, device: Device, view: impl Fn(&FrameView) -> Tensor) -> Tensor {
-        let mut parts: Vec<Tensor> =
-            self.frames.iter().filter(|f| f.envs > 0).map(|f| view(f).to_device(device)).collect();
-        if parts.len() == 1 { parts.pop().unwrap() } else { Tensor::cat(&parts, 0) }
-    }
 }
 
 /// An observation batch that owns its buffers: for tests, the synthetic smoke task and benches.
@@ -307,32 +243,6 @@ impl OwnedObs {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn groups_gather_to_the_same_tensors_and_depth_bits_survive() {
-        let mut o = OwnedObs::new(5, 4, 6);
-        for (i, v) in o.rgb.iter_mut().enumerate() {
-            *v = (i % 251) as u8;
-        }
-        for (i, v) in o.depth.iter_mut().enumerate() {
-            *v = (i as u16).wrapping_mul(1031).wrapping_add(40000);
-        }
-        for (i, v) in o.gesture.iter_mut().enumerate() {
-            *v = f16::from_f32((i % 7) as f32 * 0.25);
-        }
-        let one = o.batch();
-        let many = o.batch_grouped(2);
-        one.validate(5, (4, 6)).unwrap();
-        many.validate(5, (4, 6)).unwrap();
-        assert!(one.rgb_tensor(Device::Cpu).equal(&many.rgb_tensor(Device::Cpu)));
-        assert!(one.gesture_tensor(Device::Cpu).equal(&many.gesture_tensor(Device::Cpu)));
-        let d = many.depth_tensor(Device::Cpu);
-        assert_eq!(d.size(), vec![5, 4, 6]);
-        // u16 patterns come back from the Int16 view
-        let back = crate::model::depth_unit(&d).view([-1]);
-        let got = back.double_value(&[7]);
-        assert!((got - o.depth[7] as f64 / 65535.0).abs() < 1e-6, "{got}");
-    }
 
     #[test]
     fn bad_sizes_and_targets_are_named() {

@@ -15,10 +15,10 @@ use tch::Device;
 use farm::config::RunConfig;
 use shm_schema::EnvRecord;
 
+use crate::agent::Agent;
 use crate::batch::ObsBatchView;
 use crate::checkpoint;
 use crate::metrics::MetricsLog;
-use crate::model::Policy;
 use crate::obs::{EnvStep, FrameView, GestureKind, GestureView, ObsBatch};
 use crate::policy::FarmPolicy;
 use crate::ppo::Trainer;
@@ -28,7 +28,7 @@ pub enum Mode {
     /// Act and learn; checkpoints and metrics go to the run directory.
     Train { trainer: Box<Trainer>, log: MetricsLog, checkpoints: PathBuf },
     /// Act only, from a checkpoint.
-    Eval { policy: Box<Policy>, greedy: bool },
+    Eval { agent: Box<Agent>, greedy: bool },
 }
 
 /// Inputs to blank during evaluation (T4.6, T4.7).
@@ -65,14 +65,14 @@ impl PpoFarmPolicy {
         let checkpoints = farm::checkpoints::dir_of(run_dir);
         let trainer = match (resume, checkpoint::latest(&checkpoints)) {
             (true, Some(path)) => {
-                let t = Trainer::resume(cfg, n, device, &path)?;
+                let t = checkpoint::resume_trainer(cfg, n, device, &path)?;
                 tracing::info!("resumed from {} at update {} ({} frames)", path.display(), t.updates, t.frames);
                 t
             }
             (true, None) => anyhow::bail!("--resume: {} holds no checkpoint", checkpoints.display()),
             (false, _) => Trainer::new(cfg, n, device)?,
         };
-        for note in trainer.policy.notes() {
+        for note in trainer.agent.notes() {
             tracing::info!("{note}");
         }
         let log = MetricsLog::open(run_dir)?;
@@ -96,11 +96,11 @@ impl PpoFarmPolicy {
     ) -> anyhow::Result<PpoFarmPolicy> {
         tch::manual_seed(cfg.run.seed as i64);
         let n = workers * cfg.env.envs_per_worker;
-        let policy = Policy::from_checkpoint(cfg, n, device, checkpoint)?;
-        for note in policy.notes() {
+        let agent = checkpoint::load_agent(cfg, n, device, checkpoint)?;
+        for note in agent.notes() {
             tracing::info!("{note}");
         }
-        Ok(PpoFarmPolicy::with_mode(Mode::Eval { policy: Box::new(policy), greedy }, cfg, workers, blank))
+        Ok(PpoFarmPolicy::with_mode(Mode::Eval { agent: Box::new(agent), greedy }, cfg, workers, blank))
     }
 
     fn with_mode(mode: Mode, cfg: &RunConfig, workers: usize, blank: Blank) -> PpoFarmPolicy {
@@ -231,8 +231,8 @@ impl FarmPolicy for PpoFarmPolicy {
                 }
                 a
             }
-            Mode::Eval { policy, greedy } => {
-                let a = if *greedy { policy.act_deterministic(&obs)? } else { policy.act(&obs)? };
+            Mode::Eval { agent, greedy } => {
+                let a = if *greedy { agent.act_deterministic(&obs)? } else { agent.act(&obs)? };
                 a.actions
             }
         };

@@ -20,8 +20,8 @@ use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
 use tch::Device;
 
 use crate::LearnerError;
+use crate::agent::{ActMode, Agent};
 use crate::metrics::UpdateMetrics;
-use crate::model::{ActMode, Policy};
 use crate::obs::{EnvStep, GestureKind, ObsBatch, OwnedObs};
 use crate::ppo::Trainer;
 
@@ -150,14 +150,14 @@ pub fn config(updates: u64, envs: usize) -> RunConfig {
     RunConfig::from_toml(&text, "smoke").expect("smoke config is valid")
 }
 
-/// Success rate of `policy` over at least `episodes` finished episodes of a fresh task.
-pub fn success_rate(policy: &mut Policy, episodes: usize, mode: ActMode, seed: u64) -> Result<f64, LearnerError> {
-    let mut task = CueTask::new(policy.n_envs(), policy.spec.height as usize, seed);
-    policy.reset();
+/// Success rate of `agent` over at least `episodes` finished episodes of a fresh task.
+pub fn success_rate(agent: &mut Agent, episodes: usize, mode: ActMode, seed: u64) -> Result<f64, LearnerError> {
+    let mut task = CueTask::new(agent.n_envs(), agent.spec.height as usize, seed);
+    agent.reset();
     let (mut done, mut won) = (0usize, 0usize);
     let mut guard = 0;
     while done < episodes && guard < 100_000 {
-        let acted = policy.act_with(&task.observation(), mode)?;
+        let acted = agent.act_with(&task.observation(), mode)?;
         task.step(&acted.actions);
         for e in &task.obs.envs {
             if e.terminated || e.truncated {
@@ -204,11 +204,11 @@ pub fn run_from(
     let envs = cfg.env.envs_per_worker;
     let side = cfg.env.width as usize;
     let mut trainer = match resume {
-        Some(path) => Trainer::resume(cfg, envs, device, path)?,
+        Some(path) => crate::checkpoint::resume_trainer(cfg, envs, device, path)?,
         None => Trainer::new(cfg, envs, device)?,
     };
-    let before = success_rate(&mut trainer.policy, 200, ActMode::Sample, 1)?;
-    trainer.policy.reset();
+    let before = success_rate(&mut trainer.agent, 200, ActMode::Sample, 1)?;
+    trainer.agent.reset();
     let mut task = CueTask::new(envs, side, cfg.run.seed);
     let started = Instant::now();
     let mut metrics = Vec::new();
@@ -222,7 +222,7 @@ pub fn run_from(
         }
     }
     let seconds = started.elapsed().as_secs_f64();
-    let after = if stopped { None } else { Some(success_rate(&mut trainer.policy, 200, ActMode::Greedy, 2)?) };
+    let after = if stopped { None } else { Some(success_rate(&mut trainer.agent, 200, ActMode::Greedy, 2)?) };
     Ok((SmokeReport { before, after, updates: trainer.updates, seconds, metrics }, trainer))
 }
 
