@@ -12,7 +12,7 @@ use tch::{Device, Kind, Tensor};
 
 use crate::inputs::{Inputs, Prepared};
 use crate::network::PolicyNet;
-use crate::obs::{ObsBatch, ObsError};
+use crate::obs::{EnvBatch, ObsError};
 use crate::resnet::{self, WeightsError};
 use crate::spec::NetSpec;
 
@@ -150,16 +150,16 @@ impl Agent {
     }
 
     /// Samples an action for each env (training; the Random baseline).
-    pub fn act(&mut self, obs: &ObsBatch) -> Result<Actions, ObsError> {
+    pub fn act(&mut self, obs: &EnvBatch) -> Result<Actions, ObsError> {
         self.act_with(obs, ActMode::Sample)
     }
 
     /// The most likely action for each env (evaluation). The Random baseline still samples.
-    pub fn act_deterministic(&mut self, obs: &ObsBatch) -> Result<Actions, ObsError> {
+    pub fn act_deterministic(&mut self, obs: &EnvBatch) -> Result<Actions, ObsError> {
         self.act_with(obs, ActMode::Greedy)
     }
 
-    pub fn act_with(&mut self, obs: &ObsBatch, mode: ActMode) -> Result<Actions, ObsError> {
+    pub fn act_with(&mut self, obs: &EnvBatch, mode: ActMode) -> Result<Actions, ObsError> {
         let (inputs, starts) = self.prepare(obs)?;
         let fwd = self.forward(&inputs, starts);
         let actions = self.choose(&fwd, mode);
@@ -174,7 +174,7 @@ impl Agent {
     }
 
     /// Checks the batch, converts it to the stored form, and works out where memory resets.
-    pub(crate) fn prepare<'a>(&self, obs: &ObsBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
+    pub(crate) fn prepare<'a>(&self, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
         obs.validate(self.n_envs, (self.spec.height as usize, self.spec.width as usize))?;
         let starts = obs.envs.iter().zip(&self.force_reset).map(|(e, f)| e.episode_start || e.lost || *f).collect();
         let inputs = if self.spec.random() {
@@ -240,7 +240,7 @@ impl Agent {
     }
 
     /// Makes a forward's memory the current one; lost envs reset at their next message.
-    pub(crate) fn commit(&mut self, fwd: Forward, obs: &ObsBatch) {
+    pub(crate) fn commit(&mut self, fwd: Forward, obs: &EnvBatch) {
         self.hidden = fwd.hidden;
         for (r, e) in self.force_reset.iter_mut().zip(obs.envs) {
             *r = e.lost;

@@ -1,5 +1,5 @@
-//! Input preparation: an observation batch becomes the network's input tensors, in the form the
-//! rollout stores them ([`Inputs`]).
+//! Input preparation: an observation batch (`EnvBatch`) becomes the network's input tensors, in
+//! the form the rollout stores them ([`Inputs`]).
 //!
 //! Frames and gestures are read in place from the batch's buffers with `from_blob` (shared memory,
 //! in the farm) and copied once: onto the GPU, or into the rollout storage. On the CPU with one
@@ -8,7 +8,7 @@
 use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES};
 use tch::{Device, Kind, Tensor};
 
-use crate::obs::{FrameView, GestureKind, GestureView, ObsBatch};
+use crate::obs::{EnvBatch, FrameView, GestureKind, GestureView};
 
 /// The network's inputs in the form the rollout keeps them, leading dims `[B]` or `[T, B]`.
 #[derive(Debug)]
@@ -57,7 +57,7 @@ pub(crate) struct Prepared<'a> {
 
 impl<'a> Prepared<'a> {
     /// `inputs` made from `batch`: they may borrow its buffers, so they take its lifetime.
-    pub(crate) fn new(inputs: Inputs, _batch: &ObsBatch<'a>) -> Prepared<'a> {
+    pub(crate) fn new(inputs: Inputs, _batch: &EnvBatch<'a>) -> Prepared<'a> {
         Prepared { inputs, _buffers: std::marker::PhantomData }
     }
 }
@@ -80,11 +80,11 @@ pub fn depth_unit(raw: &Tensor) -> Tensor {
 }
 
 /// RGB as one u8 tensor `[N, H, W, 3]` on `device` (see `gather` for when it is a copy).
-pub(crate) fn rgb_tensor(obs: &ObsBatch, device: Device) -> Tensor {
+pub(crate) fn rgb_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     // (may alias the batch's buffer, see `gather`)
     let (h, w) = (obs.height as i64, obs.width as i64);
     gather(obs, device, |f| {
-        // SAFETY: `ObsBatch::validate` checked the slice holds E*H*W*3 bytes; the tensor lives no longer
+        // SAFETY: `EnvBatch::validate` checked the slice holds E*H*W*3 bytes; the tensor lives no longer
         // than the batch's buffers (`Prepared<'a>`), or is copied (`to_device`, `cat`).
         unsafe { Tensor::from_blob(f.rgb.as_ptr(), &[f.envs as i64, h, w, 3], &[], Kind::Uint8, Device::Cpu) }
     })
@@ -92,7 +92,7 @@ pub(crate) fn rgb_tensor(obs: &ObsBatch, device: Device) -> Tensor {
 
 /// Depth as raw 16-bit patterns in an Int16 tensor `[N, H, W]` (torch has no u16; the model
 /// reinterprets the bits).
-pub(crate) fn depth_tensor(obs: &ObsBatch, device: Device) -> Tensor {
+pub(crate) fn depth_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     let (h, w) = (obs.height as i64, obs.width as i64);
     gather(obs, device, |f| unsafe {
         // SAFETY: as for rgb; u16 and i16 have the same size and alignment.
@@ -101,7 +101,7 @@ pub(crate) fn depth_tensor(obs: &ObsBatch, device: Device) -> Tensor {
 }
 
 /// Gestures `[N, 100, 95]` in half precision on `device`.
-pub(crate) fn gesture_tensor(obs: &ObsBatch, device: Device) -> Tensor {
+pub(crate) fn gesture_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     let shape = |e: usize| [e as i64, GESTURE_FRAMES as i64, GESTURE_DIMS as i64];
     let t = gather(obs, device, |f| match f.gesture {
         // SAFETY: as for rgb.
@@ -117,25 +117,25 @@ pub(crate) fn gesture_tensor(obs: &ObsBatch, device: Device) -> Tensor {
 }
 
 /// Per-env gesture mask (1 where a gesture is shown), `[N]` f32.
-pub(crate) fn gesture_mask(obs: &ObsBatch, device: Device) -> Tensor {
+pub(crate) fn gesture_mask(obs: &EnvBatch, device: Device) -> Tensor {
     let m: Vec<f32> =
         obs.envs.iter().map(|e| if e.gesture == GestureKind::None || e.lost { 0.0 } else { 1.0 }).collect();
     Tensor::from_slice(&m).to_device(device)
 }
 
-pub(crate) fn target_tensor(obs: &ObsBatch, device: Device) -> Tensor {
+pub(crate) fn target_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     let t: Vec<i64> = obs.envs.iter().map(|e| if e.lost { 0 } else { e.target }).collect();
     Tensor::from_slice(&t).to_device(device)
 }
 
-pub(crate) fn pose_tensor(obs: &ObsBatch, device: Device) -> Tensor {
+pub(crate) fn pose_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     let p: Vec<f32> = obs.envs.iter().flat_map(|e| e.person_pose).collect();
     Tensor::from_slice(&p).view([obs.n() as i64, 3]).to_device(device)
 }
 
 /// One tensor for all groups: on the GPU a copy; on the CPU with one group, the caller's
 /// buffer itself (no host copy) — hence [`Prepared`] carries the batch's lifetime.
-fn gather(obs: &ObsBatch, device: Device, view: impl Fn(&FrameView) -> Tensor) -> Tensor {
+fn gather(obs: &EnvBatch, device: Device, view: impl Fn(&FrameView) -> Tensor) -> Tensor {
     let mut parts: Vec<Tensor> = obs.frames.iter().filter(|f| f.envs > 0).map(|f| view(f).to_device(device)).collect();
     if parts.len() == 1 { parts.pop().unwrap() } else { Tensor::cat(&parts, 0) }
 }

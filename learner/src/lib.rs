@@ -5,7 +5,7 @@
 //! ```text
 //! let mut trainer = Trainer::new(&cfg, n_envs, device)?;      // or checkpoint::resume_trainer(..)
 //! loop {
-//!     let out = trainer.step(&obs_batch)?;                     // feedback in, actions out
+//!     let out = trainer.step(&env_batch)?;                     // feedback in, actions out
 //!     send(out.actions.actions);
 //!     if let Some(m) = out.update { log.append(&m)?; /* every K: checkpoint::save_in_dir */ }
 //! }
@@ -13,7 +13,7 @@
 //! Evaluation uses an [`Agent`] alone: `checkpoint::load_agent`, then `act_deterministic`.
 //!
 //! The farm side: [`serve`] is the policy server (batches the workers' observations, read in
-//! place from shared memory through [`transport`] and [`batch`]), and [`policy::FarmPolicy`] is
+//! place from shared memory through [`transport`] and [`batch`]), and [`policy::Policy`] is
 //! what it asks of a policy.
 //!
 //! Layers, each using only those before it: observations ([`obs`]) → network spec ([`spec`]) →
@@ -47,7 +47,7 @@ pub mod transport;
 pub use agent::{ActMode, Actions, Agent};
 pub use checkpoint::CheckpointError;
 pub use metrics::{MetricsLog, UpdateMetrics};
-pub use obs::{EnvStep, FrameView, GestureKind, GestureView, ObsBatch};
+pub use obs::{EnvBatch, EnvStep, FrameView, GestureKind, GestureView};
 pub use ppo::{StepOutput, Trainer};
 pub use spec::NetSpec;
 

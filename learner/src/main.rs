@@ -10,8 +10,8 @@ use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use farm::config::{Device as DeviceChoice, RunConfig};
 use farm::process;
-use learner::policy::{ExpertPolicy, FarmPolicy, RandomPolicy};
-use learner::ppo_policy::{Blank, PpoFarmPolicy};
+use learner::policy::{ExpertPolicy, Policy, RandomPolicy};
+use learner::ppo_policy::{Blank, PpoPolicy};
 use learner::serve::{ServeOptions, serve};
 use learner::{bench, checkpoint, device, metrics::MetricsLog, smoke};
 use nix::sys::signal::Signal;
@@ -127,7 +127,7 @@ struct ServeArgs {
     start_wait: f64,
 }
 
-fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Result<Box<dyn FarmPolicy>> {
+fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Result<Box<dyn Policy>> {
     Ok(match (a.policy, &a.checkpoint) {
         (PolicyKind::Random, _) => Box::new(RandomPolicy::new(cfg.run.seed)),
         (PolicyKind::Expert, _) => Box::new(ExpertPolicy),
@@ -138,11 +138,11 @@ fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Resu
                 Some(BlankKind::Depth) => Blank { rgb: false, depth: true },
                 Some(BlankKind::Both) => Blank { rgb: true, depth: true },
             };
-            Box::new(PpoFarmPolicy::eval(cfg, a.workers, dev, ckpt, blank, a.greedy)?)
+            Box::new(PpoPolicy::eval(cfg, a.workers, dev, ckpt, blank, a.greedy)?)
         }
         (PolicyKind::Ppo, None) => {
             anyhow::ensure!(!a.eval, "--eval with --policy ppo needs --checkpoint");
-            Box::new(PpoFarmPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?)
+            Box::new(PpoPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?)
         }
     })
 }

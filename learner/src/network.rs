@@ -26,7 +26,7 @@ use tch::{Device, Kind, Tensor};
 
 use crate::inputs::{self, Inputs, depth_unit, rgb_unit};
 use crate::layers::{ConvHead, FrozenTrunk, Mlp, SmallCnn, Visual};
-use crate::obs::ObsBatch;
+use crate::obs::EnvBatch;
 use crate::resnet::{self, Resnet18};
 use crate::spec::NetSpec;
 
@@ -96,7 +96,7 @@ impl PolicyNet {
     }
 
     /// One step's observation → the stored form (runs the frozen trunk, without gradients).
-    pub(crate) fn prepare(&self, obs: &ObsBatch, device: Device) -> Inputs {
+    pub(crate) fn prepare(&self, obs: &EnvBatch, device: Device) -> Inputs {
         tch::no_grad(|| {
             let s = &self.spec;
             let mut rgb = s.rgb.then(|| inputs::rgb_tensor(obs, device));

@@ -1,4 +1,6 @@
-//! What the learner reads from the environments at one step: the observation batch.
+//! What the learner reads from the environments at one step: the [`EnvBatch`], the agent's and
+//! the trainer's input (the farm's round of worker messages, `crate::batch::WorkerBatch`, becomes
+//! one of these in `crate::ppo_policy`).
 //!
 //! One message per step for N environments. Frames and gestures are read *in place* from the
 //! buffers the caller hands over (shared memory, in the farm): a [`FrameView`] per group of
@@ -111,9 +113,9 @@ pub struct FrameView<'a> {
     pub gesture: GestureView<'a>,
 }
 
-/// One step message for all N envs.
+/// One step of all N envs, in env order: what the agent acts on and the trainer learns from.
 #[derive(Clone, Debug)]
-pub struct ObsBatch<'a> {
+pub struct EnvBatch<'a> {
     pub height: usize,
     pub width: usize,
     /// Frame groups in env order; their `envs` sum to N.
@@ -130,7 +132,7 @@ pub enum ObsError {
     Target { env: usize, target: i64, count: i64 },
 }
 
-impl ObsBatch<'_> {
+impl EnvBatch<'_> {
     pub fn n(&self) -> usize {
         self.envs.len()
     }
@@ -177,7 +179,7 @@ impl ObsBatch<'_> {
     }
 }
 
-/// An observation batch that owns its buffers: for tests, the synthetic smoke task and benches.
+/// The buffers an [`EnvBatch`] borrows, owned: for tests, the synthetic smoke task and benches.
 #[derive(Clone, Debug)]
 pub struct OwnedObs {
     pub height: usize,
@@ -206,8 +208,8 @@ impl OwnedObs {
     }
 
     /// The batch, as one frame group.
-    pub fn batch(&self) -> ObsBatch<'_> {
-        ObsBatch {
+    pub fn batch(&self) -> EnvBatch<'_> {
+        EnvBatch {
             height: self.height,
             width: self.width,
             frames: vec![FrameView {
@@ -221,7 +223,7 @@ impl OwnedObs {
     }
 
     /// The batch split into groups of `per_group` envs, as workers would send it.
-    pub fn batch_grouped(&self, per_group: usize) -> ObsBatch<'_> {
+    pub fn batch_grouped(&self, per_group: usize) -> EnvBatch<'_> {
         let px = self.height * self.width;
         let g = GESTURE_FRAMES * GESTURE_DIMS;
         let mut frames = Vec::new();
@@ -236,7 +238,7 @@ impl OwnedObs {
             });
             start += e;
         }
-        ObsBatch { height: self.height, width: self.width, frames, envs: &self.envs }
+        EnvBatch { height: self.height, width: self.width, frames, envs: &self.envs }
     }
 }
 

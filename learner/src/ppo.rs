@@ -18,8 +18,8 @@ use rand_chacha::ChaCha8Rng;
 use tch::{Device, Kind, Tensor};
 
 use crate::agent::{ActMode, Actions, Agent, AgentError};
-use crate::metrics::{EpisodeStats, UpdateMetrics};
-use crate::obs::{EnvStep, ObsBatch, ObsError};
+use crate::metrics::{EpisodeWindow, UpdateMetrics};
+use crate::obs::{EnvBatch, EnvStep, ObsError};
 use crate::optim::Adam;
 use crate::rollout::{FeedbackCounts, Rollout, as_f32, flags};
 
@@ -54,7 +54,7 @@ pub struct Trainer {
     pub frames: u64,
     /// Minibatch order; part of the checkpoint.
     pub(crate) rng: ChaCha8Rng,
-    episodes: EpisodeStats,
+    episodes: EpisodeWindow,
     ep_return: Vec<f64>,
     ep_length: Vec<u32>,
     /// The env's last stored step was a real action (its feedback counts for the episode).
@@ -94,7 +94,7 @@ impl Trainer {
             rollout,
             updates: 0,
             frames: 0,
-            episodes: EpisodeStats::default(),
+            episodes: EpisodeWindow::default(),
             ep_return: vec![0.0; n_envs],
             ep_length: vec![0; n_envs],
             last_real: vec![false; n_envs],
@@ -105,7 +105,7 @@ impl Trainer {
 
     /// One step message in, actions out. When the message completes a rollout, the PPO update
     /// runs first (the returned actions then come from the updated policy).
-    pub fn step(&mut self, obs: &ObsBatch) -> Result<StepOutput, ObsError> {
+    pub fn step(&mut self, obs: &EnvBatch) -> Result<StepOutput, ObsError> {
         let (x, starts) = self.agent.prepare(obs)?;
         let mut fwd = self.agent.forward(&x, starts.clone());
 

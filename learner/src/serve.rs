@@ -31,8 +31,8 @@ use shm_schema::{
     ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, OBS_MAGIC, ObsShape, ObsView, SCHEMA_VERSION, action, command,
 };
 
-use crate::batch::{ObsBatchView, WorkerObs};
-use crate::policy::FarmPolicy;
+use crate::batch::{WorkerBatch, WorkerObs};
+use crate::policy::Policy;
 use crate::transport::{LearnerPorts, ObsSample};
 
 /// How to serve a run.
@@ -260,7 +260,7 @@ struct Server<'p> {
     opts: ServeOptions,
     shape: ObsShape,
     ports: LearnerPorts,
-    policy: &'p mut dyn FarmPolicy,
+    policy: &'p mut dyn Policy,
     slots: Vec<Slot>,
     totals: Counters,
     episodes: std::io::BufWriter<std::fs::File>,
@@ -276,7 +276,7 @@ struct Server<'p> {
 
 /// Serves `policy` to the run's workers until a budget is spent, the evaluation is done or a
 /// termination signal arrives; then answers every worker with SHUTDOWN and returns the summary.
-pub fn serve(opts: &ServeOptions, policy: &mut dyn FarmPolicy) -> Result<Summary, ServeError> {
+pub fn serve(opts: &ServeOptions, policy: &mut dyn Policy) -> Result<Summary, ServeError> {
     let shape = ObsShape::new(opts.envs_per_worker, opts.width, opts.height);
     if opts.envs_per_worker > MAX_ENVS {
         return Err(ServeError::Check(format!("{} envs per worker; at most {MAX_ENVS}", opts.envs_per_worker)));
@@ -532,7 +532,7 @@ impl Server<'_> {
                 }
             })
             .collect();
-        let batch = ObsBatchView { width: self.shape.width, height: self.shape.height, parts, missing };
+        let batch = WorkerBatch { width: self.shape.width, height: self.shape.height, parts, missing };
         let t = Instant::now();
         let actions =
             self.policy.act(&batch).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;

@@ -22,7 +22,7 @@ use tch::Device;
 use crate::LearnerError;
 use crate::agent::{ActMode, Agent};
 use crate::metrics::UpdateMetrics;
-use crate::obs::{EnvStep, GestureKind, ObsBatch, OwnedObs};
+use crate::obs::{EnvBatch, EnvStep, GestureKind, OwnedObs};
 use crate::ppo::Trainer;
 
 /// N copies of the cue task, stepped together.
@@ -57,7 +57,7 @@ impl CueTask {
     }
 
     /// The current message.
-    pub fn observation(&self) -> ObsBatch<'_> {
+    pub fn observation(&self) -> EnvBatch<'_> {
         self.obs.batch()
     }
 
