@@ -20,7 +20,7 @@
 //! input preparation ([`inputs`]) → layers ([`layers`], [`resnet`]) → network ([`network`]) →
 //! acting agent ([`agent`]) → rollout ([`rollout`]) → PPO ([`ppo`]) → checkpoints
 //! ([`checkpoint`]) → policies served to the farm ([`policy`], [`ppo_policy`]) → the serve loop
-//! ([`serve`]) → the binary.
+//! ([`serve`], beside it [`integrity`], [`records`] and [`transport`]) → the binary.
 
 pub mod agent;
 pub mod batch;
@@ -28,6 +28,7 @@ pub mod bench;
 pub mod checkpoint;
 pub mod device;
 pub mod inputs;
+pub mod integrity;
 pub mod layers;
 pub mod metrics;
 pub mod network;
@@ -37,6 +38,7 @@ pub mod policy;
 pub mod ppo;
 pub mod ppo_policy;
 pub mod pth;
+pub mod records;
 pub mod resnet;
 pub mod rollout;
 pub mod serve;
