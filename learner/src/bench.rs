@@ -173,3 +173,20 @@ pub fn update_once(t: &mut Trainer) -> crate::metrics::UpdateMetrics {
     let bootstrap = vec![0.0f32; t.rollout.envs];
     t.update(&bootstrap)
 }
+
+/// `learner bench`: the tiny network's figures, and with `faithful` the dissertation's (its
+/// ResNet-18 weights random, written to a temporary directory), each handed to `out` as measured.
+pub fn run(device: Device, faithful: bool, reps: usize, mut out: impl FnMut(&Figure)) -> anyhow::Result<()> {
+    let tiny = tiny_config();
+    out(&forward("tiny (64², small CNN, 256, GRU 1)", &tiny, 32, device, reps)?);
+    out(&update("tiny (64², small CNN, 256, GRU 1)", &tiny, 10, device, reps)?);
+    if faithful {
+        let dir = tempfile::tempdir()?;
+        let weights = random_resnet_weights(dir.path())?;
+        let cfg = faithful_config(&weights);
+        let reps_slow = reps.clamp(1, 3);
+        out(&forward("faithful (224², frozen ResNet-18, 512, GRU 2)", &cfg, 32, device, reps_slow)?);
+        out(&update("faithful, stored conv5 features (GRU + heads + 1x1 convs)", &cfg, 10, device, reps_slow)?);
+    }
+    Ok(())
+}

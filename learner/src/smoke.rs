@@ -12,6 +12,8 @@
 use std::path::Path;
 use std::time::Instant;
 
+use anyhow::Context;
+
 use farm::config::RunConfig;
 use half::f16;
 use rand::Rng;
@@ -21,7 +23,8 @@ use tch::Device;
 
 use crate::LearnerError;
 use crate::agent::{ActMode, Agent};
-use crate::metrics::UpdateMetrics;
+use crate::checkpoint;
+use crate::metrics::{MetricsLog, UpdateMetrics};
 use crate::obs::{EnvBatch, EnvStep, GestureKind, OwnedObs};
 use crate::ppo::Trainer;
 
@@ -204,7 +207,7 @@ pub fn run_from(
     let envs = cfg.env.envs_per_worker;
     let side = cfg.env.width as usize;
     let mut trainer = match resume {
-        Some(path) => crate::checkpoint::resume_trainer(cfg, envs, device, path)?,
+        Some(path) => checkpoint::resume_trainer(cfg, envs, device, path)?,
         None => Trainer::new(cfg, envs, device)?,
     };
     let before = success_rate(&mut trainer.agent, 200, ActMode::Sample, 1)?;
@@ -224,6 +227,82 @@ pub fn run_from(
     let seconds = started.elapsed().as_secs_f64();
     let after = if stopped { None } else { Some(success_rate(&mut trainer.agent, 200, ActMode::Greedy, 2)?) };
     Ok((SmokeReport { before, after, updates: trainer.updates, seconds, metrics }, trainer))
+}
+
+/// `learner smoke`: trains `updates` updates of `envs` envs on the cue task in `run_dir`
+/// (config.toml, metrics.jsonl, curves.png, checkpoints/), from its latest checkpoint when
+/// `resume`, printing a line per update. A termination signal (`farm::process`, installed by the
+/// caller) stops it after the current update, with a checkpoint.
+pub fn run_in_dir(device: Device, updates: u64, envs: usize, run_dir: &Path, resume: bool) -> anyhow::Result<()> {
+    let cfg = config(updates, envs);
+    let ckpt_dir = farm::checkpoints::dir_of(run_dir);
+    std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
+    farm::files::write_atomic(&run_dir.join("config.toml"), cfg.to_toml().as_bytes())
+        .with_context(|| format!("writing {}", run_dir.join("config.toml").display()))?;
+    let mut log = MetricsLog::open(run_dir)?;
+    let from = if resume { checkpoint::latest(&ckpt_dir) } else { None };
+    if resume && from.is_none() {
+        anyhow::bail!("--resume: no checkpoint in {}", ckpt_dir.display());
+    }
+    let stop_requested = || farm::process::termination_signal().is_some();
+    let mut failure = None;
+    let on_update = |t: &Trainer, m: &UpdateMetrics| {
+        println!(
+            "update {:>3}  frames {:>6}  success {:>5}  return {:>7}  entropy {:.3}  kl {:.4}  lr {:.2e}  {:.0} fps",
+            m.update,
+            m.frames,
+            m.success_rate.map(|s| format!("{s:.2}")).unwrap_or("-".into()),
+            m.episode_return.map(|s| format!("{s:.3}")).unwrap_or("-".into()),
+            m.entropy,
+            m.approx_kl,
+            m.lr,
+            m.fps
+        );
+        let stop = stop_requested();
+        let result = log.append(m).map_err(anyhow::Error::from).and_then(|_| {
+            if stop || m.update % t.cfg.checkpoint.every_updates == 0 {
+                let p = checkpoint::save_in_dir(&ckpt_dir, t, t.cfg.checkpoint.keep)?;
+                println!("checkpoint {}", p.display());
+            }
+            Ok(())
+        });
+        if let Err(e) = result {
+            failure = Some(e);
+            return false;
+        }
+        !stop
+    };
+    let (report, trainer) = match from {
+        Some(path) => {
+            println!("resuming from {}", path.display());
+            run_from(&cfg, device, updates, Some(&path), on_update)?
+        }
+        None => run_from(&cfg, device, updates, None, on_update)?,
+    };
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    for n in trainer.agent.notes() {
+        println!("{n}");
+    }
+    log.plot()?;
+    if stop_requested() {
+        println!("stopped by signal after update {} (checkpoint written)", trainer.updates);
+        return Ok(());
+    }
+    let p = checkpoint::save_in_dir(&ckpt_dir, &trainer, trainer.cfg.checkpoint.keep)?;
+    println!(
+        "success rate {:.2} (at start, sampling) → {:.2} (trained, greedy) after {} updates in {:.1} s\n\
+         metrics {}  curves {}  checkpoint {}",
+        report.before,
+        report.after.unwrap_or(f64::NAN),
+        report.updates,
+        report.seconds,
+        log.jsonl.display(),
+        log.png.display(),
+        p.display()
+    );
+    Ok(())
 }
 
 #[cfg(test)]
@@ -260,12 +339,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let (a, _) = run(&cfg, Device::Cpu, 6, |t, m| {
             if m.update == 3 {
-                crate::checkpoint::save_in_dir(dir.path(), t, 0).unwrap();
+                checkpoint::save_in_dir(dir.path(), t, 0).unwrap();
             }
             true
         })
         .unwrap();
-        let ckpt = crate::checkpoint::latest(dir.path()).unwrap();
+        let ckpt = checkpoint::latest(dir.path()).unwrap();
         let (b, tb) = run_from(&cfg, Device::Cpu, 6, Some(&ckpt), |_, _| true).unwrap();
         let key = |m: &UpdateMetrics| (m.update, m.frames, m.lr);
         let tail: Vec<_> = a.metrics[3..].iter().map(key).collect();
