@@ -9,7 +9,7 @@ use tch::Device;
 
 fn tiny(c: &mut Criterion) {
     let cfg = bench::tiny_config();
-    let mut p = learner::Policy::new(&cfg, 32, Device::Cpu).unwrap();
+    let mut p = learner::Agent::new(&cfg, 32, Device::Cpu).unwrap();
     let o = bench::random_obs(32, 64, 1);
     c.bench_function("tiny act, batch 32", |b| b.iter(|| p.act(&o.batch()).unwrap()));
 

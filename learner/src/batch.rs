@@ -1,5 +1,6 @@
-//! One inference batch of the farm: the observations of every worker that answered this round,
-//! read in place from the workers' shared-memory samples.
+//! One round of the farm ([`WorkerBatch`]): the observation messages of every worker that answered,
+//! in worker order, read in place from the workers' shared-memory samples. What a served
+//! `crate::policy::Policy` answers; PPO turns it into the agent's per-env `crate::obs::EnvBatch`.
 //!
 //! Nothing here copies a frame. The slices handed out point into the samples the learner holds
 //! borrowed while the policy runs; **the one copy of a frame happens when a policy turns these
@@ -52,7 +53,7 @@ impl<'a> WorkerObs<'a> {
 
 /// Every worker that answered this round, in worker order.
 #[derive(Debug)]
-pub struct ObsBatchView<'a> {
+pub struct WorkerBatch<'a> {
     pub width: usize,
     pub height: usize,
     pub parts: Vec<WorkerObs<'a>>,
@@ -61,7 +62,7 @@ pub struct ObsBatchView<'a> {
     pub missing: Vec<u32>,
 }
 
-impl<'a> ObsBatchView<'a> {
+impl<'a> WorkerBatch<'a> {
     /// Envs in the batch (the length of the action vector a policy returns).
     pub fn num_envs(&self) -> usize {
         self.parts.iter().map(|p| p.num_envs()).sum()

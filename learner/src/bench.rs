@@ -7,10 +7,11 @@ use std::time::Instant;
 
 use farm::config::RunConfig;
 use rand::Rng;
+use shm_schema::action;
 use tch::{Device, nn};
 
 use crate::LearnerError;
-use crate::model::{Actions, Policy};
+use crate::agent::{Actions, Agent, AgentError};
 use crate::obs::{EnvStep, GestureKind, OwnedObs};
 use crate::ppo::Trainer;
 
@@ -38,7 +39,7 @@ pub fn random_resnet_weights(dir: &Path) -> Result<PathBuf, LearnerError> {
     let vs = nn::VarStore::new(Device::Cpu);
     let _net = crate::resnet::Resnet18::new(&vs.root());
     let path = dir.join("resnet18-random.safetensors");
-    vs.save(&path).map_err(|e| crate::model::ModelError::Config(format!("{}: {e}", path.display())))?;
+    vs.save(&path).map_err(|e| AgentError::Config(format!("{}: {e}", path.display())))?;
     Ok(path)
 }
 
@@ -53,7 +54,7 @@ pub fn random_obs(n: usize, side: usize, seed: u64) -> OwnedObs {
         *e = EnvStep {
             episode_start: true,
             gesture: GestureKind::Referencing,
-            target: (i as i64 * 5) % crate::model::target_count(),
+            target: (i as i64 * 5) % shm_schema::TARGET_CATEGORIES as i64,
             ..Default::default()
         };
     }
@@ -90,7 +91,7 @@ fn median_ms(mut f: impl FnMut(), reps: usize) -> f64 {
 
 /// Acting on one step of `batch` envs: frames in, actions out (the frozen trunk included).
 pub fn forward(name: &str, cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> Result<Figure, LearnerError> {
-    let mut p = Policy::new(cfg, batch, device)?;
+    let mut p = Agent::new(cfg, batch, device)?;
     let o = random_obs(batch, cfg.env.width as usize, 1);
     let mut err = None;
     let ms = median_ms(
@@ -112,14 +113,14 @@ pub fn forward(name: &str, cfg: &RunConfig, batch: usize, device: Device, reps: 
 pub fn fill_rollout(t: &mut Trainer, seed: u64) -> Result<(), LearnerError> {
     let n = t.rollout.envs;
     let o = random_obs(n, t.cfg.env.width as usize, seed);
-    let (x, _) = t.policy.prepare(&o.batch())?;
+    let (x, _) = t.agent.prepare(&o.batch())?;
     let mut rng = farm::seed::rng(seed, &[1]);
-    t.rollout.begin(t.policy.hidden());
+    t.rollout.begin(t.agent.hidden());
     for _ in 0..t.rollout.steps {
         let starts: Vec<bool> = (0..n).map(|_| rng.random::<f32>() < 1.0 / 30.0).collect();
         let acted = Actions {
-            actions: (0..n).map(|_| rng.random_range(0..4)).collect(),
-            log_probs: vec![(0.25f32).ln(); n],
+            actions: (0..n).map(|_| rng.random_range(0..action::COUNT as i64)).collect(),
+            log_probs: vec![(1.0 / action::COUNT as f32).ln(); n],
             values: (0..n).map(|_| rng.random::<f32>() - 0.5).collect(),
         };
         t.rollout.push(&x, &starts, &acted, &vec![true; n]);
@@ -171,4 +172,21 @@ pub fn rollout_mib(t: &Trainer) -> f64 {
 pub fn update_once(t: &mut Trainer) -> crate::metrics::UpdateMetrics {
     let bootstrap = vec![0.0f32; t.rollout.envs];
     t.update(&bootstrap)
+}
+
+/// `learner bench`: the tiny network's figures, and with `faithful` the dissertation's (its
+/// ResNet-18 weights random, written to a temporary directory), each handed to `out` as measured.
+pub fn run(device: Device, faithful: bool, reps: usize, mut out: impl FnMut(&Figure)) -> anyhow::Result<()> {
+    let tiny = tiny_config();
+    out(&forward("tiny (64², small CNN, 256, GRU 1)", &tiny, 32, device, reps)?);
+    out(&update("tiny (64², small CNN, 256, GRU 1)", &tiny, 10, device, reps)?);
+    if faithful {
+        let dir = tempfile::tempdir()?;
+        let weights = random_resnet_weights(dir.path())?;
+        let cfg = faithful_config(&weights);
+        let reps_slow = reps.clamp(1, 3);
+        out(&forward("faithful (224², frozen ResNet-18, 512, GRU 2)", &cfg, 32, device, reps_slow)?);
+        out(&update("faithful, stored conv5 features (GRU + heads + 1x1 convs)", &cfg, 10, device, reps_slow)?);
+    }
+    Ok(())
 }

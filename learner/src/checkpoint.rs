@@ -17,8 +17,9 @@ use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use sha2::{Digest, Sha256};
 use tch::{Device, Kind, Tensor};
 
-use crate::model::{NetSpec, Policy};
+use crate::agent::{Agent, AgentError};
 use crate::ppo::Trainer;
+use crate::spec::NetSpec;
 
 const FORMAT: &str = "gesthor-rs learner checkpoint v1";
 
@@ -28,6 +29,16 @@ const FORMAT: &str = "gesthor-rs learner checkpoint v1";
 pub struct CheckpointError {
     pub file: String,
     pub reason: String,
+}
+
+/// Why a network could not be restored from a checkpoint: it cannot be built for this config, or
+/// the file cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum RestoreError {
+    #[error(transparent)]
+    Build(#[from] AgentError),
+    #[error(transparent)]
+    File(#[from] CheckpointError),
 }
 
 fn error(path: &Path, reason: impl Into<String>) -> CheckpointError {
@@ -75,29 +86,46 @@ pub fn save_in_dir(dir: &Path, t: &Trainer, keep: usize) -> Result<PathBuf, Chec
 /// Writes everything needed to continue training, atomically.
 pub fn save_trainer(path: &Path, t: &Trainer) -> Result<(), CheckpointError> {
     let mut tensors: Vec<(String, Tensor)> =
-        t.policy.vs.variables().into_iter().map(|(k, v)| (format!("model.{k}"), v)).collect();
+        t.agent.vs.variables().into_iter().map(|(k, v)| (format!("model.{k}"), v)).collect();
     tensors.extend(t.opt.state().into_iter().map(|(k, v)| (format!("adam.{k}"), v)));
     let mut meta = BTreeMap::new();
     meta.insert("updates".into(), t.updates.to_string());
     meta.insert("frames".into(), t.frames.to_string());
     meta.insert("adam_step".into(), t.opt.step.to_string());
-    meta.insert("rng_policy".into(), rng_to_string(&t.policy.rng));
+    meta.insert("rng_policy".into(), rng_to_string(&t.agent.rng));
     meta.insert("rng_trainer".into(), rng_to_string(&t.rng));
     write(path, &t.cfg, tensors, meta)
 }
 
-/// Writes a policy alone (weights and its sampling stream), e.g. for evaluation elsewhere.
-pub fn save_policy(path: &Path, p: &Policy, cfg: &RunConfig) -> Result<(), CheckpointError> {
+/// Writes an agent alone (weights and its sampling stream), e.g. for evaluation elsewhere.
+pub fn save_agent(path: &Path, p: &Agent, cfg: &RunConfig) -> Result<(), CheckpointError> {
     let tensors = p.vs.variables().into_iter().map(|(k, v)| (format!("model.{k}"), v)).collect();
     let mut meta = BTreeMap::new();
     meta.insert("rng_policy".into(), rng_to_string(&p.rng));
     write(path, cfg, tensors, meta)
 }
 
-/// Restores a trainer: weights, Adam state, counters, random streams.
+/// A trainer continuing from a checkpoint: weights, Adam state, update and frame counts (so
+/// the lr schedule continues), random streams. Episodes start afresh.
+pub fn resume_trainer(cfg: &RunConfig, n_envs: usize, device: Device, path: &Path) -> Result<Trainer, RestoreError> {
+    let mut t = Trainer::build(cfg, n_envs, device, false)?;
+    load_trainer(path, &mut t)?;
+    Ok(t)
+}
+
+/// An agent for evaluation, its weights read from a checkpoint of a run with this config (the
+/// ResNet-18 weights file need not be present: the checkpoint holds the trunk too).
+pub fn load_agent(cfg: &RunConfig, n_envs: usize, device: Device, path: &Path) -> Result<Agent, RestoreError> {
+    let mut agent = Agent::build(cfg, n_envs, device, false)?;
+    load_agent_into(path, &mut agent, cfg)?;
+    agent.note(format!("weights from {}", path.display()));
+    Ok(agent)
+}
+
+/// Restores a trainer in place: weights, Adam state, counters, random streams.
 pub fn load_trainer(path: &Path, t: &mut Trainer) -> Result<(), CheckpointError> {
     let (tensors, meta) = read(path, &t.cfg)?;
-    load_variables(path, &tensors, &t.policy)?;
+    load_variables(path, &tensors, &t.agent)?;
     let number = |key: &str| -> Result<u64, CheckpointError> {
         meta.get(key).and_then(|v| v.parse().ok()).ok_or_else(|| {
             error(path, format!("has no `{key}` counter (a policy-only checkpoint cannot resume training)"))
@@ -118,20 +146,20 @@ pub fn load_trainer(path: &Path, t: &mut Trainer) -> Result<(), CheckpointError>
     t.opt.step = adam_step as i64;
     t.updates = updates;
     t.frames = frames;
-    t.policy.rng = rng_from(path, &meta, "rng_policy")?;
+    t.agent.rng = rng_from(path, &meta, "rng_policy")?;
     t.rng = rng_from(path, &meta, "rng_trainer")?;
     Ok(())
 }
 
-/// Loads the network's weights (and sampling stream) into a policy: evaluation.
-pub fn load_policy(path: &Path, p: &mut Policy, cfg: &RunConfig) -> Result<(), CheckpointError> {
+/// Loads the network's weights (and sampling stream) into an agent: evaluation.
+pub fn load_agent_into(path: &Path, p: &mut Agent, cfg: &RunConfig) -> Result<(), CheckpointError> {
     let (tensors, meta) = read(path, cfg)?;
     load_variables(path, &tensors, p)?;
     p.rng = rng_from(path, &meta, "rng_policy")?;
     Ok(())
 }
 
-fn load_variables(path: &Path, tensors: &HashMap<String, Tensor>, p: &Policy) -> Result<(), CheckpointError> {
+fn load_variables(path: &Path, tensors: &HashMap<String, Tensor>, p: &Agent) -> Result<(), CheckpointError> {
     tch::no_grad(|| {
         for (name, mut var) in p.vs.variables() {
             let key = format!("model.{name}");
@@ -307,7 +335,8 @@ fn rng_from(path: &Path, meta: &HashMap<String, String>, key: &str) -> Result<Ch
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::tests::{random_obs, tiny_config};
+    use crate::bench::random_obs;
+    use crate::spec::tests::tiny_config;
     use rand::Rng;
 
     fn trained_a_little(cfg: &RunConfig) -> Trainer {
@@ -341,15 +370,15 @@ mod tests {
             assert_eq!(a, b);
             assert!(x.equal(y), "{a}");
         }
-        let (mut p, mut q) = (t.policy, fresh.policy);
+        let (mut p, mut q) = (t.agent, fresh.agent);
         let o = random_obs(2, 16, 6);
         p.reset();
         assert_eq!(p.act_deterministic(&o.batch()).unwrap(), q.act_deterministic(&o.batch()).unwrap());
         // the sampling streams continue identically too
         assert_eq!(p.act(&o.batch()).unwrap(), q.act(&o.batch()).unwrap());
 
-        // a policy-only load (evaluation)
-        let mut r = Policy::from_checkpoint(&cfg, 2, Device::Cpu, &path).unwrap();
+        // an agent-only load (evaluation)
+        let mut r = load_agent(&cfg, 2, Device::Cpu, &path).unwrap();
         p.reset();
         r.reset();
         assert_eq!(p.act_deterministic(&o.batch()).unwrap(), r.act_deterministic(&o.batch()).unwrap());

@@ -3,42 +3,55 @@
 //!
 //! The farm calls, per step message of N envs (see [`obs`] for the step protocol):
 //! ```text
-//! let mut trainer = Trainer::new(&cfg, n_envs, device)?;      // or Trainer::resume(.., checkpoint)
+//! let mut trainer = Trainer::new(&cfg, n_envs, device)?;      // or checkpoint::resume_trainer(..)
 //! loop {
-//!     let out = trainer.step(&obs_batch)?;                     // feedback in, actions out
+//!     let out = trainer.step(&env_batch)?;                     // feedback in, actions out
 //!     send(out.actions.actions);
 //!     if let Some(m) = out.update { log.append(&m)?; /* every K: checkpoint::save_in_dir */ }
 //! }
 //! ```
-//! Evaluation uses a [`Policy`] alone: `checkpoint::load_policy`, then `act_deterministic`.
+//! Evaluation uses an [`Agent`] alone: `checkpoint::load_agent`, then `act_deterministic`.
 //!
 //! The farm side: [`serve`] is the policy server (batches the workers' observations, read in
-//! place from shared memory through [`transport`] and [`batch`]), and [`policy::FarmPolicy`] is
+//! place from shared memory through [`transport`] and [`batch`]), and [`policy::Policy`] is
 //! what it asks of a policy.
+//!
+//! Layers, each using only those before it: observations ([`obs`]) → network spec ([`spec`]) →
+//! input preparation ([`inputs`]) → layers ([`layers`], [`resnet`]) → network ([`network`]) →
+//! acting agent ([`agent`]) → rollout ([`rollout`]) → PPO ([`ppo`]) → checkpoints
+//! ([`checkpoint`]) → policies served to the farm ([`policy`], [`ppo_policy`]) → the serve loop
+//! ([`serve`], beside it [`integrity`], [`records`] and [`transport`]) → the binary.
 
+pub mod agent;
 pub mod batch;
 pub mod bench;
 pub mod checkpoint;
 pub mod device;
+pub mod inputs;
+pub mod integrity;
+pub mod layers;
 pub mod metrics;
-pub mod model;
+pub mod network;
 pub mod obs;
 pub mod optim;
 pub mod policy;
 pub mod ppo;
 pub mod ppo_policy;
 pub mod pth;
+pub mod records;
 pub mod resnet;
 pub mod rollout;
 pub mod serve;
 pub mod smoke;
+pub mod spec;
 pub mod transport;
 
+pub use agent::{ActMode, Actions, Agent};
 pub use checkpoint::CheckpointError;
 pub use metrics::{MetricsLog, UpdateMetrics};
-pub use model::{ActMode, Actions, NetSpec, Policy};
-pub use obs::{EnvStep, FrameView, GestureKind, GestureView, ObsBatch};
+pub use obs::{EnvBatch, EnvStep, FrameView, GestureKind, GestureView};
 pub use ppo::{StepOutput, Trainer};
+pub use spec::NetSpec;
 
 /// Everything the learner library can fail with; each names what to fix.
 #[derive(Debug, thiserror::Error)]
@@ -46,13 +59,22 @@ pub enum LearnerError {
     #[error(transparent)]
     Obs(#[from] obs::ObsError),
     #[error(transparent)]
-    Model(#[from] model::ModelError),
+    Agent(#[from] agent::AgentError),
     #[error(transparent)]
     Checkpoint(#[from] checkpoint::CheckpointError),
     #[error(transparent)]
     Device(#[from] device::NoCuda),
     #[error(transparent)]
     Metrics(#[from] metrics::MetricsError),
+}
+
+impl From<checkpoint::RestoreError> for LearnerError {
+    fn from(e: checkpoint::RestoreError) -> LearnerError {
+        match e {
+            checkpoint::RestoreError::Build(e) => LearnerError::Agent(e),
+            checkpoint::RestoreError::File(e) => LearnerError::Checkpoint(e),
+        }
+    }
 }
 
 #[cfg(test)]

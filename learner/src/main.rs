@@ -4,16 +4,15 @@
 //! curves and checkpoints), and throughput figures.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use farm::config::{Device as DeviceChoice, RunConfig};
 use farm::process;
-use learner::policy::{ExpertPolicy, FarmPolicy, RandomPolicy};
-use learner::ppo_policy::{Blank, PpoFarmPolicy};
+use learner::policy::{ExpertPolicy, Policy, RandomPolicy};
+use learner::ppo_policy::{Blank, PpoPolicy};
 use learner::serve::{ServeOptions, serve};
-use learner::{bench, checkpoint, device, metrics::MetricsLog, smoke};
+use learner::{bench, device, smoke};
 use nix::sys::signal::Signal;
 
 #[derive(Parser)]
@@ -127,7 +126,7 @@ struct ServeArgs {
     start_wait: f64,
 }
 
-fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Result<Box<dyn FarmPolicy>> {
+fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Result<Box<dyn Policy>> {
     Ok(match (a.policy, &a.checkpoint) {
         (PolicyKind::Random, _) => Box::new(RandomPolicy::new(cfg.run.seed)),
         (PolicyKind::Expert, _) => Box::new(ExpertPolicy),
@@ -138,11 +137,11 @@ fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Resu
                 Some(BlankKind::Depth) => Blank { rgb: false, depth: true },
                 Some(BlankKind::Both) => Blank { rgb: true, depth: true },
             };
-            Box::new(PpoFarmPolicy::eval(cfg, a.workers, dev, ckpt, blank, a.greedy)?)
+            Box::new(PpoPolicy::eval(cfg, a.workers, dev, ckpt, blank, a.greedy)?)
         }
         (PolicyKind::Ppo, None) => {
             anyhow::ensure!(!a.eval, "--eval with --policy ppo needs --checkpoint");
-            Box::new(PpoFarmPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?)
+            Box::new(PpoPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?)
         }
     })
 }
@@ -185,24 +184,6 @@ fn parse_device(s: &str) -> Result<DeviceChoice, String> {
     }
 }
 
-static STOP: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_sigint(_: libc::c_int) {
-    STOP.store(true, Ordering::SeqCst);
-}
-
-/// Ctrl-C asks for a checkpoint and a clean stop instead of killing the process.
-fn install_ctrl_c() -> Result<()> {
-    use nix::sys::signal::{SaFlags, SigAction, SigHandler, SigSet, Signal, sigaction};
-    let action = SigAction::new(SigHandler::Handler(on_sigint), SaFlags::empty(), SigSet::empty());
-    // SAFETY: the handler only stores to an atomic.
-    unsafe {
-        sigaction(Signal::SIGINT, &action)?;
-        sigaction(Signal::SIGTERM, &action)?;
-    }
-    Ok(())
-}
-
 fn main() {
     // Before anything asks torch about CUDA, and before torch starts its CPU threads.
     device::load_cuda_backend();
@@ -224,101 +205,17 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Serve(a) => run_serve(a, dev)?,
         Command::Info => println!("{}", device::report(dev)),
-        Command::Smoke { updates, envs, run_dir, resume } => smoke_run(dev, updates, envs, run_dir, resume)?,
-        Command::Bench { faithful, reps } => bench_run(dev, faithful, reps)?,
+        Command::Smoke { updates, envs, run_dir, resume } => {
+            // Ctrl-C stops after the current update, with a checkpoint.
+            process::install_termination_handler()?;
+            println!("{}", device::report(dev));
+            smoke::run_in_dir(dev, updates, envs, &run_dir, resume)?
+        }
+        Command::Bench { faithful, reps } => {
+            println!("{}", device::report(dev));
+            bench::run(dev, faithful, reps, |f| println!("{f}"))?
+        }
         Command::Weights { path } => println!("{}", learner::resnet::check_weights(&path)?),
-    }
-    Ok(())
-}
-
-fn smoke_run(dev: tch::Device, updates: u64, envs: usize, run_dir: PathBuf, resume: bool) -> Result<()> {
-    install_ctrl_c()?;
-    println!("{}", device::report(dev));
-    let cfg = smoke::config(updates, envs);
-    let ckpt_dir = farm::checkpoints::dir_of(&run_dir);
-    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
-    farm::files::write_atomic(&run_dir.join("config.toml"), cfg.to_toml().as_bytes())
-        .with_context(|| format!("writing {}", run_dir.join("config.toml").display()))?;
-    let mut log = MetricsLog::open(&run_dir)?;
-    let from = if resume { checkpoint::latest(&ckpt_dir) } else { None };
-    if resume && from.is_none() {
-        anyhow::bail!("--resume: no checkpoint in {}", ckpt_dir.display());
-    }
-    let mut failure = None;
-    let on_update = |t: &learner::Trainer, m: &learner::UpdateMetrics| {
-        println!(
-            "update {:>3}  frames {:>6}  success {:>5}  return {:>7}  entropy {:.3}  kl {:.4}  lr {:.2e}  {:.0} fps",
-            m.update,
-            m.frames,
-            m.success_rate.map(|s| format!("{s:.2}")).unwrap_or("-".into()),
-            m.episode_return.map(|s| format!("{s:.3}")).unwrap_or("-".into()),
-            m.entropy,
-            m.approx_kl,
-            m.lr,
-            m.fps
-        );
-        let stop = STOP.load(Ordering::SeqCst);
-        let result = log.append(m).map_err(anyhow::Error::from).and_then(|_| {
-            if stop || m.update % t.cfg.checkpoint.every_updates == 0 {
-                let p = checkpoint::save_in_dir(&ckpt_dir, t, t.cfg.checkpoint.keep)?;
-                println!("checkpoint {}", p.display());
-            }
-            Ok(())
-        });
-        if let Err(e) = result {
-            failure = Some(e);
-            return false;
-        }
-        !stop
-    };
-    let (report, trainer) = match from {
-        Some(path) => {
-            println!("resuming from {}", path.display());
-            smoke::run_from(&cfg, dev, updates, Some(&path), on_update)?
-        }
-        None => smoke::run_from(&cfg, dev, updates, None, on_update)?,
-    };
-    if let Some(e) = failure {
-        return Err(e);
-    }
-    for n in trainer.policy.notes() {
-        println!("{n}");
-    }
-    log.plot()?;
-    if STOP.load(Ordering::SeqCst) {
-        println!("stopped by signal after update {} (checkpoint written)", trainer.updates);
-        return Ok(());
-    }
-    let p = checkpoint::save_in_dir(&ckpt_dir, &trainer, trainer.cfg.checkpoint.keep)?;
-    println!(
-        "success rate {:.2} (at start, sampling) → {:.2} (trained, greedy) after {} updates in {:.1} s\n\
-         metrics {}  curves {}  checkpoint {}",
-        report.before,
-        report.after.unwrap_or(f64::NAN),
-        report.updates,
-        report.seconds,
-        log.jsonl.display(),
-        log.png.display(),
-        p.display()
-    );
-    Ok(())
-}
-
-fn bench_run(dev: tch::Device, faithful: bool, reps: usize) -> Result<()> {
-    println!("{}", device::report(dev));
-    let tiny = bench::tiny_config();
-    println!("{}", bench::forward("tiny (64², small CNN, 256, GRU 1)", &tiny, 32, dev, reps)?);
-    println!("{}", bench::update("tiny (64², small CNN, 256, GRU 1)", &tiny, 10, dev, reps)?);
-    if faithful {
-        let dir = tempfile::tempdir()?;
-        let weights = bench::random_resnet_weights(dir.path())?;
-        let cfg = bench::faithful_config(&weights);
-        let reps_slow = reps.min(3).max(1);
-        println!("{}", bench::forward("faithful (224², frozen ResNet-18, 512, GRU 2)", &cfg, 32, dev, reps_slow)?);
-        println!(
-            "{}",
-            bench::update("faithful, stored conv5 features (GRU + heads + 1x1 convs)", &cfg, 10, dev, reps_slow)?
-        );
     }
     Ok(())
 }

@@ -45,9 +45,10 @@ pub struct UpdateMetrics {
     pub update_seconds: f64,
 }
 
-/// Episodes finished between two updates.
+/// The episodes finished between two updates (a window of the run), summed until the update
+/// drains their means into its [`UpdateMetrics`].
 #[derive(Clone, Debug, Default)]
-pub struct EpisodeStats {
+pub struct EpisodeWindow {
     pub count: u64,
     sum_return: f64,
     sum_length: f64,
@@ -55,7 +56,7 @@ pub struct EpisodeStats {
     sum_spl: f64,
 }
 
-impl EpisodeStats {
+impl EpisodeWindow {
     pub fn add(&mut self, ret: f64, length: u32, success: bool, spl: f32) {
         self.count += 1;
         self.sum_return += ret;
@@ -79,7 +80,7 @@ impl EpisodeStats {
         m.episode_length = self.mean(self.sum_length);
         m.success_rate = self.success_rate();
         m.spl = self.mean(self.sum_spl);
-        *self = EpisodeStats::default();
+        *self = EpisodeWindow::default();
     }
 }
 
@@ -222,7 +223,7 @@ mod tests {
         let mut log = MetricsLog::open(dir.path()).unwrap();
         for u in 1..=5u64 {
             let mut m = UpdateMetrics { update: u, frames: u * 1280, fps: 100.0, lr: 3e-4, ..Default::default() };
-            let mut ep = EpisodeStats::default();
+            let mut ep = EpisodeWindow::default();
             if u > 1 {
                 ep.add(1.0, 20, true, 0.5);
                 ep.add(-0.1, 100, false, 0.0);

@@ -1,10 +1,12 @@
-//! What the learner reads from the environments at one step: the observation batch.
+//! What the learner reads from the environments at one step: the [`EnvBatch`], the agent's and
+//! the trainer's input (the farm's round of worker messages, `crate::batch::WorkerBatch`, becomes
+//! one of these in `crate::ppo_policy`).
 //!
 //! One message per step for N environments. Frames and gestures are read *in place* from the
 //! buffers the caller hands over (shared memory, in the farm): a [`FrameView`] per group of
 //! environments (one worker's sample), turned into tensors with `from_blob` and copied once,
-//! straight into the rollout storage or onto the GPU. The small per-environment fields come as a
-//! slice of [`EnvStep`] in environment order.
+//! straight into the rollout storage or onto the GPU (see `crate::inputs`). The small
+//! per-environment fields come as a slice of [`EnvStep`] in environment order.
 //!
 //! ## The step protocol (Gymnasium's terminated vs truncated, next-step autoreset)
 //! The message at step t carries, for each env, the *feedback* of the action sent at t−1
@@ -21,28 +23,25 @@
 //!   unknown: t−1 and t are kept out of the loss, and the env's memory is reset at the next step.
 
 use half::f16;
-use tch::{Device, Kind, Tensor};
+use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, gesture_kind};
 
-/// Gesture clip length (frames) and width (Unity muscles), §4.3.3.
-pub const GESTURE_FRAMES: usize = 100;
-pub const GESTURE_FEATURES: usize = 95;
-
-/// Which gesture the robot sees now; `None` zeroes the gesture input.
+/// Which gesture the robot sees now ([`shm_schema::gesture_kind`]); `None` zeroes the gesture input.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[repr(u8)]
 pub enum GestureKind {
     #[default]
-    None = 0,
-    Referencing = 1,
-    Intervention = 2,
+    None = gesture_kind::NONE,
+    Referencing = gesture_kind::REFERENCING,
+    Intervention = gesture_kind::INTERVENTION,
 }
 
 impl GestureKind {
+    /// The kind an [`shm_schema::EnvRecord::gesture_kind`] names, if it names one.
     pub fn from_u8(v: u8) -> Option<GestureKind> {
         match v {
-            0 => Some(GestureKind::None),
-            1 => Some(GestureKind::Referencing),
-            2 => Some(GestureKind::Intervention),
+            gesture_kind::NONE => Some(GestureKind::None),
+            gesture_kind::REFERENCING => Some(GestureKind::Referencing),
+            gesture_kind::INTERVENTION => Some(GestureKind::Intervention),
             _ => None,
         }
     }
@@ -114,9 +113,9 @@ pub struct FrameView<'a> {
     pub gesture: GestureView<'a>,
 }
 
-/// One step message for all N envs.
+/// One step of all N envs, in env order: what the agent acts on and the trainer learns from.
 #[derive(Clone, Debug)]
-pub struct ObsBatch<'a> {
+pub struct EnvBatch<'a> {
     pub height: usize,
     pub width: usize,
     /// Frame groups in env order; their `envs` sum to N.
@@ -133,7 +132,7 @@ pub enum ObsError {
     Target { env: usize, target: i64, count: i64 },
 }
 
-impl ObsBatch<'_> {
+impl EnvBatch<'_> {
     pub fn n(&self) -> usize {
         self.envs.len()
     }
@@ -159,7 +158,7 @@ impl ObsBatch<'_> {
             let checks = [
                 ("rgb", f.rgb.len(), f.envs * px * 3),
                 ("depth", f.depth.len(), f.envs * px),
-                ("gesture", f.gesture.len(), f.envs * GESTURE_FRAMES * GESTURE_FEATURES),
+                ("gesture", f.gesture.len(), f.envs * GESTURE_FRAMES * GESTURE_DIMS),
             ];
             for (what, got, want) in checks {
                 if got != want {
@@ -170,7 +169,7 @@ impl ObsBatch<'_> {
                 }
             }
         }
-        let count = crate::model::target_count();
+        let count = TARGET_CATEGORIES as i64;
         for (env, e) in self.envs.iter().enumerate() {
             if !e.lost && !(0..count).contains(&e.target) {
                 return Err(ObsError::Target { env, target: e.target, count });
@@ -178,72 +177,9 @@ impl ObsBatch<'_> {
         }
         Ok(())
     }
-
-    /// RGB as one u8 tensor `[N, H, W, 3]` on `device` (see `gather` for when it is a copy).
-    pub(crate) fn rgb_tensor(&self, device: Device) -> Tensor {
-        // (may alias the batch's buffer, see `gather`)
-        let (h, w) = (self.height as i64, self.width as i64);
-        self.gather(device, |f| {
-            // SAFETY: `validate` checked the slice holds E*H*W*3 bytes; the tensor lives no longer
-            // than the batch's buffers (`Prepared<'a>`), or is copied (`to_device`, `cat`).
-            unsafe { Tensor::from_blob(f.rgb.as_ptr(), &[f.envs as i64, h, w, 3], &[], Kind::Uint8, Device::Cpu) }
-        })
-    }
-
-    /// Depth as raw 16-bit patterns in an Int16 tensor `[N, H, W]` (torch has no u16; the model
-    /// reinterprets the bits).
-    pub(crate) fn depth_tensor(&self, device: Device) -> Tensor {
-        let (h, w) = (self.height as i64, self.width as i64);
-        self.gather(device, |f| unsafe {
-            // SAFETY: as for rgb; u16 and i16 have the same size and alignment.
-            Tensor::from_blob(f.depth.as_ptr() as *const u8, &[f.envs as i64, h, w], &[], Kind::Int16, Device::Cpu)
-        })
-    }
-
-    /// Gestures `[N, 100, 95]` in half precision on `device`.
-    pub(crate) fn gesture_tensor(&self, device: Device) -> Tensor {
-        let shape = |e: usize| [e as i64, GESTURE_FRAMES as i64, GESTURE_FEATURES as i64];
-        let t = self.gather(device, |f| match f.gesture {
-            // SAFETY: as for rgb.
-            GestureView::F16(s) => unsafe {
-                Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Half, Device::Cpu)
-            },
-            GestureView::F32(s) => {
-                unsafe { Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Float, Device::Cpu) }
-                    .to_kind(Kind::Half)
-            }
-        });
-        t.to_kind(Kind::Half)
-    }
-
-    /// Per-env gesture mask (1 where a gesture is shown), `[N]` f32.
-    pub(crate) fn gesture_mask(&self, device: Device) -> Tensor {
-        let m: Vec<f32> =
-            self.envs.iter().map(|e| if e.gesture == GestureKind::None || e.lost { 0.0 } else { 1.0 }).collect();
-        Tensor::from_slice(&m).to_device(device)
-    }
-
-    pub(crate) fn target_tensor(&self, device: Device) -> Tensor {
-        let t: Vec<i64> = self.envs.iter().map(|e| if e.lost { 0 } else { e.target }).collect();
-        Tensor::from_slice(&t).to_device(device)
-    }
-
-    pub(crate) fn pose_tensor(&self, device: Device) -> Tensor {
-        let p: Vec<f32> = self.envs.iter().flat_map(|e| e.person_pose).collect();
-        Tensor::from_slice(&p).view([self.n() as i64, 3]).to_device(device)
-    }
-
-    /// One tensor for all groups: on the GPU a copy; on the CPU with one group, the caller's
-    /// buffer itself (no host copy) — hence [`crate::model::Prepared`] carries the batch's
-    /// lifetime.
-    fn gather(&self, device: Device, view: impl Fn(&FrameView) -> Tensor) -> Tensor {
-        let mut parts: Vec<Tensor> =
-            self.frames.iter().filter(|f| f.envs > 0).map(|f| view(f).to_device(device)).collect();
-        if parts.len() == 1 { parts.pop().unwrap() } else { Tensor::cat(&parts, 0) }
-    }
 }
 
-/// An observation batch that owns its buffers: for tests, the synthetic smoke task and benches.
+/// The buffers an [`EnvBatch`] borrows, owned: for tests, the synthetic smoke task and benches.
 #[derive(Clone, Debug)]
 pub struct OwnedObs {
     pub height: usize,
@@ -262,7 +198,7 @@ impl OwnedObs {
             width,
             rgb: vec![0; n * height * width * 3],
             depth: vec![0; n * height * width],
-            gesture: vec![f16::ZERO; n * GESTURE_FRAMES * GESTURE_FEATURES],
+            gesture: vec![f16::ZERO; n * GESTURE_FRAMES * GESTURE_DIMS],
             envs: vec![EnvStep { episode_start: true, ..Default::default() }; n],
         }
     }
@@ -272,8 +208,8 @@ impl OwnedObs {
     }
 
     /// The batch, as one frame group.
-    pub fn batch(&self) -> ObsBatch<'_> {
-        ObsBatch {
+    pub fn batch(&self) -> EnvBatch<'_> {
+        EnvBatch {
             height: self.height,
             width: self.width,
             frames: vec![FrameView {
@@ -287,9 +223,9 @@ impl OwnedObs {
     }
 
     /// The batch split into groups of `per_group` envs, as workers would send it.
-    pub fn batch_grouped(&self, per_group: usize) -> ObsBatch<'_> {
+    pub fn batch_grouped(&self, per_group: usize) -> EnvBatch<'_> {
         let px = self.height * self.width;
-        let g = GESTURE_FRAMES * GESTURE_FEATURES;
+        let g = GESTURE_FRAMES * GESTURE_DIMS;
         let mut frames = Vec::new();
         let mut start = 0;
         while start < self.n() {
@@ -302,39 +238,13 @@ impl OwnedObs {
             });
             start += e;
         }
-        ObsBatch { height: self.height, width: self.width, frames, envs: &self.envs }
+        EnvBatch { height: self.height, width: self.width, frames, envs: &self.envs }
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn groups_gather_to_the_same_tensors_and_depth_bits_survive() {
-        let mut o = OwnedObs::new(5, 4, 6);
-        for (i, v) in o.rgb.iter_mut().enumerate() {
-            *v = (i % 251) as u8;
-        }
-        for (i, v) in o.depth.iter_mut().enumerate() {
-            *v = (i as u16).wrapping_mul(1031).wrapping_add(40000);
-        }
-        for (i, v) in o.gesture.iter_mut().enumerate() {
-            *v = f16::from_f32((i % 7) as f32 * 0.25);
-        }
-        let one = o.batch();
-        let many = o.batch_grouped(2);
-        one.validate(5, (4, 6)).unwrap();
-        many.validate(5, (4, 6)).unwrap();
-        assert!(one.rgb_tensor(Device::Cpu).equal(&many.rgb_tensor(Device::Cpu)));
-        assert!(one.gesture_tensor(Device::Cpu).equal(&many.gesture_tensor(Device::Cpu)));
-        let d = many.depth_tensor(Device::Cpu);
-        assert_eq!(d.size(), vec![5, 4, 6]);
-        // u16 patterns come back from the Int16 view
-        let back = crate::model::depth_unit(&d).view([-1]);
-        let got = back.double_value(&[7]);
-        assert!((got - o.depth[7] as f64 / 65535.0).abs() < 1e-6, "{got}");
-    }
 
     #[test]
     fn bad_sizes_and_targets_are_named() {

@@ -1,20 +1,19 @@
-//! What the policy server asks of a policy: one action per env of a batch. PPO plugs in here
-//! the same way as the two baselines below.
+//! What the policy server asks of a policy ([`Policy`]): one action per env of a round's
+//! [`WorkerBatch`]. PPO (`crate::ppo_policy`) plugs in here the same way as the two baselines below.
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use shm_schema::action;
 
-use crate::batch::ObsBatchView;
-
-/// Actions are 0 MoveAhead, 1 RotateLeft, 2 RotateRight, 3 Stop (§4.2).
-pub const NUM_ACTIONS: u8 = 4;
+use crate::batch::WorkerBatch;
 
 /// A policy served to the farm.
-pub trait FarmPolicy {
+pub trait Policy {
     /// Short name for logs.
     fn name(&self) -> &str;
-    /// One action per env of `batch`, in the order of [`ObsBatchView::envs`].
-    fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>>;
+    /// One action per env of `batch` (an index of [`shm_schema::action`], §4.2), in the order of
+    /// [`WorkerBatch::envs`].
+    fn act(&mut self, batch: &WorkerBatch<'_>) -> anyhow::Result<Vec<u8>>;
     /// Whether the server should gather every live worker into one batch before acting (a
     /// network amortises its forward pass over the batch, and PPO's rollout wants every env at
     /// every step). A policy that decides env by env answers each worker as soon as it sends,
@@ -39,13 +38,13 @@ impl RandomPolicy {
     }
 }
 
-impl FarmPolicy for RandomPolicy {
+impl Policy for RandomPolicy {
     fn name(&self) -> &str {
         "random"
     }
 
-    fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>> {
-        Ok((0..batch.num_envs()).map(|_| self.rng.random_range(0..NUM_ACTIONS)).collect())
+    fn act(&mut self, batch: &WorkerBatch<'_>) -> anyhow::Result<Vec<u8>> {
+        Ok((0..batch.num_envs()).map(|_| self.rng.random_range(0..action::COUNT as u8)).collect())
     }
 
     fn wants_full_batches(&self) -> bool {
@@ -57,7 +56,7 @@ impl FarmPolicy for RandomPolicy {
 /// an upper reference for navigation, and a check that actions reach the right env.
 pub struct ExpertPolicy;
 
-impl FarmPolicy for ExpertPolicy {
+impl Policy for ExpertPolicy {
     fn name(&self) -> &str {
         "expert"
     }
@@ -66,11 +65,11 @@ impl FarmPolicy for ExpertPolicy {
         false
     }
 
-    fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>> {
+    fn act(&mut self, batch: &WorkerBatch<'_>) -> anyhow::Result<Vec<u8>> {
         batch
             .envs()
             .map(|(w, e, r)| match r.expert_action {
-                a if a < NUM_ACTIONS => Ok(a),
+                a if (a as usize) < action::COUNT => Ok(a),
                 // No expert from a final observation or an idle env: the worker ignores the
                 // action answered to those.
                 _ if r.idle != 0 || r.terminated != 0 || r.truncated != 0 => Ok(0),

@@ -17,10 +17,9 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use tch::{Device, Kind, Tensor};
 
-use crate::LearnerError;
-use crate::metrics::{EpisodeStats, UpdateMetrics};
-use crate::model::{ActMode, Actions, Policy};
-use crate::obs::{EnvStep, ObsBatch};
+use crate::agent::{ActMode, Actions, Agent, AgentError};
+use crate::metrics::{EpisodeWindow, UpdateMetrics};
+use crate::obs::{EnvBatch, EnvStep, ObsError};
 use crate::optim::Adam;
 use crate::rollout::{FeedbackCounts, Rollout, as_f32, flags};
 
@@ -40,13 +39,13 @@ pub struct StepOutput {
     pub update: Option<UpdateMetrics>,
 }
 
-/// The PPO agent being trained: policy, optimizer, rollout, counters.
+/// The PPO agent being trained: the acting agent, optimizer, rollout, counters.
 #[derive(Debug)]
 pub struct Trainer {
     pub cfg: RunConfig,
     /// `cfg.ppo`, with at most one minibatch per env.
     pub hp: PpoConfig,
-    pub policy: Policy,
+    pub agent: Agent,
     pub opt: Adam,
     pub rollout: Rollout,
     /// PPO updates done.
@@ -55,7 +54,7 @@ pub struct Trainer {
     pub frames: u64,
     /// Minibatch order; part of the checkpoint.
     pub(crate) rng: ChaCha8Rng,
-    episodes: EpisodeStats,
+    episodes: EpisodeWindow,
     ep_return: Vec<f64>,
     ep_length: Vec<u32>,
     /// The env's last stored step was a real action (its feedback counts for the episode).
@@ -66,29 +65,36 @@ pub struct Trainer {
 
 impl Trainer {
     /// A fresh agent for `n_envs` envs.
-    pub fn new(cfg: &RunConfig, n_envs: usize, device: Device) -> Result<Trainer, LearnerError> {
+    pub fn new(cfg: &RunConfig, n_envs: usize, device: Device) -> Result<Trainer, AgentError> {
         Trainer::build(cfg, n_envs, device, true)
     }
 
-    fn build(cfg: &RunConfig, n_envs: usize, device: Device, load_weights: bool) -> Result<Trainer, LearnerError> {
-        let policy = Policy::build(cfg, n_envs, device, load_weights)?;
+    /// `load_weights`: read the configured ResNet-18 file (not when a checkpoint is about to
+    /// overwrite every variable: `crate::checkpoint::resume_trainer`).
+    pub(crate) fn build(
+        cfg: &RunConfig,
+        n_envs: usize,
+        device: Device,
+        load_weights: bool,
+    ) -> Result<Trainer, AgentError> {
+        let agent = Agent::build(cfg, n_envs, device, load_weights)?;
         let mut hp = cfg.ppo.clone();
         if hp.minibatches > n_envs {
             tracing::warn!("ppo.minibatches = {} > {n_envs} envs: using {n_envs}", hp.minibatches);
             hp.minibatches = n_envs;
         }
-        let opt = Adam::new(&policy.vs, hp.lr, ADAM_EPS);
-        let rollout = Rollout::new(hp.rollout, n_envs, policy.hidden());
+        let opt = Adam::new(&agent.vs, hp.lr, ADAM_EPS);
+        let rollout = Rollout::new(hp.rollout, n_envs, agent.hidden());
         Ok(Trainer {
             rng: farm::seed::rng(cfg.run.seed, &[0x7070_6f5f]),
             cfg: cfg.clone(),
             hp,
-            policy,
+            agent,
             opt,
             rollout,
             updates: 0,
             frames: 0,
-            episodes: EpisodeStats::default(),
+            episodes: EpisodeWindow::default(),
             ep_return: vec![0.0; n_envs],
             ep_length: vec![0; n_envs],
             last_real: vec![false; n_envs],
@@ -97,24 +103,11 @@ impl Trainer {
         })
     }
 
-    /// An agent continuing from a checkpoint: weights, Adam state, update and frame counts (so
-    /// the lr schedule continues), random streams. Episodes start afresh.
-    pub fn resume(
-        cfg: &RunConfig,
-        n_envs: usize,
-        device: Device,
-        checkpoint: &std::path::Path,
-    ) -> Result<Trainer, LearnerError> {
-        let mut t = Trainer::build(cfg, n_envs, device, false)?;
-        crate::checkpoint::load_trainer(checkpoint, &mut t)?;
-        Ok(t)
-    }
-
     /// One step message in, actions out. When the message completes a rollout, the PPO update
     /// runs first (the returned actions then come from the updated policy).
-    pub fn step(&mut self, obs: &ObsBatch) -> Result<StepOutput, LearnerError> {
-        let (x, starts) = self.policy.prepare(obs)?;
-        let mut fwd = self.policy.forward(&x, starts.clone());
+    pub fn step(&mut self, obs: &EnvBatch) -> Result<StepOutput, ObsError> {
+        let (x, starts) = self.agent.prepare(obs)?;
+        let mut fwd = self.agent.forward(&x, starts.clone());
 
         // 1. The feedback of the previous action: reward, end of episode, truncation bootstrap.
         let c = self.rollout.record_feedback(obs.envs, &fwd.values, self.hp.gamma as f32);
@@ -129,16 +122,16 @@ impl Trainer {
         if self.rollout.is_full() {
             let bootstrap = fwd.values.clone();
             update = Some(self.update(&bootstrap));
-            self.rollout.begin(self.policy.hidden());
-            fwd = self.policy.forward(&x, starts);
+            self.rollout.begin(self.agent.hidden());
+            fwd = self.agent.forward(&x, starts);
         }
 
         // 1. (cont.) Act and store. A final observation's action is ignored by the env.
-        let acted = self.policy.choose(&fwd, ActMode::Sample);
+        let acted = self.agent.choose(&fwd, ActMode::Sample);
         let valid: Vec<bool> = obs.envs.iter().map(|e| !e.lost && !e.is_final_observation()).collect();
         self.rollout.push(&x, &fwd.starts, &acted, &valid);
         self.last_real = valid;
-        self.policy.commit(fwd, obs);
+        self.agent.commit(fwd, obs);
         Ok(StepOutput { actions: acted, update })
     }
 
@@ -178,7 +171,7 @@ impl Trainer {
         let valid_count = r.valid.iter().filter(|v| **v).count();
         m.valid_fraction = valid_count as f64 / (t_len * n) as f64;
 
-        if !self.policy.spec.random() && valid_count > 0 {
+        if !self.agent.spec.random() && valid_count > 0 {
             // GAE (Eq. 4.3–4.5), on the host: T×N scalars.
             let (advantages, returns) =
                 gae(&r.rewards, &r.values, &r.ends, bootstrap, n, hp.gamma as f32, hp.gae_lambda as f32);
@@ -207,7 +200,7 @@ impl Trainer {
                     let valid = sel(&b_valid);
 
                     // Re-run the network over the minibatch's whole sequences.
-                    let (logits, values) = self.policy.net.evaluate(
+                    let (logits, values) = self.agent.net.evaluate(
                         &inputs.map(sel),
                         &r.h0.index_select(1, &idx),
                         &sel(&b_keep),

@@ -1,7 +1,8 @@
-//! PPO served to the farm: every round, the observations of all N = workers × E envs become one
-//! `ObsBatch` read in place from the workers' shared-memory samples; the `Trainer` acts and,
-//! every `rollout` steps, learns. In evaluation the network only acts (sampled or greedy),
-//! optionally with its visual inputs zeroed (blind mode, RGB-only and depth-only ablations).
+//! PPO served to the farm: every round, the workers' messages (`WorkerBatch`) become one
+//! `EnvBatch` of all N = workers × E envs, read in place from the workers' shared-memory samples;
+//! the `Trainer` acts and, every `rollout` steps, learns. In evaluation the network only acts
+//! (sampled or greedy), optionally with its visual inputs zeroed (blind mode, RGB-only and
+//! depth-only ablations).
 //!
 //! A worker missing from a round (crashed, restarting, slow) contributes zero frames and its envs
 //! are flagged `lost`: that step and the one before stay out of the loss and the envs' memory is
@@ -15,12 +16,12 @@ use tch::Device;
 use farm::config::RunConfig;
 use shm_schema::EnvRecord;
 
-use crate::batch::ObsBatchView;
+use crate::agent::Agent;
+use crate::batch::WorkerBatch;
 use crate::checkpoint;
 use crate::metrics::MetricsLog;
-use crate::model::Policy;
-use crate::obs::{EnvStep, FrameView, GestureKind, GestureView, ObsBatch};
-use crate::policy::FarmPolicy;
+use crate::obs::{EnvBatch, EnvStep, FrameView, GestureKind, GestureView};
+use crate::policy::Policy;
 use crate::ppo::Trainer;
 
 /// What the network does with the batches.
@@ -28,7 +29,7 @@ pub enum Mode {
     /// Act and learn; checkpoints and metrics go to the run directory.
     Train { trainer: Box<Trainer>, log: MetricsLog, checkpoints: PathBuf },
     /// Act only, from a checkpoint.
-    Eval { policy: Box<Policy>, greedy: bool },
+    Eval { agent: Box<Agent>, greedy: bool },
 }
 
 /// Inputs to blank during evaluation (T4.6, T4.7).
@@ -38,7 +39,8 @@ pub struct Blank {
     pub depth: bool,
 }
 
-pub struct PpoFarmPolicy {
+/// The PPO agent as a served [`Policy`]: trains, or evaluates a checkpoint.
+pub struct PpoPolicy {
     mode: Mode,
     cfg: RunConfig,
     workers: usize,
@@ -52,7 +54,7 @@ pub struct PpoFarmPolicy {
     generations: Vec<Option<u32>>,
 }
 
-impl PpoFarmPolicy {
+impl PpoPolicy {
     /// Training from scratch, or from the run directory's latest checkpoint when `resume`.
     pub fn train(
         cfg: &RunConfig,
@@ -60,23 +62,23 @@ impl PpoFarmPolicy {
         device: Device,
         run_dir: &Path,
         resume: bool,
-    ) -> anyhow::Result<PpoFarmPolicy> {
+    ) -> anyhow::Result<PpoPolicy> {
         let n = workers * cfg.env.envs_per_worker;
         let checkpoints = farm::checkpoints::dir_of(run_dir);
         let trainer = match (resume, checkpoint::latest(&checkpoints)) {
             (true, Some(path)) => {
-                let t = Trainer::resume(cfg, n, device, &path)?;
+                let t = checkpoint::resume_trainer(cfg, n, device, &path)?;
                 tracing::info!("resumed from {} at update {} ({} frames)", path.display(), t.updates, t.frames);
                 t
             }
             (true, None) => anyhow::bail!("--resume: {} holds no checkpoint", checkpoints.display()),
             (false, _) => Trainer::new(cfg, n, device)?,
         };
-        for note in trainer.policy.notes() {
+        for note in trainer.agent.notes() {
             tracing::info!("{note}");
         }
         let log = MetricsLog::open(run_dir)?;
-        Ok(PpoFarmPolicy::with_mode(
+        Ok(PpoPolicy::with_mode(
             Mode::Train { trainer: Box::new(trainer), log, checkpoints },
             cfg,
             workers,
@@ -93,20 +95,20 @@ impl PpoFarmPolicy {
         checkpoint: &Path,
         blank: Blank,
         greedy: bool,
-    ) -> anyhow::Result<PpoFarmPolicy> {
+    ) -> anyhow::Result<PpoPolicy> {
         tch::manual_seed(cfg.run.seed as i64);
         let n = workers * cfg.env.envs_per_worker;
-        let policy = Policy::from_checkpoint(cfg, n, device, checkpoint)?;
-        for note in policy.notes() {
+        let agent = checkpoint::load_agent(cfg, n, device, checkpoint)?;
+        for note in agent.notes() {
             tracing::info!("{note}");
         }
-        Ok(PpoFarmPolicy::with_mode(Mode::Eval { policy: Box::new(policy), greedy }, cfg, workers, blank))
+        Ok(PpoPolicy::with_mode(Mode::Eval { agent: Box::new(agent), greedy }, cfg, workers, blank))
     }
 
-    fn with_mode(mode: Mode, cfg: &RunConfig, workers: usize, blank: Blank) -> PpoFarmPolicy {
+    fn with_mode(mode: Mode, cfg: &RunConfig, workers: usize, blank: Blank) -> PpoPolicy {
         let e = cfg.env.envs_per_worker;
         let px = (cfg.env.width * cfg.env.height) as usize;
-        PpoFarmPolicy {
+        PpoPolicy {
             mode,
             cfg: cfg.clone(),
             workers,
@@ -154,7 +156,7 @@ fn env_step(r: &EnvRecord) -> EnvStep {
     }
 }
 
-impl FarmPolicy for PpoFarmPolicy {
+impl Policy for PpoPolicy {
     fn name(&self) -> &str {
         match self.mode {
             Mode::Train { .. } => "ppo",
@@ -162,7 +164,7 @@ impl FarmPolicy for PpoFarmPolicy {
         }
     }
 
-    fn act(&mut self, batch: &ObsBatchView<'_>) -> anyhow::Result<Vec<u8>> {
+    fn act(&mut self, batch: &WorkerBatch<'_>) -> anyhow::Result<Vec<u8>> {
         let e = self.envs;
         let mut frames = Vec::with_capacity(self.workers);
         for p in &batch.parts {
@@ -203,7 +205,7 @@ impl FarmPolicy for PpoFarmPolicy {
                 }
             }
         }
-        let obs = ObsBatch { height: batch.height, width: batch.width, frames, envs: &self.steps };
+        let obs = EnvBatch { height: batch.height, width: batch.width, frames, envs: &self.steps };
         let actions = match &mut self.mode {
             Mode::Train { trainer, log, .. } => {
                 let out = trainer.step(&obs)?;
@@ -231,8 +233,8 @@ impl FarmPolicy for PpoFarmPolicy {
                 }
                 a
             }
-            Mode::Eval { policy, greedy } => {
-                let a = if *greedy { policy.act_deterministic(&obs)? } else { policy.act(&obs)? };
+            Mode::Eval { agent, greedy } => {
+                let a = if *greedy { agent.act_deterministic(&obs)? } else { agent.act(&obs)? };
                 a.actions
             }
         };

@@ -11,7 +11,8 @@
 
 use tch::{Device, Kind, Tensor};
 
-use crate::model::{Actions, Inputs};
+use crate::agent::Actions;
+use crate::inputs::Inputs;
 use crate::obs::EnvStep;
 
 #[derive(Debug)]

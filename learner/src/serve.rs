@@ -10,28 +10,26 @@
 //! worker restarted by the orchestrator announces `generation + 1`: its state is reset, and
 //! observations of older generations still in flight are dropped.
 //!
-//! Every observation is checked as it arrives: header magic, version, slot and layout; the
-//! message counter of its worker and the `env_step` counter of each of its envs must go up by
-//! exactly one within a generation. Violations are counted (`lost`, `duplicates`, `corrupt`)
-//! and, in check mode, fail the run.
+//! Every observation is checked as it arrives (`crate::integrity`: header, layout, and the
+//! message and env-step counters within a generation). Violations are counted (`lost`,
+//! `duplicates`, `corrupt`) and, in check mode, fail the run.
 //!
-//! Files in the run directory: `farm.jsonl` (a progress record every `report_every`, and a
-//! final one), `episodes.jsonl` (one line per finished episode), in evaluation `trajectories.jsonl` (every
-//! episode step by step), `farm_summary.json` (at exit).
+//! Files in the run directory (`crate::records`): `farm.jsonl` (a progress record every
+//! `report_every`, and a final one), `episodes.jsonl` (one line per finished episode), in
+//! evaluation `trajectories.jsonl` (every episode step by step), `farm_summary.json` (at exit).
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use farm::metrics::{EpisodeResult, Trajectory};
 use farm::process;
 use farm::transport::TransportError;
-use serde::{Deserialize, Serialize};
-use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, OBS_MAGIC, ObsShape, ObsView, SCHEMA_VERSION, command};
+use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, ObsShape, action, command};
 
-use crate::batch::{ObsBatchView, WorkerObs};
-use crate::policy::{FarmPolicy, NUM_ACTIONS};
-use crate::transport::{LearnerPorts, ObsSample};
+use crate::batch::{WorkerBatch, WorkerObs};
+use crate::integrity::{self, Expected, Verdict};
+use crate::policy::Policy;
+use crate::records::{Counters, Progress, RecordError, RunRecords, Summary, WorkerSummary};
+use crate::transport::{LearnerPorts, ObsMessage};
 
 /// How to serve a run.
 #[derive(Clone, Debug)]
@@ -88,122 +86,20 @@ pub enum ServeError {
     Transport(#[from] TransportError),
     #[error("policy `{name}`")]
     Policy { name: String, source: anyhow::Error },
-    #[error("{path}")]
-    Io { path: String, source: std::io::Error },
+    #[error(transparent)]
+    Record(#[from] RecordError),
     #[error("check failed: {0}")]
     Check(String),
-}
-
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ServeError + '_ {
-    move |source| ServeError::Io { path: path.display().to_string(), source }
-}
-
-/// Running totals of a run.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Counters {
-    /// Env observations of envs that were running (idle envs of finished evaluations excluded).
-    pub frames: u64,
-    /// Observations (messages) accepted.
-    pub messages: u64,
-    pub rounds: u64,
-    pub episodes: u64,
-    pub successes: u64,
-    /// Workers that came back with a new generation.
-    pub restarts: u64,
-    /// Messages or env steps skipped within a generation.
-    pub lost: u64,
-    /// Messages or env steps seen twice (or going backwards) within a generation.
-    pub duplicates: u64,
-    /// Messages with a bad header or layout.
-    pub corrupt: u64,
-    /// Messages of an older generation, dropped.
-    pub stale: u64,
-    /// Sum and count of step round trips: action sent → the worker's next observation received.
-    pub latency_sum_s: f64,
-    pub latency_count: u64,
-    /// Time spent in the policy.
-    pub policy_sum_s: f64,
-}
-
-/// One line of `farm.jsonl`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Progress {
-    /// Seconds since the server started.
-    pub t: f64,
-    /// Frames per second over the last report window.
-    pub fps: f64,
-    /// Mean step round trip (ms) over the last window.
-    pub latency_ms: Option<f64>,
-    pub success_rate: Option<f64>,
-    /// Workers seen at least once / answering at the moment.
-    pub workers_seen: usize,
-    pub workers_live: usize,
-    #[serde(flatten)]
-    pub totals: Counters,
-    /// Set on the last line.
-    pub stop_reason: Option<String>,
-}
-
-/// Per-worker state at the end (`farm_summary.json`).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct WorkerSummary {
-    pub worker: u32,
-    pub generation: Option<u32>,
-    /// Messages accepted from the current generation.
-    pub messages: u64,
-    pub frames: u64,
-    pub finished: bool,
-}
-
-/// What [`serve`] returns and writes to `farm_summary.json`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Summary {
-    pub run_id: String,
-    pub policy: String,
-    pub seconds: f64,
-    pub stop_reason: String,
-    pub totals: Counters,
-    pub workers: Vec<WorkerSummary>,
-}
-
-/// One line of `episodes.jsonl`: the episode as `farm::metrics` scores it, plus where it
-/// came from.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct EpisodeLine {
-    #[serde(flatten)]
-    pub result: EpisodeResult,
-    /// The env's episode counter in its worker process.
-    pub episode: u64,
-    pub terminated: bool,
-    pub truncated: bool,
-    pub target_category: u32,
-    pub target_instances: u32,
-}
-
-impl EpisodeLine {
-    fn new(worker: u32, generation: u32, env: usize, r: &EnvRecord) -> EpisodeLine {
-        EpisodeLine {
-            result: EpisodeResult::from_record(r, worker, env as u32, generation),
-            episode: r.episode,
-            terminated: r.terminated != 0,
-            truncated: r.truncated != 0,
-            target_category: r.target_category,
-            target_instances: r.target_instances,
-        }
-    }
 }
 
 /// The server's knowledge of one worker slot.
 #[derive(Debug)]
 struct Slot {
-    generation: Option<u32>,
-    /// The observation waiting for this round's answer.
-    held: Option<(ObsSample, bool)>,
-    /// The next generation's first message has not been acted on yet.
-    new_generation: bool,
-    last_step: Option<u64>,
-    /// The `env_step` each env must send next.
-    next_env_step: Vec<Option<u64>>,
+    /// Its generation and message counters.
+    expected: Expected,
+    /// The observation waiting for this round's answer, and whether it is the first of its
+    /// generation.
+    held: Option<(ObsMessage, bool)>,
     absent: bool,
     finished: bool,
     shutdown_sent: bool,
@@ -215,11 +111,8 @@ struct Slot {
 impl Slot {
     fn new() -> Slot {
         Slot {
-            generation: None,
+            expected: Expected::default(),
             held: None,
-            new_generation: false,
-            last_step: None,
-            next_env_step: vec![],
             absent: false,
             finished: false,
             shutdown_sent: false,
@@ -229,8 +122,12 @@ impl Slot {
         }
     }
 
+    fn generation(&self) -> Option<u32> {
+        self.expected.generation
+    }
+
     fn live(&self) -> bool {
-        self.generation.is_some() && !self.absent && !self.shutdown_sent
+        self.generation().is_some() && !self.absent && !self.shutdown_sent
     }
 }
 
@@ -258,15 +155,10 @@ struct Server<'p> {
     opts: ServeOptions,
     shape: ObsShape,
     ports: LearnerPorts,
-    policy: &'p mut dyn FarmPolicy,
+    policy: &'p mut dyn Policy,
     slots: Vec<Slot>,
     totals: Counters,
-    episodes: std::io::BufWriter<std::fs::File>,
-    episodes_path: PathBuf,
-    /// Evaluation: every episode step by step (`trajectories.jsonl`), per worker and env.
-    trajectories: Option<(std::io::BufWriter<std::fs::File>, PathBuf, Vec<Vec<Trajectory>>)>,
-    progress: std::fs::File,
-    progress_path: PathBuf,
+    records: RunRecords,
     start: Instant,
     last_report: (Instant, Counters),
     problems: Vec<String>,
@@ -274,24 +166,12 @@ struct Server<'p> {
 
 /// Serves `policy` to the run's workers until a budget is spent, the evaluation is done or a
 /// termination signal arrives; then answers every worker with SHUTDOWN and returns the summary.
-pub fn serve(opts: &ServeOptions, policy: &mut dyn FarmPolicy) -> Result<Summary, ServeError> {
+pub fn serve(opts: &ServeOptions, policy: &mut dyn Policy) -> Result<Summary, ServeError> {
     let shape = ObsShape::new(opts.envs_per_worker, opts.width, opts.height);
     if opts.envs_per_worker > MAX_ENVS {
         return Err(ServeError::Check(format!("{} envs per worker; at most {MAX_ENVS}", opts.envs_per_worker)));
     }
-    std::fs::create_dir_all(&opts.run_dir).map_err(io_err(&opts.run_dir))?;
-    let episodes_path = opts.run_dir.join("episodes.jsonl");
-    let progress_path = opts.run_dir.join("farm.jsonl");
-    let open_append = |p: &Path| std::fs::OpenOptions::new().create(true).append(true).open(p);
-    let episodes = std::io::BufWriter::new(open_append(&episodes_path).map_err(io_err(&episodes_path))?);
-    let progress = open_append(&progress_path).map_err(io_err(&progress_path))?;
-    let trajectories = if opts.eval {
-        let path = opts.run_dir.join("trajectories.jsonl");
-        let f = std::io::BufWriter::new(open_append(&path).map_err(io_err(&path))?);
-        Some((f, path, vec![vec![Trajectory::default(); opts.envs_per_worker]; opts.workers]))
-    } else {
-        None
-    };
+    let records = RunRecords::open(&opts.run_dir, opts.eval, opts.workers, opts.envs_per_worker)?;
     let ports = LearnerPorts::open(&opts.run_id, opts.workers)?;
     let now = Instant::now();
     let mut server = Server {
@@ -301,11 +181,7 @@ pub fn serve(opts: &ServeOptions, policy: &mut dyn FarmPolicy) -> Result<Summary
         policy,
         slots: (0..opts.workers).map(|_| Slot::new()).collect(),
         totals: Counters::default(),
-        episodes,
-        episodes_path,
-        trajectories,
-        progress,
-        progress_path,
+        records,
         start: now,
         last_report: (now, Counters::default()),
         problems: vec![],
@@ -332,7 +208,7 @@ impl Server<'_> {
             self.report(None)?;
             let any = self.slots.iter().any(|s| s.held.is_some());
             if !started {
-                let seen = self.slots.iter().filter(|s| s.generation.is_some()).count();
+                let seen = self.slots.iter().filter(|s| s.generation().is_some()).count();
                 started = seen == self.slots.len() || (seen > 0 && self.start.elapsed() >= self.opts.start_wait);
                 if !started {
                     self.ports.wait(Duration::from_millis(50));
@@ -372,8 +248,8 @@ impl Server<'_> {
     /// Takes every observation that arrived, checks it, and holds the newest per worker.
     fn collect(&mut self) -> Result<(), ServeError> {
         for k in 0..self.slots.len() {
-            while let Some(sample) = self.ports.receive(k)? {
-                self.accept(k, sample)?;
+            while let Some(msg) = self.ports.receive(k)? {
+                self.accept(k, msg)?;
             }
         }
         Ok(())
@@ -387,97 +263,47 @@ impl Server<'_> {
         if self.opts.check { Err(ServeError::Check(what)) } else { Ok(()) }
     }
 
-    fn accept(&mut self, k: usize, sample: ObsSample) -> Result<(), ServeError> {
-        let h = *sample.user_header();
-        let view = ObsShape::of_header(&h).and_then(|s| ObsView::new(s, sample.payload()));
-        let bad = if h.magic != OBS_MAGIC || h.version != SCHEMA_VERSION {
-            Some(format!("magic {:#x} version {}", h.magic, h.version))
-        } else if h.worker_id as usize != k {
-            Some(format!("header says worker {}", h.worker_id))
-        } else {
-            match &view {
-                Err(e) => Some(e.to_string()),
-                Ok(v) if *v.shape() != self.shape => Some(format!(
-                    "{} envs of {}x{}, the run config says {} of {}x{}",
-                    v.shape().num_envs,
-                    v.shape().width,
-                    v.shape().height,
-                    self.shape.num_envs,
-                    self.shape.width,
-                    self.shape.height
-                )),
-                Ok(_) => None,
+    /// Judges an arriving message (`crate::integrity`), counts what it says, and holds it for
+    /// the round when it is accepted.
+    fn accept(&mut self, k: usize, msg: ObsMessage) -> Result<(), ServeError> {
+        let h = *msg.header();
+        let slot = &self.slots[k];
+        let a = match integrity::check(k, &slot.expected, slot.held.is_some(), &self.shape, &h, msg.payload()) {
+            Verdict::Accept(a) => a,
+            Verdict::Corrupt(why) => {
+                self.totals.corrupt += 1;
+                return self.problem(format!("worker {k}: malformed observation dropped: {why}"));
             }
-        };
-        if let Some(why) = bad {
-            self.totals.corrupt += 1;
-            return self.problem(format!("worker {k}: malformed observation dropped: {why}"));
-        }
-        let view = view.expect("checked above");
-        let slot = &mut self.slots[k];
-        match slot.generation {
-            Some(g) if h.generation < g => {
+            Verdict::Stale { .. } => {
                 self.totals.stale += 1;
                 return Ok(());
             }
-            Some(g) if h.generation == g => {}
-            known => {
-                if let Some(g) = known {
-                    self.totals.restarts += 1;
-                    tracing::info!("worker {k} is back as generation {} (was {g})", h.generation);
-                }
-                let fresh = Slot::new();
-                *slot = Slot {
-                    generation: Some(h.generation),
-                    new_generation: true,
-                    next_env_step: vec![None; self.shape.num_envs],
-                    ..fresh
-                };
-            }
-        }
-        // Message counter of this generation.
-        let mut issues = vec![];
-        if let Some(last) = slot.last_step {
-            if h.step <= last {
+            Verdict::Duplicate(why) => {
                 self.totals.duplicates += 1;
-                let why = format!("worker {k} generation {}: message {} again (last {last})", h.generation, h.step);
                 return self.problem(why);
             }
-            if h.step > last + 1 {
-                self.totals.lost += h.step - last - 1;
-                issues.push(format!("worker {k} generation {}: messages {}..{} lost", h.generation, last + 1, h.step));
+        };
+        let slot = &mut self.slots[k];
+        if a.new_generation {
+            if let Some(g) = a.replaces {
+                self.totals.restarts += 1;
+                tracing::info!("worker {k} is back as generation {} (was {g})", h.generation);
             }
+            *slot = Slot::new();
         }
-        if slot.held.is_some() {
-            // A second observation before the first was answered: the worker broke lock-step.
-            self.totals.duplicates += 1;
-            issues.push(format!("worker {k}: observation {} arrived before the previous one was answered", h.step));
-        }
-        for (e, r) in view.records().iter().enumerate() {
-            if let Some(want) = slot.next_env_step[e]
-                && r.env_step != want
-            {
-                if r.env_step < want {
-                    self.totals.duplicates += 1;
-                } else {
-                    self.totals.lost += r.env_step - want;
-                }
-                issues.push(format!("worker {k} env {e}: env_step {} where {want} was due", r.env_step));
-            }
-            slot.next_env_step[e] = Some(r.env_step + 1);
-        }
+        slot.expected = a.next;
+        self.totals.lost += a.lost;
+        self.totals.duplicates += a.duplicates;
         if let Some(t) = slot.sent_at.take() {
             self.totals.latency_sum_s += t.elapsed().as_secs_f64();
             self.totals.latency_count += 1;
         }
-        slot.last_step = Some(h.step);
         slot.absent = false;
         slot.finished = h.finished != 0;
         slot.messages += 1;
-        let new_gen = std::mem::replace(&mut slot.new_generation, false);
-        slot.held = Some((sample, new_gen));
+        slot.held = Some((msg, a.new_generation));
         self.totals.messages += 1;
-        for why in issues {
+        for why in a.issues {
             self.problem(why)?;
         }
         Ok(())
@@ -491,17 +317,11 @@ impl Server<'_> {
             }
             self.totals.frames += 1;
             self.slots[k].frames += 1;
-            if let Some((file, path, trajs)) = &mut self.trajectories
-                && let Some(t) = trajs[k][e].record(r, k as u32, e as u32)
-            {
-                let line = serde_json::to_string(&t).expect("serialisable");
-                writeln!(file, "{line}").map_err(io_err(path))?;
-            }
+            self.records.trajectory_step(k, e, r)?;
             if r.terminated != 0 || r.truncated != 0 {
                 self.totals.episodes += 1;
                 self.totals.successes += (r.summary.success != 0) as u64;
-                let line = serde_json::to_string(&EpisodeLine::new(k as u32, generation, e, r)).expect("serialisable");
-                writeln!(self.episodes, "{line}").map_err(io_err(&self.episodes_path))?;
+                self.records.episode(k as u32, generation, e, r)?;
             }
         }
         Ok(())
@@ -510,17 +330,17 @@ impl Server<'_> {
     /// Runs the policy on every held observation and answers each worker. Returns a stop
     /// reason when this round ended the run (its answers were then SHUTDOWN).
     fn round(&mut self) -> Result<Option<Stop>, ServeError> {
-        let held: Vec<(usize, ObsSample, bool)> =
-            (0..self.slots.len()).filter_map(|k| self.slots[k].held.take().map(|(s, g)| (k, s, g))).collect();
+        let held: Vec<(usize, ObsMessage, bool)> =
+            (0..self.slots.len()).filter_map(|k| self.slots[k].held.take().map(|(m, g)| (k, m, g))).collect();
         let missing: Vec<u32> = (0..self.slots.len())
-            .filter(|&k| self.slots[k].generation.is_some() && !held.iter().any(|h| h.0 == k))
+            .filter(|&k| self.slots[k].generation().is_some() && !held.iter().any(|h| h.0 == k))
             .map(|k| k as u32)
             .collect();
         let parts: Vec<WorkerObs> = held
             .iter()
-            .map(|(k, s, new_generation)| {
-                let header = s.user_header();
-                let view = ObsView::new(self.shape, s.payload()).expect("checked on arrival");
+            .map(|(k, m, new_generation)| {
+                let header = m.header();
+                let view = m.view().expect("checked on arrival");
                 WorkerObs {
                     worker: *k as u32,
                     generation: header.generation,
@@ -530,17 +350,18 @@ impl Server<'_> {
                 }
             })
             .collect();
-        let batch = ObsBatchView { width: self.shape.width, height: self.shape.height, parts, missing };
+        let batch = WorkerBatch { width: self.shape.width, height: self.shape.height, parts, missing };
         let t = Instant::now();
         let actions =
             self.policy.act(&batch).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
         self.totals.policy_sum_s += t.elapsed().as_secs_f64();
-        if actions.len() != batch.num_envs() || actions.iter().any(|&a| a >= NUM_ACTIONS) {
+        if actions.len() != batch.num_envs() || actions.iter().any(|&a| a as usize >= action::COUNT) {
             return Err(ServeError::Policy {
                 name: self.policy.name().into(),
                 source: anyhow::anyhow!(
-                    "returned {} actions (values < {NUM_ACTIONS}) for {} envs",
+                    "returned {} actions (values < {}) for {} envs",
                     actions.len(),
+                    action::COUNT,
                     batch.num_envs()
                 ),
             });
@@ -551,7 +372,7 @@ impl Server<'_> {
         self.totals.rounds += 1;
         let stop = if self.opts.max_frames.is_some_and(|m| self.totals.frames >= m) {
             Some(Stop::Frames)
-        } else if self.opts.eval && self.slots.iter().all(|s| s.generation.is_some() && s.finished) {
+        } else if self.opts.eval && self.slots.iter().all(|s| s.generation().is_some() && s.finished) {
             Some(Stop::EvalDone)
         } else {
             None
@@ -576,7 +397,7 @@ impl Server<'_> {
             self.slots[k].sent_at = Some(Instant::now());
             self.slots[k].shutdown_sent |= cmd == command::SHUTDOWN;
         }
-        self.episodes.flush().map_err(io_err(&self.episodes_path))?;
+        self.records.flush_episodes()?;
         // The samples go back to their workers' pools here.
         drop(batch);
         drop(held);
@@ -590,9 +411,9 @@ impl Server<'_> {
         loop {
             self.collect()?;
             for k in 0..self.slots.len() {
-                if let Some((s, _)) = self.slots[k].held.take() {
-                    let h = *s.user_header();
-                    let view = ObsView::new(self.shape, s.payload()).expect("checked on arrival");
+                if let Some((m, _)) = self.slots[k].held.take() {
+                    let h = *m.header();
+                    let view = m.view().expect("checked on arrival");
                     self.account(k, view.records(), h.generation)?;
                     let msg = ActionMsg {
                         magic: ACT_MAGIC,
@@ -608,17 +429,14 @@ impl Server<'_> {
                 }
             }
             let pending = (0..self.slots.len()).any(|k| {
-                self.slots[k].generation.is_some() && !self.slots[k].shutdown_sent && self.ports.worker_attached(k)
+                self.slots[k].generation().is_some() && !self.slots[k].shutdown_sent && self.ports.worker_attached(k)
             });
             if !pending || Instant::now() >= until {
                 break;
             }
             self.ports.wait(Duration::from_millis(20));
         }
-        if let Some((file, path, _)) = &mut self.trajectories {
-            file.flush().map_err(io_err(path))?;
-        }
-        self.episodes.flush().map_err(io_err(&self.episodes_path))
+        Ok(self.records.flush()?)
     }
 
     fn progress(&self, now: Instant, stop: Option<&Stop>) -> Progress {
@@ -631,8 +449,8 @@ impl Server<'_> {
             latency_ms: (dl > 0).then(|| 1000.0 * (self.totals.latency_sum_s - before.latency_sum_s) / dl as f64),
             success_rate: (self.totals.episodes > 0)
                 .then(|| self.totals.successes as f64 / self.totals.episodes as f64),
-            workers_seen: self.slots.iter().filter(|s| s.generation.is_some()).count(),
-            workers_live: self.slots.iter().filter(|s| s.generation.is_some() && !s.absent).count(),
+            workers_seen: self.slots.iter().filter(|s| s.generation().is_some()).count(),
+            workers_live: self.slots.iter().filter(|s| s.generation().is_some() && !s.absent).count(),
             totals: self.totals.clone(),
             stop_reason: stop.map(Stop::describe),
         }
@@ -645,8 +463,7 @@ impl Server<'_> {
             return Ok(());
         }
         let p = self.progress(now, stop);
-        let line = serde_json::to_string(&p).expect("serialisable");
-        writeln!(self.progress, "{line}").map_err(io_err(&self.progress_path))?;
+        self.records.progress(&p)?;
         eprintln!(
             "[learner] {:>7.1} s  frames {:>9} ({:>7.1}/s)  episodes {:>6}  success {}  workers {}/{}  restarts {}  step {}",
             p.t,
@@ -683,16 +500,14 @@ impl Server<'_> {
                 .enumerate()
                 .map(|(k, s)| WorkerSummary {
                     worker: k as u32,
-                    generation: s.generation,
+                    generation: s.generation(),
                     messages: s.messages,
                     frames: s.frames,
                     finished: s.finished,
                 })
                 .collect(),
         };
-        let path = self.opts.run_dir.join("farm_summary.json");
-        farm::files::write_atomic(&path, serde_json::to_string_pretty(&summary).expect("serialisable").as_bytes())
-            .map_err(io_err(&path))?;
+        self.records.summary(&summary)?;
         if self.opts.check {
             let t = &self.totals;
             if t.lost + t.duplicates + t.corrupt > 0 {
@@ -713,6 +528,8 @@ impl Server<'_> {
 mod tests {
     use super::*;
     use crate::policy::{ExpertPolicy, RandomPolicy};
+    use crate::records::EpisodeLine;
+    use farm::metrics::EpisodeResult;
     use farm::stepper::SyntheticStepper;
     use farm::transport::{self as wt, Exit, WorkerOptions};
 

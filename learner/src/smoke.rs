@@ -12,16 +12,20 @@
 use std::path::Path;
 use std::time::Instant;
 
+use anyhow::Context;
+
 use farm::config::RunConfig;
 use half::f16;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
+use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
 use tch::Device;
 
 use crate::LearnerError;
-use crate::metrics::UpdateMetrics;
-use crate::model::{ActMode, Policy};
-use crate::obs::{EnvStep, GESTURE_FEATURES, GESTURE_FRAMES, GestureKind, ObsBatch, OwnedObs};
+use crate::agent::{ActMode, Agent};
+use crate::checkpoint;
+use crate::metrics::{MetricsLog, UpdateMetrics};
+use crate::obs::{EnvBatch, EnvStep, GestureKind, OwnedObs};
 use crate::ppo::Trainer;
 
 /// N copies of the cue task, stepped together.
@@ -56,7 +60,7 @@ impl CueTask {
     }
 
     /// The current message.
-    pub fn observation(&self) -> ObsBatch<'_> {
+    pub fn observation(&self) -> EnvBatch<'_> {
         self.obs.batch()
     }
 
@@ -68,7 +72,7 @@ impl CueTask {
         let e = &mut self.obs.envs[k];
         e.episode_start = true;
         e.gesture = GestureKind::Referencing;
-        e.target = self.rng.random_range(0..crate::model::target_count());
+        e.target = self.rng.random_range(0..TARGET_CATEGORIES as i64);
     }
 
     fn render(&mut self, k: usize) {
@@ -84,12 +88,12 @@ impl CueTask {
         }
         let d = ((self.pos[k] + 3) as f32 / 6.0 * 65535.0) as u16;
         self.obs.depth[k * px..(k + 1) * px].iter_mut().for_each(|v| *v = d);
-        let g = GESTURE_FRAMES * GESTURE_FEATURES;
-        let half = GESTURE_FEATURES / 2;
+        let g = GESTURE_FRAMES * GESTURE_DIMS;
+        let half = GESTURE_DIMS / 2;
         for f in 0..GESTURE_FRAMES {
-            for c in 0..GESTURE_FEATURES {
+            for c in 0..GESTURE_DIMS {
                 let on = if self.cue[k] < 0 { c < half } else { c >= half };
-                self.obs.gesture[k * g + f * GESTURE_FEATURES + c] = f16::from_f32(if on { 0.5 } else { 0.0 });
+                self.obs.gesture[k * g + f * GESTURE_DIMS + c] = f16::from_f32(if on { 0.5 } else { 0.0 });
             }
         }
     }
@@ -107,16 +111,16 @@ impl CueTask {
             } else {
                 self.steps[k] += 1;
                 e.reward = -0.001;
-                match a {
-                    1 => self.pos[k] = (self.pos[k] - 1).max(-3),
-                    2 => self.pos[k] = (self.pos[k] + 1).min(3),
-                    3 if self.pos[k] == 2 * self.cue[k] => {
+                match a as u8 {
+                    action::ROTATE_LEFT => self.pos[k] = (self.pos[k] - 1).max(-3),
+                    action::ROTATE_RIGHT => self.pos[k] = (self.pos[k] + 1).min(3),
+                    action::STOP if self.pos[k] == 2 * self.cue[k] => {
                         e.reward += 1.0;
                         e.terminated = true;
                         e.success = true;
                         e.spl = 3.0 / self.steps[k].max(3) as f32;
                     }
-                    3 => e.reward -= 0.01,
+                    action::STOP => e.reward -= 0.01,
                     _ => {}
                 }
                 if e.terminated {
@@ -149,14 +153,14 @@ pub fn config(updates: u64, envs: usize) -> RunConfig {
     RunConfig::from_toml(&text, "smoke").expect("smoke config is valid")
 }
 
-/// Success rate of `policy` over at least `episodes` finished episodes of a fresh task.
-pub fn success_rate(policy: &mut Policy, episodes: usize, mode: ActMode, seed: u64) -> Result<f64, LearnerError> {
-    let mut task = CueTask::new(policy.n_envs(), policy.spec.height as usize, seed);
-    policy.reset();
+/// Success rate of `agent` over at least `episodes` finished episodes of a fresh task.
+pub fn success_rate(agent: &mut Agent, episodes: usize, mode: ActMode, seed: u64) -> Result<f64, LearnerError> {
+    let mut task = CueTask::new(agent.n_envs(), agent.spec.height as usize, seed);
+    agent.reset();
     let (mut done, mut won) = (0usize, 0usize);
     let mut guard = 0;
     while done < episodes && guard < 100_000 {
-        let acted = policy.act_with(&task.observation(), mode)?;
+        let acted = agent.act_with(&task.observation(), mode)?;
         task.step(&acted.actions);
         for e in &task.obs.envs {
             if e.terminated || e.truncated {
@@ -203,11 +207,11 @@ pub fn run_from(
     let envs = cfg.env.envs_per_worker;
     let side = cfg.env.width as usize;
     let mut trainer = match resume {
-        Some(path) => Trainer::resume(cfg, envs, device, path)?,
+        Some(path) => checkpoint::resume_trainer(cfg, envs, device, path)?,
         None => Trainer::new(cfg, envs, device)?,
     };
-    let before = success_rate(&mut trainer.policy, 200, ActMode::Sample, 1)?;
-    trainer.policy.reset();
+    let before = success_rate(&mut trainer.agent, 200, ActMode::Sample, 1)?;
+    trainer.agent.reset();
     let mut task = CueTask::new(envs, side, cfg.run.seed);
     let started = Instant::now();
     let mut metrics = Vec::new();
@@ -221,8 +225,84 @@ pub fn run_from(
         }
     }
     let seconds = started.elapsed().as_secs_f64();
-    let after = if stopped { None } else { Some(success_rate(&mut trainer.policy, 200, ActMode::Greedy, 2)?) };
+    let after = if stopped { None } else { Some(success_rate(&mut trainer.agent, 200, ActMode::Greedy, 2)?) };
     Ok((SmokeReport { before, after, updates: trainer.updates, seconds, metrics }, trainer))
+}
+
+/// `learner smoke`: trains `updates` updates of `envs` envs on the cue task in `run_dir`
+/// (config.toml, metrics.jsonl, curves.png, checkpoints/), from its latest checkpoint when
+/// `resume`, printing a line per update. A termination signal (`farm::process`, installed by the
+/// caller) stops it after the current update, with a checkpoint.
+pub fn run_in_dir(device: Device, updates: u64, envs: usize, run_dir: &Path, resume: bool) -> anyhow::Result<()> {
+    let cfg = config(updates, envs);
+    let ckpt_dir = farm::checkpoints::dir_of(run_dir);
+    std::fs::create_dir_all(run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
+    farm::files::write_atomic(&run_dir.join("config.toml"), cfg.to_toml().as_bytes())
+        .with_context(|| format!("writing {}", run_dir.join("config.toml").display()))?;
+    let mut log = MetricsLog::open(run_dir)?;
+    let from = if resume { checkpoint::latest(&ckpt_dir) } else { None };
+    if resume && from.is_none() {
+        anyhow::bail!("--resume: no checkpoint in {}", ckpt_dir.display());
+    }
+    let stop_requested = || farm::process::termination_signal().is_some();
+    let mut failure = None;
+    let on_update = |t: &Trainer, m: &UpdateMetrics| {
+        println!(
+            "update {:>3}  frames {:>6}  success {:>5}  return {:>7}  entropy {:.3}  kl {:.4}  lr {:.2e}  {:.0} fps",
+            m.update,
+            m.frames,
+            m.success_rate.map(|s| format!("{s:.2}")).unwrap_or("-".into()),
+            m.episode_return.map(|s| format!("{s:.3}")).unwrap_or("-".into()),
+            m.entropy,
+            m.approx_kl,
+            m.lr,
+            m.fps
+        );
+        let stop = stop_requested();
+        let result = log.append(m).map_err(anyhow::Error::from).and_then(|_| {
+            if stop || m.update % t.cfg.checkpoint.every_updates == 0 {
+                let p = checkpoint::save_in_dir(&ckpt_dir, t, t.cfg.checkpoint.keep)?;
+                println!("checkpoint {}", p.display());
+            }
+            Ok(())
+        });
+        if let Err(e) = result {
+            failure = Some(e);
+            return false;
+        }
+        !stop
+    };
+    let (report, trainer) = match from {
+        Some(path) => {
+            println!("resuming from {}", path.display());
+            run_from(&cfg, device, updates, Some(&path), on_update)?
+        }
+        None => run_from(&cfg, device, updates, None, on_update)?,
+    };
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    for n in trainer.agent.notes() {
+        println!("{n}");
+    }
+    log.plot()?;
+    if stop_requested() {
+        println!("stopped by signal after update {} (checkpoint written)", trainer.updates);
+        return Ok(());
+    }
+    let p = checkpoint::save_in_dir(&ckpt_dir, &trainer, trainer.cfg.checkpoint.keep)?;
+    println!(
+        "success rate {:.2} (at start, sampling) → {:.2} (trained, greedy) after {} updates in {:.1} s\n\
+         metrics {}  curves {}  checkpoint {}",
+        report.before,
+        report.after.unwrap_or(f64::NAN),
+        report.updates,
+        report.seconds,
+        log.jsonl.display(),
+        log.png.display(),
+        p.display()
+    );
+    Ok(())
 }
 
 #[cfg(test)]
@@ -259,12 +339,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let (a, _) = run(&cfg, Device::Cpu, 6, |t, m| {
             if m.update == 3 {
-                crate::checkpoint::save_in_dir(dir.path(), t, 0).unwrap();
+                checkpoint::save_in_dir(dir.path(), t, 0).unwrap();
             }
             true
         })
         .unwrap();
-        let ckpt = crate::checkpoint::latest(dir.path()).unwrap();
+        let ckpt = checkpoint::latest(dir.path()).unwrap();
         let (b, tb) = run_from(&cfg, Device::Cpu, 6, Some(&ckpt), |_, _| true).unwrap();
         let key = |m: &UpdateMetrics| (m.update, m.frames, m.lr);
         let tail: Vec<_> = a.metrics[3..].iter().map(key).collect();

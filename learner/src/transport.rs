@@ -2,6 +2,9 @@
 //! publisher (actions) per worker, a listener that wakes when any worker sent, and a notifier
 //! per worker to wake it when its actions are out. Services are opened with the same functions
 //! the workers use (`farm::transport`), so both sides agree on every setting.
+//!
+//! iceoryx2 stays in this file: what it receives leaves as an [`ObsMessage`], which holds the
+//! sample (in shared memory, zero copy) and shows only the schema's types.
 
 use std::time::Duration;
 
@@ -12,10 +15,36 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
-use shm_schema::{ActionMsg, ObsHeader, qos};
+use shm_schema::{ActionMsg, ObsHeader, ObsShape, ObsView, ViewError, qos};
 
-/// An observation sample, held borrowed (in shared memory) until it is dropped.
-pub type ObsSample = Sample<IpcService, [u8], ObsHeader>;
+/// One observation message of a worker, read in place: the sample stays borrowed from the
+/// worker's pool in shared memory until this is dropped (then the worker may reuse it).
+pub struct ObsMessage {
+    sample: Sample<IpcService, [u8], ObsHeader>,
+}
+
+impl ObsMessage {
+    pub fn header(&self) -> &ObsHeader {
+        self.sample.user_header()
+    }
+
+    /// The raw payload (records, frames, gestures at the offsets of the header's layout).
+    pub fn payload(&self) -> &[u8] {
+        self.sample.payload()
+    }
+
+    /// Records, frames and gestures as typed slices, in the shape the header announces; an error
+    /// when the header's layout or the payload's size does not hold up.
+    pub fn view(&self) -> Result<ObsView<'_>, ViewError> {
+        ObsShape::of_header(self.header()).and_then(|s| ObsView::new(s, self.payload()))
+    }
+}
+
+impl std::fmt::Debug for ObsMessage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ObsMessage").field("header", self.header()).finish_non_exhaustive()
+    }
+}
 
 struct WorkerLink {
     obs: ObsService,
@@ -79,8 +108,9 @@ impl LearnerPorts {
     }
 
     /// The next observation worker `k` sent, if any (non-blocking).
-    pub fn receive(&self, k: usize) -> Result<Option<ObsSample>, TransportError> {
-        self.links[k].subscriber.receive().map_err(ipc("receiving an observation"))
+    pub fn receive(&self, k: usize) -> Result<Option<ObsMessage>, TransportError> {
+        let sample = self.links[k].subscriber.receive().map_err(ipc("receiving an observation"))?;
+        Ok(sample.map(|sample| ObsMessage { sample }))
     }
 
     /// Publishes `msg` to worker `k` and wakes it.

@@ -1,0 +1,414 @@
+//! The acting agent ([`Agent`]): the policy network of `crate::network`, its variables, and the
+//! recurrent state of each of N envs. It acts one step for N envs: prepare the inputs, run the
+//! network from the current memory, choose actions (sampled or greedy, from its own seeded
+//! stream), then commit the new memory. PPO drives the same four steps (`crate::ppo`).
+
+use farm::config::{Encoder, RunConfig};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use shm_schema::action;
+use tch::nn;
+use tch::{Device, Kind, Tensor};
+
+use crate::inputs::{Inputs, Prepared};
+use crate::network::PolicyNet;
+use crate::obs::{EnvBatch, ObsError};
+use crate::resnet::{self, WeightsError};
+use crate::spec::NetSpec;
+
+/// Why an agent could not be built for a config.
+#[derive(Debug, thiserror::Error)]
+pub enum AgentError {
+    #[error(transparent)]
+    Weights(#[from] WeightsError),
+    #[error("config: {0}")]
+    Config(String),
+}
+
+/// Actions chosen for one step of N envs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Actions {
+    /// Indices of [`shm_schema::action`]: MoveAhead, RotateLeft, RotateRight, Stop.
+    pub actions: Vec<i64>,
+    pub log_probs: Vec<f32>,
+    pub values: Vec<f32>,
+}
+
+/// Sampled (training, or the Random baseline) or argmax (evaluation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ActMode {
+    Sample,
+    Greedy,
+}
+
+/// One forward at one step, not yet committed to the recurrent state.
+#[derive(Debug)]
+pub(crate) struct Forward {
+    /// `[N * action::COUNT]` on the host.
+    pub logits: Vec<f32>,
+    pub values: Vec<f32>,
+    pub hidden: Tensor,
+    pub starts: Vec<bool>,
+}
+
+/// The acting agent: the network, its variables and the recurrent state of each of N envs.
+#[derive(Debug)]
+pub struct Agent {
+    pub spec: NetSpec,
+    pub vs: nn::VarStore,
+    pub net: PolicyNet,
+    device: Device,
+    n_envs: usize,
+    /// `[layers, N, hidden]`.
+    hidden: Tensor,
+    /// Envs whose message was lost: their state is reset at their next message.
+    force_reset: Vec<bool>,
+    /// Action sampling; part of the checkpoint.
+    pub(crate) rng: ChaCha8Rng,
+    notes: Vec<String>,
+}
+
+impl Agent {
+    /// Builds the network for `cfg` and `n_envs` envs on `device`, loading the ResNet-18
+    /// weights when the config names them. Variables are initialised from the run seed.
+    pub fn new(cfg: &RunConfig, n_envs: usize, device: Device) -> Result<Agent, AgentError> {
+        Agent::build(cfg, n_envs, device, true)
+    }
+
+    /// Builds the network; `load_weights`: read the configured ResNet-18 file (not when a
+    /// checkpoint is about to overwrite every variable anyway: `crate::checkpoint::load_agent`).
+    pub(crate) fn build(
+        cfg: &RunConfig,
+        n_envs: usize,
+        device: Device,
+        load_weights: bool,
+    ) -> Result<Agent, AgentError> {
+        let spec = NetSpec::from_config(cfg);
+        if n_envs == 0 {
+            return Err(AgentError::Config("a policy needs at least one env".into()));
+        }
+        crate::device::flush_denormals();
+        tch::manual_seed(farm::seed::mix(cfg.run.seed, &[0x6E65_7477]) as i64);
+        let vs = nn::VarStore::new(device);
+        let bf16 = crate::device::use_bf16(device, cfg.ppo.mixed_precision);
+        let net = PolicyNet::new(&vs, &spec, bf16);
+        let mut notes = vec![spec.describe()];
+        if spec.random() {
+            notes.push("Random: uniform actions; the network is neither used nor trained".into());
+        } else if let (Some(path), Some(f), true) = (&cfg.model.resnet_weights, net.frozen(), load_weights) {
+            let n = resnet::load_torchvision(&vs, "resnet.", path)?;
+            f.refresh(&vs);
+            notes.push(format!("loaded {n} ResNet-18 tensors from {} (frozen)", path.display()));
+        }
+        if spec.encoder == Encoder::Resnet18 && !spec.frozen && (spec.rgb || spec.depth) && !spec.random() {
+            let msg = "NO IMAGENET WEIGHTS: model.resnet_weights is not set, so the ResNet-18 encoders start \
+                       from random weights and are TRAINED end to end — not the dissertation's frozen ImageNet \
+                       backbone. Supply a torchvision resnet18 state dict to reproduce §4.3.3.";
+            tracing::warn!("{msg}");
+            notes.push(msg.into());
+        }
+        let hidden = Tensor::zeros([spec.gru_layers, n_envs as i64, spec.hidden], (Kind::Float, device));
+        Ok(Agent {
+            rng: farm::seed::rng(cfg.run.seed, &[0x6163_7473]),
+            spec,
+            vs,
+            net,
+            device,
+            n_envs,
+            hidden,
+            force_reset: vec![false; n_envs],
+            notes,
+        })
+    }
+
+    pub fn n_envs(&self) -> usize {
+        self.n_envs
+    }
+
+    pub fn device(&self) -> Device {
+        self.device
+    }
+
+    /// What was built and loaded, for the run log (the first line describes the network).
+    pub fn notes(&self) -> &[String] {
+        &self.notes
+    }
+
+    /// Adds a line to [`Agent::notes`].
+    pub(crate) fn note(&mut self, line: String) {
+        self.notes.push(line);
+    }
+
+    /// Kind of the stored frozen features (bf16 on CUDA with mixed precision), if any.
+    pub fn feature_kind(&self) -> Option<Kind> {
+        self.net.frozen().map(|f| f.feature_kind())
+    }
+
+    /// Trainable parameter count.
+    pub fn trainable_parameters(&self) -> i64 {
+        self.vs.variables().values().filter(|t| t.requires_grad()).map(|t| t.numel() as i64).sum()
+    }
+
+    /// Samples an action for each env (training; the Random baseline).
+    pub fn act(&mut self, obs: &EnvBatch) -> Result<Actions, ObsError> {
+        self.act_with(obs, ActMode::Sample)
+    }
+
+    /// The most likely action for each env (evaluation). The Random baseline still samples.
+    pub fn act_deterministic(&mut self, obs: &EnvBatch) -> Result<Actions, ObsError> {
+        self.act_with(obs, ActMode::Greedy)
+    }
+
+    pub fn act_with(&mut self, obs: &EnvBatch, mode: ActMode) -> Result<Actions, ObsError> {
+        let (inputs, starts) = self.prepare(obs)?;
+        let fwd = self.forward(&inputs, starts);
+        let actions = self.choose(&fwd, mode);
+        self.commit(fwd, obs);
+        Ok(actions)
+    }
+
+    /// Forgets every env's memory (a new evaluation round).
+    pub fn reset(&mut self) {
+        let _ = self.hidden.zero_();
+        self.force_reset.iter_mut().for_each(|r| *r = false);
+    }
+
+    /// Checks the batch, converts it to the stored form, and works out where memory resets.
+    pub(crate) fn prepare<'a>(&self, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
+        obs.validate(self.n_envs, (self.spec.height as usize, self.spec.width as usize))?;
+        let starts = obs.envs.iter().zip(&self.force_reset).map(|(e, f)| e.episode_start || e.lost || *f).collect();
+        let inputs = if self.spec.random() {
+            Inputs { rgb: None, depth: None, gesture: None, target: None, pose: None }
+        } else {
+            self.net.prepare(obs, self.device)
+        };
+        Ok((Prepared::new(inputs, obs), starts))
+    }
+
+    /// The network on one step, from the current memory (reset where `starts`).
+    pub(crate) fn forward(&self, x: &Inputs, starts: Vec<bool>) -> Forward {
+        let n = self.n_envs;
+        if self.spec.random() {
+            return Forward {
+                logits: vec![0.0; n * action::COUNT],
+                values: vec![0.0; n],
+                hidden: self.hidden.shallow_clone(),
+                starts,
+            };
+        }
+        tch::no_grad(|| {
+            let feats = self.net.encode(x).unsqueeze(0);
+            let keep: Vec<f32> = starts.iter().map(|s| if *s { 0.0 } else { 1.0 }).collect();
+            let keep = Tensor::from_slice(&keep).to_device(self.device).view([1, -1]);
+            let (out, hidden) = self.net.recurrent(&feats, &self.hidden, &keep, &[true]);
+            let (logits, values) = self.net.heads(&out.squeeze_dim(0));
+            let logits =
+                Vec::<f32>::try_from(logits.to_kind(Kind::Float).to_device(Device::Cpu).flatten(0, -1)).unwrap();
+            let values = Vec::<f32>::try_from(values.to_kind(Kind::Float).to_device(Device::Cpu)).unwrap();
+            Forward { logits, values, hidden, starts }
+        })
+    }
+
+    /// Picks actions from a forward's logits (host side, from the agent's own random stream).
+    pub(crate) fn choose(&mut self, fwd: &Forward, mode: ActMode) -> Actions {
+        let n = self.n_envs;
+        let mut out =
+            Actions { actions: Vec::with_capacity(n), log_probs: Vec::with_capacity(n), values: fwd.values.clone() };
+        let count = action::COUNT;
+        for i in 0..n {
+            let logp = log_softmax(&fwd.logits[i * count..(i + 1) * count]);
+            let a = if mode == ActMode::Greedy && !self.spec.random() {
+                (0..count).max_by(|&a, &b| logp[a].total_cmp(&logp[b])).unwrap()
+            } else {
+                let u: f32 = self.rng.random();
+                let mut acc = 0.0;
+                // where rounding leaves the cumulative sum under `u`: the last action, Stop
+                let mut pick = action::STOP as usize;
+                for (k, lp) in logp.iter().enumerate() {
+                    acc += lp.exp();
+                    if u < acc {
+                        pick = k;
+                        break;
+                    }
+                }
+                pick
+            };
+            out.actions.push(a as i64);
+            out.log_probs.push(logp[a]);
+        }
+        out
+    }
+
+    /// Makes a forward's memory the current one; lost envs reset at their next message.
+    pub(crate) fn commit(&mut self, fwd: Forward, obs: &EnvBatch) {
+        self.hidden = fwd.hidden;
+        for (r, e) in self.force_reset.iter_mut().zip(obs.envs) {
+            *r = e.lost;
+        }
+    }
+
+    pub(crate) fn hidden(&self) -> &Tensor {
+        &self.hidden
+    }
+
+    /// Re-syncs derived copies after the variables were overwritten (checkpoint load).
+    pub(crate) fn variables_loaded(&self) {
+        if let Some(f) = self.net.frozen() {
+            f.refresh(&self.vs);
+        }
+    }
+}
+
+/// Numerically stable log-softmax of a few logits.
+pub fn log_softmax(x: &[f32]) -> Vec<f32> {
+    let m = x.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
+    let lse = m + x.iter().map(|v| (v - m).exp()).sum::<f32>().ln();
+    x.iter().map(|v| v - lse).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bench::random_obs;
+    use crate::obs::GestureKind;
+    use crate::spec::tests::tiny_config;
+
+    #[test]
+    fn acting_shapes_memory_and_resets() {
+        let cfg = tiny_config("both");
+        let mut p = Agent::new(&cfg, 3, Device::Cpu).unwrap();
+        let mut o = random_obs(3, 16, 1);
+        let a = p.act(&o.batch()).unwrap();
+        assert_eq!(a.actions.len(), 3);
+        assert!(a.actions.iter().all(|a| (0..4).contains(a)));
+        assert!(a.log_probs.iter().all(|l| *l <= 0.0 && l.is_finite()));
+        // the same observation again, mid-episode: memory changes the values
+        o.envs.iter_mut().for_each(|e| e.episode_start = false);
+        let b = p.act_deterministic(&o.batch()).unwrap();
+        assert_ne!(a.values, b.values);
+        // an episode start resets memory: same values as the very first step
+        o.envs.iter_mut().for_each(|e| e.episode_start = true);
+        let c = p.act_deterministic(&o.batch()).unwrap();
+        for (x, y) in a.values.iter().zip(&c.values) {
+            assert!((x - y).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn no_gesture_means_zero_gesture_input() {
+        let cfg = tiny_config("both");
+        let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+        let mut o = random_obs(2, 16, 2);
+        o.envs.iter_mut().for_each(|e| e.gesture = GestureKind::None);
+        let a = p.act_deterministic(&o.batch()).unwrap();
+        o.gesture.iter_mut().for_each(|v| *v = half::f16::from_f32(0.7));
+        p.reset();
+        let b = p.act_deterministic(&o.batch()).unwrap();
+        assert_eq!(a.values, b.values);
+    }
+
+    #[test]
+    fn sequence_evaluation_matches_step_by_step_acting() {
+        // the PPO re-run over whole sequences (fused GRU between resets) must give the values
+        // the policy computed step by step when acting
+        let cfg = tiny_config("both");
+        let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+        let h0 = p.hidden().copy();
+        let starts = [[true, true], [false, false], [false, true], [false, false], [true, false]];
+        let mut stored = Vec::new();
+        let mut acted = Vec::new();
+        for (t, s) in starts.iter().enumerate() {
+            let mut o = random_obs(2, 16, 10 + t as u64);
+            o.envs[0].episode_start = s[0];
+            o.envs[1].episode_start = s[1];
+            let (x, st) = p.prepare(&o.batch()).unwrap();
+            let f = p.forward(&x, st);
+            acted.extend(f.values.clone());
+            p.commit(f, &o.batch());
+            stored.push(x.map(|t| t.copy())); // `o` is dropped at the end of the iteration
+        }
+        let stack = |get: fn(&Inputs) -> Option<&Tensor>| {
+            Some(Tensor::stack(&stored.iter().map(|x| get(x).unwrap().shallow_clone()).collect::<Vec<_>>(), 0))
+        };
+        let x = Inputs {
+            rgb: stack(|x| x.rgb.as_ref()),
+            depth: stack(|x| x.depth.as_ref()),
+            gesture: stack(|x| x.gesture.as_ref()),
+            target: stack(|x| x.target.as_ref()),
+            pose: None,
+        };
+        let keep: Vec<f32> = starts.iter().flatten().map(|s| if *s { 0.0 } else { 1.0 }).collect();
+        let keep = Tensor::from_slice(&keep).view([5, 2]);
+        let any: Vec<bool> = starts.iter().map(|s| s[0] || s[1]).collect();
+        let (_, values) = tch::no_grad(|| p.net.evaluate(&x, &h0, &keep, &any));
+        let values = Vec::<f32>::try_from(values.flatten(0, -1)).unwrap();
+        for (a, b) in acted.iter().zip(&values) {
+            assert!((a - b).abs() < 1e-5, "{acted:?} vs {values:?}");
+        }
+    }
+
+    /// The dissertation's network on the CPU: frozen trunk out of the optimizer, conv5 features
+    /// (512×7×7 per modality) are what the rollout stores, 2048 features into a 2-layer GRU.
+    #[test]
+    fn faithful_network_stores_frozen_conv5_features() {
+        let dir = tempfile::tempdir().unwrap();
+        let weights = crate::bench::random_resnet_weights(dir.path()).unwrap();
+        let cfg = crate::bench::faithful_config(&weights);
+        let mut p = Agent::new(&cfg, 1, Device::Cpu).unwrap();
+        assert!(p.notes().iter().any(|n| n.contains("loaded 100 ResNet-18 tensors")), "{:?}", p.notes());
+        assert_eq!(p.spec.input_width(), 2048);
+        let vars = p.vs.variables();
+        assert!(vars.iter().filter(|(k, _)| k.starts_with("resnet.")).all(|(_, v)| !v.requires_grad()));
+        assert_eq!(vars["gru.weight_ih_l1"].size(), vec![3 * 512, 512]);
+        assert_eq!(vars["rgb.fc.weight"].size(), vec![512, 64 * 7 * 7]);
+        let o = random_obs(1, 224, 3);
+        let (x, _) = p.prepare(&o.batch()).unwrap();
+        assert_eq!(x.rgb.as_ref().unwrap().size(), vec![1, 512, 7, 7]);
+        assert_eq!(x.depth.as_ref().unwrap().size(), vec![1, 512, 7, 7]);
+        let a = p.act(&o.batch()).unwrap();
+        assert!(a.values[0].is_finite());
+        // an Adam over the policy sees only the trainable part
+        let opt = crate::optim::Adam::new(&p.vs, 1e-3, 1e-5);
+        assert_eq!(opt.state().len() / 2, vars.values().filter(|v| v.requires_grad()).count());
+        // 2 × (1×1 convs 74k + FC 1.6M) + gesture FC 4.9M + embedding 19k + GRU 5.5M + heads 1.1M
+        assert!((14_000_000..15_000_000).contains(&p.trainable_parameters()), "{}", p.trainable_parameters());
+    }
+
+    /// On a GPU machine: the same agent on CUDA and on the CPU agrees. Skipped (with a line
+    /// saying so) where there is no GPU.
+    #[test]
+    fn cuda_agent_agrees_with_cpu() {
+        crate::device::load_cuda_backend();
+        if !tch::Cuda::is_available() {
+            eprintln!("cuda_agent_agrees_with_cpu: skipped, no CUDA device on this machine");
+            return;
+        }
+        let cfg = tiny_config("both");
+        let mut cpu = Agent::new(&cfg, 3, Device::Cpu).unwrap();
+        let mut gpu = Agent::new(&cfg, 3, Device::Cuda(0)).unwrap();
+        tch::no_grad(|| {
+            let src = cpu.vs.variables();
+            for (k, mut v) in gpu.vs.variables() {
+                v.copy_(&src[&k].to_device(Device::Cuda(0)));
+            }
+        });
+        let o = random_obs(3, 16, 4);
+        let (a, b) = (cpu.act_deterministic(&o.batch()).unwrap(), gpu.act_deterministic(&o.batch()).unwrap());
+        for (x, y) in a.values.iter().zip(&b.values) {
+            assert!((x - y).abs() < 1e-3, "{a:?} vs {b:?}");
+        }
+    }
+
+    #[test]
+    fn trained_resnet_without_weights_is_said_loudly() {
+        let cfg = RunConfig::from_toml(
+            "[run]\nmethod = \"vis_sem\"\n[env]\nwidth = 32\nheight = 32\n[model]\nhidden = 16\ngru_layers = 1\n",
+            "x.toml",
+        )
+        .unwrap();
+        let p = Agent::new(&cfg, 1, Device::Cpu).unwrap();
+        assert!(p.notes().iter().any(|n| n.contains("NO IMAGENET WEIGHTS")));
+        // the trunks are trainable
+        assert!(p.vs.variables().iter().any(|(k, v)| k.starts_with("rgb.resnet.layer4") && v.requires_grad()));
+    }
+}

@@ -1,0 +1,174 @@
+//! Input preparation: an observation batch (`EnvBatch`) becomes the network's input tensors, in
+//! the form the rollout stores them ([`Inputs`]).
+//!
+//! Frames and gestures are read in place from the batch's buffers with `from_blob` (shared memory,
+//! in the farm) and copied once: onto the GPU, or into the rollout storage. On the CPU with one
+//! frame group no host copy is made at all, so [`Prepared`] carries the batch's lifetime.
+
+use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES};
+use tch::{Device, Kind, Tensor};
+
+use crate::obs::{EnvBatch, FrameView, GestureKind, GestureView};
+
+/// The network's inputs in the form the rollout keeps them, leading dims `[B]` or `[T, B]`.
+#[derive(Debug)]
+pub struct Inputs {
+    /// Raw u8 `[.., H, W, 3]`, or frozen conv5 features `[.., 512, h, w]`.
+    pub rgb: Option<Tensor>,
+    /// Raw 16-bit depth patterns in Int16 `[.., H, W]`, or frozen conv5 features.
+    pub depth: Option<Tensor>,
+    /// Half `[.., 100, 95]`, zero where no gesture is shown.
+    pub gesture: Option<Tensor>,
+    /// Target index, i64 `[..]`.
+    pub target: Option<Tensor>,
+    /// f32 `[.., 3]`.
+    pub pose: Option<Tensor>,
+}
+
+impl Inputs {
+    pub fn map(&self, f: impl Fn(&Tensor) -> Tensor) -> Inputs {
+        Inputs {
+            rgb: self.rgb.as_ref().map(&f),
+            depth: self.depth.as_ref().map(&f),
+            gesture: self.gesture.as_ref().map(&f),
+            target: self.target.as_ref().map(&f),
+            pose: self.pose.as_ref().map(&f),
+        }
+    }
+
+    pub fn fields(&self) -> [(&'static str, Option<&Tensor>); 5] {
+        [
+            ("rgb", self.rgb.as_ref()),
+            ("depth", self.depth.as_ref()),
+            ("gesture", self.gesture.as_ref()),
+            ("target", self.target.as_ref()),
+            ("pose", self.pose.as_ref()),
+        ]
+    }
+}
+
+/// One step's inputs, which on the CPU may read the observation batch's buffers in place (no
+/// host copy): they live no longer than those buffers (`'a`). The rollout copies them.
+#[derive(Debug)]
+pub(crate) struct Prepared<'a> {
+    pub inputs: Inputs,
+    _buffers: std::marker::PhantomData<&'a [u8]>,
+}
+
+impl<'a> Prepared<'a> {
+    /// `inputs` made from `batch`: they may borrow its buffers, so they take its lifetime.
+    pub(crate) fn new(inputs: Inputs, _batch: &EnvBatch<'a>) -> Prepared<'a> {
+        Prepared { inputs, _buffers: std::marker::PhantomData }
+    }
+}
+
+impl std::ops::Deref for Prepared<'_> {
+    type Target = Inputs;
+    fn deref(&self) -> &Inputs {
+        &self.inputs
+    }
+}
+
+/// RGB u8 `[B, H, W, 3]` → f32 `[B, 3, H, W]` in 0..1.
+pub fn rgb_unit(raw: &Tensor) -> Tensor {
+    raw.permute([0, 3, 1, 2]).to_kind(Kind::Float) / 255.0
+}
+
+/// Depth as Int16 bit patterns `[B, H, W]` → f32 `[B, 1, H, W]` in 0..1 (0..10 m).
+pub fn depth_unit(raw: &Tensor) -> Tensor {
+    (raw.to_kind(Kind::Int).bitwise_and(0xFFFF).to_kind(Kind::Float) / 65535.0).unsqueeze(1)
+}
+
+/// RGB as one u8 tensor `[N, H, W, 3]` on `device` (see `gather` for when it is a copy).
+pub(crate) fn rgb_tensor(obs: &EnvBatch, device: Device) -> Tensor {
+    // (may alias the batch's buffer, see `gather`)
+    let (h, w) = (obs.height as i64, obs.width as i64);
+    gather(obs, device, |f| {
+        // SAFETY: `EnvBatch::validate` checked the slice holds E*H*W*3 bytes; the tensor lives no longer
+        // than the batch's buffers (`Prepared<'a>`), or is copied (`to_device`, `cat`).
+        unsafe { Tensor::from_blob(f.rgb.as_ptr(), &[f.envs as i64, h, w, 3], &[], Kind::Uint8, Device::Cpu) }
+    })
+}
+
+/// Depth as raw 16-bit patterns in an Int16 tensor `[N, H, W]` (torch has no u16; the model
+/// reinterprets the bits).
+pub(crate) fn depth_tensor(obs: &EnvBatch, device: Device) -> Tensor {
+    let (h, w) = (obs.height as i64, obs.width as i64);
+    gather(obs, device, |f| unsafe {
+        // SAFETY: as for rgb; u16 and i16 have the same size and alignment.
+        Tensor::from_blob(f.depth.as_ptr() as *const u8, &[f.envs as i64, h, w], &[], Kind::Int16, Device::Cpu)
+    })
+}
+
+/// Gestures `[N, 100, 95]` in half precision on `device`.
+pub(crate) fn gesture_tensor(obs: &EnvBatch, device: Device) -> Tensor {
+    let shape = |e: usize| [e as i64, GESTURE_FRAMES as i64, GESTURE_DIMS as i64];
+    let t = gather(obs, device, |f| match f.gesture {
+        // SAFETY: as for rgb.
+        GestureView::F16(s) => unsafe {
+            Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Half, Device::Cpu)
+        },
+        GestureView::F32(s) => {
+            unsafe { Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Float, Device::Cpu) }
+                .to_kind(Kind::Half)
+        }
+    });
+    t.to_kind(Kind::Half)
+}
+
+/// Per-env gesture mask (1 where a gesture is shown), `[N]` f32.
+pub(crate) fn gesture_mask(obs: &EnvBatch, device: Device) -> Tensor {
+    let m: Vec<f32> =
+        obs.envs.iter().map(|e| if e.gesture == GestureKind::None || e.lost { 0.0 } else { 1.0 }).collect();
+    Tensor::from_slice(&m).to_device(device)
+}
+
+pub(crate) fn target_tensor(obs: &EnvBatch, device: Device) -> Tensor {
+    let t: Vec<i64> = obs.envs.iter().map(|e| if e.lost { 0 } else { e.target }).collect();
+    Tensor::from_slice(&t).to_device(device)
+}
+
+pub(crate) fn pose_tensor(obs: &EnvBatch, device: Device) -> Tensor {
+    let p: Vec<f32> = obs.envs.iter().flat_map(|e| e.person_pose).collect();
+    Tensor::from_slice(&p).view([obs.n() as i64, 3]).to_device(device)
+}
+
+/// One tensor for all groups: on the GPU a copy; on the CPU with one group, the caller's
+/// buffer itself (no host copy) — hence [`Prepared`] carries the batch's lifetime.
+fn gather(obs: &EnvBatch, device: Device, view: impl Fn(&FrameView) -> Tensor) -> Tensor {
+    let mut parts: Vec<Tensor> = obs.frames.iter().filter(|f| f.envs > 0).map(|f| view(f).to_device(device)).collect();
+    if parts.len() == 1 { parts.pop().unwrap() } else { Tensor::cat(&parts, 0) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::obs::OwnedObs;
+    use half::f16;
+
+    #[test]
+    fn groups_gather_to_the_same_tensors_and_depth_bits_survive() {
+        let mut o = OwnedObs::new(5, 4, 6);
+        for (i, v) in o.rgb.iter_mut().enumerate() {
+            *v = (i % 251) as u8;
+        }
+        for (i, v) in o.depth.iter_mut().enumerate() {
+            *v = (i as u16).wrapping_mul(1031).wrapping_add(40000);
+        }
+        for (i, v) in o.gesture.iter_mut().enumerate() {
+            *v = f16::from_f32((i % 7) as f32 * 0.25);
+        }
+        let one = o.batch();
+        let many = o.batch_grouped(2);
+        one.validate(5, (4, 6)).unwrap();
+        many.validate(5, (4, 6)).unwrap();
+        assert!(rgb_tensor(&one, Device::Cpu).equal(&rgb_tensor(&many, Device::Cpu)));
+        assert!(gesture_tensor(&one, Device::Cpu).equal(&gesture_tensor(&many, Device::Cpu)));
+        let d = depth_tensor(&many, Device::Cpu);
+        assert_eq!(d.size(), vec![5, 4, 6]);
+        // u16 patterns come back from the Int16 view
+        let back = depth_unit(&d).view([-1]);
+        let got = back.double_value(&[7]);
+        assert!((got - o.depth[7] as f64 / 65535.0).abs() < 1e-6, "{got}");
+    }
+}

@@ -1,0 +1,194 @@
+//! The policy network of §4.3.3 ([`PolicyNet`]): encoders, GRU, actor and critic, wired together.
+//! Acting with it, one step for N envs, is `crate::agent`.
+//!
+//! ```text
+//! RGB   224²×3 ─ ResNet-18 (frozen) ─ conv5 512×7×7 ─ 1×1 conv 512→128 ─ 1×1 conv 128→64 ─ FC 512 ┐
+//! depth 224²×1 ─ (replicated to 3 channels, same trunk) ─ ... ─────────────────────────── FC 512 ┤
+//! gesture 100×95 (zero when none is shown) ─ flatten ─ FC 512 ────────────────────────────────────┤ concat
+//! target category ─ embedding 37→512 ─────────────────────────────────────────────────────────────┤ → GRU (2×512)
+//! person pose (dx, dz, yaw/360), optional ─ FC 3→512 ─────────────────────────────────────────────┘   ├ actor  512-512-4
+//!                                                                                                      └ critic 512-512-1
+//! ```
+//! ReLU follows every layer except the two outputs, as §4.3.3 says ("all layers are followed by a
+//! ReLU"). Inputs the method or config switches off are left out of the concatenation (Vision
+//! Only: 1024 wide). The actor and critic are read as "2 layers of 512, then the output layer".
+//!
+//! Depth goes through the RGB trunk replicated to three channels (a grey image to an ImageNet
+//! network): with frozen weights both modalities share one trunk and run as one batch.
+//! Frozen conv5 features are computed once when acting and stored in the rollout, so PPO epochs
+//! never re-run the ResNet; the trained encoders (small CNN, ResNet without weights) store the
+//! raw frames instead.
+
+use farm::config::Encoder;
+use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
+use tch::nn::{self, RNN};
+use tch::{Device, Kind, Tensor};
+
+use crate::inputs::{self, Inputs, depth_unit, rgb_unit};
+use crate::layers::{ConvHead, FrozenTrunk, Mlp, SmallCnn, Visual};
+use crate::obs::EnvBatch;
+use crate::resnet::{self, Resnet18};
+use crate::spec::NetSpec;
+
+/// The network. Variables live in the [`crate::agent::Agent`]'s var store under `resnet.` (the
+/// frozen trunk), `rgb.`, `depth.`, `gesture.`, `target.`, `pose.`, `gru.`, `actor.`, `critic.`.
+#[derive(Debug)]
+pub struct PolicyNet {
+    spec: NetSpec,
+    frozen: Option<FrozenTrunk>,
+    rgb: Option<Visual>,
+    depth: Option<Visual>,
+    gesture: Option<nn::Linear>,
+    target: Option<nn::Embedding>,
+    pose: Option<nn::Linear>,
+    gru: nn::GRU,
+    actor: Mlp,
+    critic: Mlp,
+}
+
+impl PolicyNet {
+    /// Builds the network for `spec` in `vs` (initialised from torch's seed); `bf16`: keep a bf16
+    /// copy of the frozen trunk (CUDA with mixed precision).
+    pub(crate) fn new(vs: &nn::VarStore, spec: &NetSpec, bf16: bool) -> PolicyNet {
+        let root = vs.root();
+        let h = spec.hidden;
+        let visual_on = spec.rgb || spec.depth;
+        let frozen = (spec.frozen && visual_on).then(|| FrozenTrunk::new(vs, bf16));
+        let side = (resnet::conv5_side(spec.height), resnet::conv5_side(spec.width));
+        let visual = |name: &str, c_in: i64| {
+            let p = &root / name;
+            match (spec.encoder, spec.frozen) {
+                (Encoder::Resnet18, true) => Visual::Frozen(ConvHead::new(&p, side, h)),
+                (Encoder::Resnet18, false) => {
+                    Visual::Resnet(Resnet18::new(&(&p / "resnet")), ConvHead::new(&p, side, h))
+                }
+                (Encoder::SmallCnn, _) => Visual::SmallCnn(SmallCnn::new(&p, c_in, (spec.height, spec.width), h)),
+            }
+        };
+        let rgb = spec.rgb.then(|| visual("rgb", 3));
+        let depth = spec.depth.then(|| visual("depth", 1));
+        let gesture = spec
+            .gesture
+            .then(|| nn::linear(&root / "gesture", (GESTURE_FRAMES * GESTURE_DIMS) as i64, h, Default::default()));
+        let target =
+            spec.semantic.then(|| nn::embedding(&root / "target", TARGET_CATEGORIES as i64, h, Default::default()));
+        let pose = spec.pose.then(|| nn::linear(&root / "pose", 3, h, Default::default()));
+        let gru_cfg = nn::RNNConfig {
+            num_layers: spec.gru_layers,
+            batch_first: false,
+            w_ih_init: nn::Init::Orthogonal { gain: 1.0 },
+            w_hh_init: nn::Init::Orthogonal { gain: 1.0 },
+            ..Default::default()
+        };
+        let gru = nn::gru(&root / "gru", spec.input_width(), h, gru_cfg);
+        PolicyNet {
+            spec: spec.clone(),
+            frozen,
+            rgb,
+            depth,
+            gesture,
+            target,
+            pose,
+            gru,
+            actor: Mlp::new(&(&root / "actor"), h, h, 2, action::COUNT as i64, 0.01),
+            critic: Mlp::new(&(&root / "critic"), h, h, 2, 1, 1.0),
+        }
+    }
+
+    /// One step's observation → the stored form (runs the frozen trunk, without gradients).
+    pub(crate) fn prepare(&self, obs: &EnvBatch, device: Device) -> Inputs {
+        tch::no_grad(|| {
+            let s = &self.spec;
+            let mut rgb = s.rgb.then(|| inputs::rgb_tensor(obs, device));
+            let mut depth = s.depth.then(|| inputs::depth_tensor(obs, device));
+            if let Some(f) = &self.frozen {
+                let n = obs.n() as i64;
+                let mut images = Vec::new();
+                if let Some(r) = &rgb {
+                    images.push(rgb_unit(r));
+                }
+                if let Some(d) = &depth {
+                    images.push(depth_unit(d).expand([-1, 3, -1, -1], false));
+                }
+                let feats = f.features(&Tensor::cat(&images, 0));
+                let mut parts = feats.split(n, 0).into_iter();
+                if rgb.is_some() {
+                    rgb = parts.next();
+                }
+                if depth.is_some() {
+                    depth = parts.next();
+                }
+            }
+            let gesture = s.gesture.then(|| {
+                let mask = inputs::gesture_mask(obs, device).to_kind(Kind::Half).view([-1, 1, 1]);
+                inputs::gesture_tensor(obs, device) * mask
+            });
+            Inputs {
+                rgb,
+                depth,
+                gesture,
+                target: s.semantic.then(|| inputs::target_tensor(obs, device)),
+                pose: s.pose.then(|| inputs::pose_tensor(obs, device)),
+            }
+        })
+    }
+
+    /// Stored inputs `[B, ..]` → concatenated features `[B, D]`.
+    pub(crate) fn encode(&self, x: &Inputs) -> Tensor {
+        let mut parts = Vec::new();
+        if let (Some(enc), Some(t)) = (&self.rgb, &x.rgb) {
+            parts.push(enc.forward(t, false));
+        }
+        if let (Some(enc), Some(t)) = (&self.depth, &x.depth) {
+            parts.push(enc.forward(t, true));
+        }
+        if let (Some(l), Some(t)) = (&self.gesture, &x.gesture) {
+            parts.push(t.to_kind(Kind::Float).flatten(1, -1).apply(l).relu());
+        }
+        if let (Some(e), Some(t)) = (&self.target, &x.target) {
+            parts.push(t.apply(e).relu());
+        }
+        if let (Some(l), Some(t)) = (&self.pose, &x.pose) {
+            parts.push(t.apply(l).relu());
+        }
+        Tensor::cat(&parts, 1)
+    }
+
+    /// The GRU over `[T, B, D]` from `h0` `[L, B, H]`, zeroing an env's state where `keep[t, b]`
+    /// is 0 (an episode starts at t). Runs the fused GRU over the stretches between resets.
+    pub(crate) fn recurrent(&self, x: &Tensor, h0: &Tensor, keep: &Tensor, any_start: &[bool]) -> (Tensor, Tensor) {
+        let t_len = x.size()[0];
+        let mut h = h0.shallow_clone();
+        let mut outs = Vec::new();
+        let mut t0 = 0i64;
+        for t in 1..=t_len {
+            if t == t_len || any_start[t as usize] {
+                h = &h * keep.get(t0).view([1, -1, 1]);
+                let (o, s) = self.gru.seq_init(&x.narrow(0, t0, t - t0), &nn::GRUState(h));
+                outs.push(o);
+                h = s.0;
+                t0 = t;
+            }
+        }
+        (Tensor::cat(&outs, 0), h)
+    }
+
+    /// GRU output → (logits `[.., action::COUNT]`, value `[..]`).
+    pub(crate) fn heads(&self, h: &Tensor) -> (Tensor, Tensor) {
+        (self.actor.forward(h), self.critic.forward(h).squeeze_dim(-1))
+    }
+
+    /// Whole sequences for PPO: inputs `[T, B, ..]` → (logits `[T, B, action::COUNT]`, values `[T, B]`).
+    pub fn evaluate(&self, x: &Inputs, h0: &Tensor, keep: &Tensor, any_start: &[bool]) -> (Tensor, Tensor) {
+        let size = x.fields().iter().find_map(|(_, t)| t.map(|t| t.size())).expect("network has inputs");
+        let (t, b) = (size[0], size[1]);
+        let feats = self.encode(&x.map(|v| v.flatten(0, 1))).view([t, b, -1]);
+        let (out, _) = self.recurrent(&feats, h0, keep, any_start);
+        self.heads(&out)
+    }
+
+    /// The frozen ImageNet trunk, when the network has one.
+    pub(crate) fn frozen(&self) -> Option<&FrozenTrunk> {
+        self.frozen.as_ref()
+    }
+}

@@ -1,0 +1,118 @@
+//! What the network looks like for a run ([`NetSpec`]): which inputs the method and config switch
+//! on, which visual encoder, the frame size and the widths. Everything that builds, stores or
+//! checks a network reads it from here.
+
+use farm::config::{Encoder, Method, RunConfig};
+
+/// What the network looks like for a run: which inputs, which encoder, how wide.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NetSpec {
+    pub method: Method,
+    pub encoder: Encoder,
+    /// ResNet-18 with user-supplied ImageNet weights, frozen. False: every encoder is trained.
+    pub frozen: bool,
+    pub rgb: bool,
+    pub depth: bool,
+    pub gesture: bool,
+    pub semantic: bool,
+    pub pose: bool,
+    pub height: i64,
+    pub width: i64,
+    pub hidden: i64,
+    pub gru_layers: i64,
+}
+
+impl NetSpec {
+    pub fn from_config(cfg: &RunConfig) -> NetSpec {
+        let m = &cfg.model;
+        NetSpec {
+            method: cfg.run.method,
+            encoder: m.encoder,
+            frozen: m.encoder == Encoder::Resnet18 && m.resnet_weights.is_some(),
+            rgb: m.rgb,
+            depth: m.depth,
+            gesture: cfg.run.method.gesture(),
+            semantic: cfg.run.method.semantic(),
+            pose: m.person_pose,
+            height: cfg.env.height as i64,
+            width: cfg.env.width as i64,
+            hidden: m.hidden,
+            gru_layers: m.gru_layers,
+        }
+    }
+
+    /// Random acts uniformly and learns nothing.
+    pub fn random(&self) -> bool {
+        self.method == Method::Random
+    }
+
+    /// Width of the concatenated features fed to the GRU.
+    pub fn input_width(&self) -> i64 {
+        let n = [self.rgb, self.depth, self.gesture, self.semantic, self.pose].iter().filter(|b| **b).count();
+        self.hidden * n as i64
+    }
+
+    /// One line for logs.
+    pub fn describe(&self) -> String {
+        let mut inputs = Vec::new();
+        for (on, name) in [
+            (self.rgb, "rgb"),
+            (self.depth, "depth"),
+            (self.gesture, "gesture"),
+            (self.semantic, "target"),
+            (self.pose, "person-pose"),
+        ] {
+            if on {
+                inputs.push(name);
+            }
+        }
+        let enc = match (self.encoder, self.frozen) {
+            (Encoder::Resnet18, true) => "ResNet-18 (frozen, ImageNet weights)",
+            (Encoder::Resnet18, false) => "ResNet-18 (TRAINED from random weights)",
+            (Encoder::SmallCnn, _) => "small CNN (trained)",
+        };
+        format!(
+            "{}: {} {}x{}, inputs [{}] → {} → GRU {}x{} → actor/critic",
+            self.method.label(),
+            enc,
+            self.width,
+            self.height,
+            inputs.join(", "),
+            self.input_width(),
+            self.gru_layers,
+            self.hidden
+        )
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A tiny network for tests: 16×16 frames, small CNN, hidden 32, one GRU layer, rollout 8.
+    pub fn tiny_config(method: &str) -> RunConfig {
+        RunConfig::from_toml(
+            &format!(
+                "[run]\nmethod = \"{method}\"\n[env]\nwidth = 16\nheight = 16\n\
+                 [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n[ppo]\nrollout = 8\n"
+            ),
+            "test.toml",
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn input_width_follows_the_method() {
+        let w = |m: &str| NetSpec::from_config(&tiny_config(m)).input_width();
+        assert_eq!(w("vision_only"), 2 * 32);
+        assert_eq!(w("vis_sem"), 3 * 32);
+        assert_eq!(w("both"), 4 * 32);
+        let mut c = tiny_config("both");
+        c.model.person_pose = true;
+        c.model.depth = false;
+        assert_eq!(NetSpec::from_config(&c).input_width(), 4 * 32);
+        // faithful: 2048 into the GRU (§4.3.3)
+        let f = RunConfig::from_toml("[run]\nmethod = \"both\"\n", "x.toml").unwrap();
+        assert_eq!(NetSpec::from_config(&f).input_width(), 2048);
+    }
+}
