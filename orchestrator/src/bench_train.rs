@@ -159,12 +159,17 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-train"));
     let (p, wall) = train(&a, &cfg, &out)?;
     let metrics: Vec<serde_json::Value> = farm::files::read_jsonl(&out.join("run/metrics.jsonl")).unwrap_or_default();
+    let mut profile = p.profile.unwrap_or_default();
+    if profile.learner.update_s == 0.0 {
+        // a learner that writes no profile still reports each update's time
+        profile.learner.update_s = metrics.iter().filter_map(|m| m["update_seconds"].as_f64()).sum();
+    }
     let bench = TrainBench {
         frames: p.frames,
         // the learner's own clock: from its start to its last record (process start-up excluded)
         seconds: if p.t > 0.0 { p.t } else { wall },
         updates: metrics.len() as u64,
-        profile: p.profile.unwrap_or_default(),
+        profile,
         workers: a.workers,
     };
     let mut command = format!("orchestrator bench train --workers {} --frames {}", a.workers, a.frames);
