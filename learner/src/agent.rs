@@ -178,7 +178,7 @@ impl Agent {
         obs.validate(self.n_envs, (self.spec.height as usize, self.spec.width as usize))?;
         let starts = obs.envs.iter().zip(&self.force_reset).map(|(e, f)| e.episode_start || e.lost || *f).collect();
         let inputs = if self.spec.random() {
-            Inputs { rgb: None, depth: None, gesture: None, target: None, pose: None }
+            Inputs { rgb: None, depth: None, gesture: None, gesture_index: None, target: None, pose: None }
         } else {
             self.net.prepare(obs, self.device)
         };
@@ -334,6 +334,7 @@ mod tests {
             rgb: stack(|x| x.rgb.as_ref()),
             depth: stack(|x| x.depth.as_ref()),
             gesture: stack(|x| x.gesture.as_ref()),
+            gesture_index: None,
             target: stack(|x| x.target.as_ref()),
             pose: None,
         };
@@ -410,5 +411,62 @@ mod tests {
         assert!(p.notes().iter().any(|n| n.contains("NO IMAGENET WEIGHTS")));
         // the trunks are trainable
         assert!(p.vs.variables().iter().any(|(k, v)| k.starts_with("rgb.resnet.layer4") && v.requires_grad()));
+    }
+    #[test]
+    fn distinct_gestures_give_the_plain_path_s_outputs_and_gradients() {
+        // PPO's minibatches encode each distinct gesture once and gather; the outputs and the
+        // gradients must be those of encoding every row
+        let cfg = tiny_config("both");
+        let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+        let h0 = p.hidden().copy();
+        let mut r = crate::rollout::Rollout::new(6, 2, &h0);
+        let first = random_obs(2, 16, 40);
+        for t in 0..6u64 {
+            let mut o = random_obs(2, 16, 50 + t);
+            // env 0 keeps its gesture all along; env 1 shows a new one every other step
+            let g = o.gesture.len() / 2;
+            o.gesture[..g].copy_from_slice(&first.gesture[..g]);
+            if t % 2 == 1 {
+                let prev = random_obs(2, 16, 50 + t - 1);
+                o.gesture[g..].copy_from_slice(&prev.gesture[g..]);
+            }
+            o.envs.iter_mut().for_each(|e| e.episode_start = t == 0);
+            let (x, st) = p.prepare(&o.batch()).unwrap();
+            let f = p.forward(&x, st);
+            let acted = Actions { actions: vec![0; 2], log_probs: vec![0.0; 2], values: f.values.clone() };
+            r.push(&x, &[t == 0, t == 0], &acted, &[true, true]);
+            p.commit(f, &o.batch());
+        }
+        let table = r.gestures().unwrap();
+        assert_eq!(table.len(), 1 + 3, "env 0: one gesture; env 1: three");
+        let idx = Tensor::from_slice(&[1i64, 0]);
+        let distinct = r.minibatch(&idx).unwrap();
+        let rows = distinct
+            .gesture
+            .as_ref()
+            .unwrap()
+            .index_select(0, &distinct.gesture_index.as_ref().unwrap().flatten(0, -1));
+        let plain = Inputs {
+            gesture: Some(rows.view([6, 2, shm_schema::GESTURE_FRAMES as i64, shm_schema::GESTURE_DIMS as i64])),
+            gesture_index: None,
+            ..distinct.map(|t| t.shallow_clone())
+        };
+        let keep = Tensor::ones([6, 2], (Kind::Float, Device::Cpu));
+        let any = [false; 6];
+        let run = |x: &Inputs| {
+            for mut v in p.vs.trainable_variables() {
+                v.zero_grad();
+            }
+            let (logits, values) = p.net.evaluate(x, &h0.index_select(1, &idx), &keep, &any);
+            (logits.sum(Kind::Float) + values.square().sum(Kind::Float)).backward();
+            let grads: Vec<Tensor> = p.vs.trainable_variables().iter().map(|v| v.grad().copy()).collect();
+            (logits.detach(), values.detach(), grads)
+        };
+        let (l1, v1, g1) = run(&distinct);
+        let (l2, v2, g2) = run(&plain);
+        assert!(l1.allclose(&l2, 1e-5, 1e-6, false) && v1.allclose(&v2, 1e-5, 1e-6, false));
+        for (a, b) in g1.iter().zip(&g2) {
+            assert!(a.allclose(b, 1e-4, 1e-6, false), "gradients differ");
+        }
     }
 }

@@ -8,7 +8,7 @@ use std::time::Instant;
 use farm::config::RunConfig;
 use rand::Rng;
 use shm_schema::action;
-use tch::{Device, nn};
+use tch::{Device, Tensor, nn};
 
 use crate::LearnerError;
 use crate::agent::{Actions, Agent, AgentError};
@@ -159,13 +159,10 @@ pub fn update(name: &str, cfg: &RunConfig, envs: usize, device: Device, reps: us
 
 /// Size in MiB of a rollout's stored inputs (what stays on the device).
 pub fn rollout_mib(t: &Trainer) -> f64 {
-    t.rollout
-        .inputs()
-        .map(|x| {
-            x.fields().iter().filter_map(|(_, v)| *v).map(|v| v.numel() * v.kind().elt_size_in_bytes()).sum::<usize>()
-        })
-        .unwrap_or(0) as f64
-        / (1024.0 * 1024.0)
+    let bytes = |v: &Tensor| v.numel() * v.kind().elt_size_in_bytes();
+    let rows = t.rollout.inputs().map(|x| x.fields().iter().filter_map(|(_, v)| *v).map(bytes).sum::<usize>());
+    let gestures = t.rollout.gestures().map(|g| bytes(&g.rows()) + bytes(g.ids()));
+    (rows.unwrap_or(0) + gestures.unwrap_or(0)) as f64 / (1024.0 * 1024.0)
 }
 
 /// One PPO update on whatever the trainer's rollout holds (for benches).

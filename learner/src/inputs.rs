@@ -17,8 +17,13 @@ pub struct Inputs {
     pub rgb: Option<Tensor>,
     /// Raw 16-bit depth patterns in Int16 `[.., H, W]`, or frozen conv5 features.
     pub depth: Option<Tensor>,
-    /// Half `[.., 100, 95]`, zero where no gesture is shown.
+    /// Half `[.., 100, 95]`, zero where no gesture is shown — or, with `gesture_index`, the
+    /// distinct gestures `[G, 100, 95]` the rows show.
     pub gesture: Option<Tensor>,
+    /// Which row of `gesture` each row shows, i64 `[..]`. A gesture changes only at an episode's
+    /// start and when intervention switches, so the rollout stores each distinct one once and a
+    /// minibatch of 128 steps × 16 envs encodes a few dozen gestures instead of 2,048.
+    pub gesture_index: Option<Tensor>,
     /// Target index, i64 `[..]`.
     pub target: Option<Tensor>,
     /// f32 `[.., 3]`.
@@ -26,21 +31,27 @@ pub struct Inputs {
 }
 
 impl Inputs {
+    /// Applies `f` to every per-row field (the leading dims); a table of distinct gestures is
+    /// not per row and stays as it is.
     pub fn map(&self, f: impl Fn(&Tensor) -> Tensor) -> Inputs {
+        let indexed = self.gesture_index.is_some();
         Inputs {
             rgb: self.rgb.as_ref().map(&f),
             depth: self.depth.as_ref().map(&f),
-            gesture: self.gesture.as_ref().map(&f),
+            gesture: self.gesture.as_ref().map(|g| if indexed { g.shallow_clone() } else { f(g) }),
+            gesture_index: self.gesture_index.as_ref().map(&f),
             target: self.target.as_ref().map(&f),
             pose: self.pose.as_ref().map(&f),
         }
     }
 
-    pub fn fields(&self) -> [(&'static str, Option<&Tensor>); 5] {
+    /// The per-row fields (leading dims `[B]` or `[T, B]`), by name.
+    pub fn fields(&self) -> [(&'static str, Option<&Tensor>); 6] {
         [
             ("rgb", self.rgb.as_ref()),
             ("depth", self.depth.as_ref()),
-            ("gesture", self.gesture.as_ref()),
+            ("gesture", self.gesture.as_ref().filter(|_| self.gesture_index.is_none())),
+            ("gesture_index", self.gesture_index.as_ref()),
             ("target", self.target.as_ref()),
             ("pose", self.pose.as_ref()),
         ]

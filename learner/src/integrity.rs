@@ -187,6 +187,7 @@ mod tests {
             gesture_dims: GESTURE_DIMS as u32,
             finished: 0,
             layout: s.layout,
+            timing: Default::default(),
         };
         let mut buf = PayloadBuf::new(&s.layout);
         let sections = ObsSections::new(&s, buf.bytes_mut()).unwrap();

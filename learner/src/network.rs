@@ -127,6 +127,7 @@ impl PolicyNet {
                 rgb,
                 depth,
                 gesture,
+                gesture_index: None,
                 target: s.semantic.then(|| inputs::target_tensor(obs, device)),
                 pose: s.pose.then(|| inputs::pose_tensor(obs, device)),
             }
@@ -143,7 +144,12 @@ impl PolicyNet {
             parts.push(enc.forward(t, true));
         }
         if let (Some(l), Some(t)) = (&self.gesture, &x.gesture) {
-            parts.push(t.to_kind(Kind::Float).flatten(1, -1).apply(l).relu());
+            let g = t.to_kind(Kind::Float).flatten(1, -1).apply(l).relu();
+            // distinct gestures are encoded once, then gathered for every row that shows them
+            parts.push(match &x.gesture_index {
+                Some(i) => g.index_select(0, i),
+                None => g,
+            });
         }
         if let (Some(e), Some(t)) = (&self.target, &x.target) {
             parts.push(t.apply(e).relu());

@@ -21,6 +21,11 @@ pub trait Policy {
     fn wants_full_batches(&self) -> bool {
         true
     }
+    /// Seconds of [`Policy::act`] spent learning rather than acting (PPO updates, checkpoints,
+    /// curves), cumulative; the training profile tells the two apart with it.
+    fn learning_seconds(&self) -> f64 {
+        0.0
+    }
     /// The run is ending; `checkpoint` says whether to save state first (Ctrl-C: yes).
     fn finish(&mut self, _checkpoint: bool) -> anyhow::Result<()> {
         Ok(())

@@ -184,7 +184,6 @@ impl Trainer {
             let b_act = r.to_device(&r.actions);
             let b_valid = flags(r, &r.valid);
             let b_keep = r.to_device(&as_f32(&r.starts).iter().map(|s| 1.0 - s).collect::<Vec<f32>>());
-            let inputs = r.inputs().expect("a full rollout has inputs");
             let per_mb = n.div_ceil(hp.minibatches);
             let mut envs: Vec<i64> = (0..n as i64).collect();
             let mut sums = [0.0f64; 6];
@@ -201,7 +200,7 @@ impl Trainer {
 
                     // Re-run the network over the minibatch's whole sequences.
                     let (logits, values) = self.agent.net.evaluate(
-                        &inputs.map(sel),
+                        &r.minibatch(&idx).expect("a full rollout has inputs"),
                         &r.h0.index_select(1, &idx),
                         &sel(&b_keep),
                         &any_start,

@@ -52,6 +52,8 @@ pub struct PpoPolicy {
     steps: Vec<EnvStep>,
     /// Generation last seen per worker (a new one marks a restart).
     generations: Vec<Option<u32>>,
+    /// Seconds spent learning (updates, their records, checkpoints), for the profile.
+    learning: f64,
 }
 
 impl PpoPolicy {
@@ -119,6 +121,7 @@ impl PpoPolicy {
             zero_gesture: vec![f16::ZERO; e * shm_schema::GESTURE_FRAMES * shm_schema::GESTURE_DIMS],
             steps: vec![EnvStep { lost: true, ..Default::default() }; workers * e],
             generations: vec![None; workers],
+            learning: 0.0,
         }
     }
 
@@ -162,6 +165,10 @@ impl Policy for PpoPolicy {
             Mode::Train { .. } => "ppo",
             Mode::Eval { .. } => "ppo-eval",
         }
+    }
+
+    fn learning_seconds(&self) -> f64 {
+        self.learning
     }
 
     fn act(&mut self, batch: &WorkerBatch<'_>) -> anyhow::Result<Vec<u8>> {
@@ -209,7 +216,9 @@ impl Policy for PpoPolicy {
         let actions = match &mut self.mode {
             Mode::Train { trainer, log, .. } => {
                 let out = trainer.step(&obs)?;
+                let books = std::time::Instant::now();
                 if let Some(m) = &out.update {
+                    self.learning += m.update_seconds;
                     log.append(m)?;
                     tracing::info!(
                         "update {} frames {} fps {:.0} success {} loss π {:.3} v {:.3} entropy {:.3}",
@@ -230,6 +239,9 @@ impl Policy for PpoPolicy {
                 let a = out.actions.actions;
                 if save {
                     self.save_checkpoint()?;
+                }
+                if out.update.is_some() {
+                    self.learning += books.elapsed().as_secs_f64();
                 }
                 a
             }

@@ -68,6 +68,8 @@ pub struct Progress {
     pub totals: Counters,
     /// Set on the last line.
     pub stop_reason: Option<String>,
+    /// Where the time went so far: the learner's timeline and its workers' loops.
+    pub profile: farm::profile::Profile,
 }
 
 /// Per-worker state at the end (`farm_summary.json`).
@@ -228,6 +230,7 @@ mod tests {
             workers_live: 1,
             totals: Counters { frames: 3, episodes: 1, successes: 1, ..Default::default() },
             stop_reason: None,
+            profile: Default::default(),
         })
         .unwrap();
         rec.flush().unwrap();

@@ -12,6 +12,7 @@
 use tch::{Device, Kind, Tensor};
 
 use crate::agent::Actions;
+use crate::gesture_table::GestureTable;
 use crate::inputs::Inputs;
 use crate::obs::EnvStep;
 
@@ -20,8 +21,10 @@ pub struct Rollout {
     pub steps: usize,
     pub envs: usize,
     device: Device,
-    /// `[T, N, ..]`, allocated at the first push (its shapes come from the network).
+    /// `[T, N, ..]`, allocated at the first push (its shapes come from the network); gestures
+    /// are kept apart, each distinct one once.
     inputs: Option<Inputs>,
+    gestures: Option<GestureTable>,
     /// Recurrent state before step 0 (before its episode-start resets), `[L, N, H]`.
     pub h0: Tensor,
     /// Every vector below is `[T * N]`, index `t * N + n`.
@@ -58,6 +61,7 @@ impl Rollout {
             envs,
             device: h0.device(),
             inputs: None,
+            gestures: None,
             h0: h0.copy(),
             starts: vec![false; n],
             actions: vec![0; n],
@@ -74,6 +78,9 @@ impl Rollout {
     pub fn begin(&mut self, h0: &Tensor) {
         self.h0 = h0.copy();
         self.len = 0;
+        if let Some(g) = &mut self.gestures {
+            g.clear();
+        }
         self.rewards.iter_mut().for_each(|r| *r = 0.0);
         self.ends.iter_mut().for_each(|e| *e = false);
         self.valid.iter_mut().for_each(|v| *v = false);
@@ -92,9 +99,27 @@ impl Rollout {
         self.len == self.steps
     }
 
-    /// Stored inputs `[T, N, ..]` (None before the first push).
+    /// Stored per-row inputs `[T, N, ..]` (None before the first push); without the gestures,
+    /// which [`Rollout::minibatch`] adds.
     pub fn inputs(&self) -> Option<&Inputs> {
         self.inputs.as_ref()
+    }
+
+    /// The distinct gestures stored (None before the first push or without gestures).
+    pub fn gestures(&self) -> Option<&GestureTable> {
+        self.gestures.as_ref()
+    }
+
+    /// The stored inputs of envs `idx` (a minibatch), `[T, B, ..]`: every per-row field selected,
+    /// and the gestures as the table of distinct ones with each row's index into it.
+    pub fn minibatch(&self, idx: &Tensor) -> Option<Inputs> {
+        let sel = |t: &Tensor| t.index_select(1, idx);
+        let mut x = self.inputs.as_ref()?.map(sel);
+        if let Some(g) = &self.gestures {
+            x.gesture = Some(g.rows());
+            x.gesture_index = Some(sel(g.ids()));
+        }
+        Some(x)
     }
 
     /// Appends one step: its inputs, memory resets, chosen actions, and which envs' steps can be
@@ -104,11 +129,13 @@ impl Rollout {
         let n = self.envs;
         let (t, device) = (self.len, self.device);
         let stored = self.inputs.get_or_insert_with(|| {
-            x.map(|v| {
+            let mut s = x.map(|v| {
                 let mut shape = vec![self.steps as i64];
                 shape.extend(v.size());
                 Tensor::zeros(shape.as_slice(), (v.kind(), device))
-            })
+            });
+            s.gesture = None;
+            s
         });
         tch::no_grad(|| {
             for ((_, dst), (_, src)) in stored.fields().iter().zip(x.fields()) {
@@ -117,6 +144,10 @@ impl Rollout {
                 }
             }
         });
+        if let Some(g) = &x.gesture {
+            let (steps, envs) = (self.steps, self.envs);
+            self.gestures.get_or_insert_with(|| GestureTable::new(steps, envs, &g.get(0).to_device(device))).push(t, g);
+        }
         let r = t * n..(t + 1) * n;
         self.starts[r.clone()].copy_from_slice(starts);
         self.actions[r.clone()].copy_from_slice(&acted.actions);
@@ -185,7 +216,14 @@ mod tests {
     }
 
     fn no_inputs() -> Inputs {
-        Inputs { rgb: None, depth: None, gesture: None, target: Some(Tensor::from_slice(&[3i64])), pose: None }
+        Inputs {
+            rgb: None,
+            depth: None,
+            gesture: None,
+            gesture_index: None,
+            target: Some(Tensor::from_slice(&[3i64])),
+            pose: None,
+        }
     }
 
     /// One env through: a terminated episode (worker resets at once), then a truncated one whose
@@ -259,8 +297,14 @@ mod tests {
     fn lost_messages_drop_the_step_and_truncation_without_final_is_counted() {
         let h0 = Tensor::zeros([1, 2, 4], (Kind::Float, Device::Cpu));
         let mut r = Rollout::new(4, 2, &h0);
-        let x =
-            Inputs { rgb: None, depth: None, gesture: None, target: Some(Tensor::from_slice(&[3i64, 4])), pose: None };
+        let x = Inputs {
+            rgb: None,
+            depth: None,
+            gesture: None,
+            gesture_index: None,
+            target: Some(Tensor::from_slice(&[3i64, 4])),
+            pose: None,
+        };
         r.push(&x, &[true, true], &acted(2, 1.0), &[true, true]);
         let lost = EnvStep { lost: true, reward: 7.0, ..Default::default() };
         let cut = EnvStep { truncated: true, episode_start: true, reward: 0.5, ..Default::default() };

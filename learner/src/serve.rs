@@ -22,8 +22,9 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use farm::process;
+use farm::profile::{LearnerTime, Profile, WorkerTime};
 use farm::transport::TransportError;
-use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, ObsShape, action, command};
+use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, ObsShape, WorkerTiming, action, command};
 
 use crate::batch::{WorkerBatch, WorkerObs};
 use crate::integrity::{self, Expected, Verdict};
@@ -106,6 +107,8 @@ struct Slot {
     sent_at: Option<Instant>,
     messages: u64,
     frames: u64,
+    /// The worker process's own profile, from its latest observation.
+    timing: WorkerTiming,
 }
 
 impl Slot {
@@ -119,6 +122,7 @@ impl Slot {
             sent_at: None,
             messages: 0,
             frames: 0,
+            timing: WorkerTiming::default(),
         }
     }
 
@@ -162,6 +166,8 @@ struct Server<'p> {
     start: Instant,
     last_report: (Instant, Counters),
     problems: Vec<String>,
+    /// The learner's timeline so far.
+    time: LearnerTime,
 }
 
 /// Serves `policy` to the run's workers until a budget is spent, the evaluation is done or a
@@ -185,6 +191,7 @@ pub fn serve(opts: &ServeOptions, policy: &mut dyn Policy) -> Result<Summary, Se
         start: now,
         last_report: (now, Counters::default()),
         problems: vec![],
+        time: LearnerTime::default(),
     };
     tracing::info!("serving policy `{}` to {} workers of run {}", server.policy.name(), opts.workers, opts.run_id);
     let stop = server.run()?;
@@ -204,14 +211,16 @@ impl Server<'_> {
             {
                 return Ok(Stop::Seconds);
             }
+            let t = Instant::now();
             self.collect()?;
+            self.time.receive_s += t.elapsed().as_secs_f64();
             self.report(None)?;
             let any = self.slots.iter().any(|s| s.held.is_some());
             if !started {
                 let seen = self.slots.iter().filter(|s| s.generation().is_some()).count();
                 started = seen == self.slots.len() || (seen > 0 && self.start.elapsed() >= self.opts.start_wait);
                 if !started {
-                    self.ports.wait(Duration::from_millis(50));
+                    self.wait(Duration::from_millis(50));
                     continue;
                 }
                 tracing::info!("{seen} of {} workers connected; serving", self.slots.len());
@@ -238,9 +247,9 @@ impl Server<'_> {
                     continue;
                 }
                 let left = self.opts.batch_timeout.saturating_sub(first.elapsed());
-                self.ports.wait(left.min(Duration::from_millis(50)));
+                self.wait(left.min(Duration::from_millis(50)));
             } else {
-                self.ports.wait(Duration::from_millis(50));
+                self.wait(Duration::from_millis(50));
             }
         }
     }
@@ -301,6 +310,7 @@ impl Server<'_> {
         slot.absent = false;
         slot.finished = h.finished != 0;
         slot.messages += 1;
+        slot.timing = h.timing;
         slot.held = Some((msg, a.new_generation));
         self.totals.messages += 1;
         for why in a.issues {
@@ -329,7 +339,15 @@ impl Server<'_> {
 
     /// Runs the policy on every held observation and answers each worker. Returns a stop
     /// reason when this round ended the run (its answers were then SHUTDOWN).
+    /// Waits for the next observation (at most `d`), on the profile's clock.
+    fn wait(&mut self, d: Duration) {
+        let t = Instant::now();
+        self.ports.wait(d);
+        self.time.wait_s += t.elapsed().as_secs_f64();
+    }
+
     fn round(&mut self) -> Result<Option<Stop>, ServeError> {
+        let began = Instant::now();
         let held: Vec<(usize, ObsMessage, bool)> =
             (0..self.slots.len()).filter_map(|k| self.slots[k].held.take().map(|(m, g)| (k, m, g))).collect();
         let missing: Vec<u32> = (0..self.slots.len())
@@ -352,9 +370,16 @@ impl Server<'_> {
             .collect();
         let batch = WorkerBatch { width: self.shape.width, height: self.shape.height, parts, missing };
         let t = Instant::now();
+        self.time.receive_s += t.duration_since(began).as_secs_f64();
+        let learning_before = self.policy.learning_seconds();
         let actions =
             self.policy.act(&batch).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
-        self.totals.policy_sum_s += t.elapsed().as_secs_f64();
+        let acted = t.elapsed().as_secs_f64();
+        let learning = (self.policy.learning_seconds() - learning_before).clamp(0.0, acted);
+        self.totals.policy_sum_s += acted;
+        self.time.update_s += learning;
+        self.time.infer_s += acted - learning;
+        let answering = Instant::now();
         if actions.len() != batch.num_envs() || actions.iter().any(|&a| a as usize >= action::COUNT) {
             return Err(ServeError::Policy {
                 name: self.policy.name().into(),
@@ -401,6 +426,7 @@ impl Server<'_> {
         // The samples go back to their workers' pools here.
         drop(batch);
         drop(held);
+        self.time.send_s += answering.elapsed().as_secs_f64();
         Ok(stop)
     }
 
@@ -453,6 +479,13 @@ impl Server<'_> {
             workers_live: self.slots.iter().filter(|s| s.generation().is_some() && !s.absent).count(),
             totals: self.totals.clone(),
             stop_reason: stop.map(Stop::describe),
+            profile: Profile {
+                learner: self.time,
+                workers: self.slots.iter().fold(WorkerTime::default(), |mut w, s| {
+                    w.add(&s.timing);
+                    w
+                }),
+            },
         }
     }
 
