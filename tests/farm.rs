@@ -405,3 +405,45 @@ fn eval_of_the_expert_scores_full_success_and_random_does_not() {
     assert_eq!(n, programs);
     assert!(sr < 50.0, "random SR {sr}");
 }
+
+/// `orchestrator bench train` on a few hundred frames: the table, and a profile in the run's
+/// last progress record with time in the learner's update and inference and in the workers'
+/// rendering and waiting.
+#[test]
+fn bench_train_reports_throughput_and_where_the_time_went() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("small.toml");
+    let text = format!(
+        "[run]\nmethod = \"both\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 32\nheight = 32\n\n\
+         [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\n",
+        dataset().display()
+    );
+    std::fs::write(&cfg, text).unwrap();
+    let out_dir = tmp.path().join("bench");
+    let out = std::process::Command::new(bin("orchestrator"))
+        .args(["bench", "train", "--workers", "2", "--frames", "300", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let md = std::fs::read_to_string(out_dir.join("bench_train.md")).unwrap();
+    for row in ["end-to-end frames/s", "PPO update", "inference", "render", "waiting for actions"] {
+        assert!(md.contains(row), "no `{row}` in\n{md}");
+    }
+    let progress = std::fs::read_to_string(out_dir.join("run/farm.jsonl")).unwrap();
+    let last: Value = serde_json::from_str(progress.lines().last().unwrap()).unwrap();
+    assert!(u(&last, "frames") >= 300, "{last}");
+    let p = &last["profile"];
+    let secs = |v: &Value| v.as_f64().unwrap_or(0.0);
+    for (part, v) in [
+        ("learner update", &p["learner"]["update_s"]),
+        ("learner inference", &p["learner"]["infer_s"]),
+        ("worker render", &p["workers"]["render_s"]),
+        ("worker wait", &p["workers"]["wait_s"]),
+    ] {
+        assert!(secs(v) > 0.0, "no time in {part}: {p}");
+    }
+}
