@@ -25,6 +25,15 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     Ok(())
 }
 
+/// `stem` with `.ext` appended, keeping any dot already in it (`encoders/rgbd64` →
+/// `encoders/rgbd64.json`; `Path::with_extension` would replace a `.v2` instead).
+pub fn with_ext(stem: &Path, ext: &str) -> std::path::PathBuf {
+    let mut s = stem.as_os_str().to_os_string();
+    s.push(".");
+    s.push(ext);
+    s.into()
+}
+
 /// Every line of a JSON-lines file, a bad line named by its number.
 pub fn read_jsonl<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
@@ -38,6 +47,11 @@ pub fn read_jsonl<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn with_ext_appends() {
+        assert_eq!(with_ext(Path::new("enc/rgbd.v2"), "json"), Path::new("enc/rgbd.v2.json"));
+    }
 
     #[test]
     fn atomic_write_replaces() {

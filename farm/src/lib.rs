@@ -8,6 +8,7 @@
 //! - [`process`]: signals and parent-death plumbing of a role's process
 //! - [`transport`]: iceoryx2 nodes, services and the worker's serving loop
 //! - [`stepper`]: what a worker drives ([`stepper::Stepper`]) and a synthetic one for tests
+//! - [`frame_set`]: labelled RGB-D frames for pretraining the visual encoder
 //! - [`checkpoints`]: where a run's checkpoints live and how they are named
 //! - [`metrics`]: SR, SPL, DTS at k stops, episode results and trajectories
 //! - [`profile`]: where a training run's time goes (learner timeline, worker loops)
@@ -17,6 +18,7 @@ pub mod checkpoints;
 pub mod config;
 pub mod files;
 pub mod font;
+pub mod frame_set;
 pub mod metrics;
 pub mod process;
 pub mod profile;

@@ -27,6 +27,7 @@ pub mod batch;
 pub mod bench;
 pub mod checkpoint;
 pub mod device;
+pub mod encoder;
 pub mod gesture_table;
 pub mod inputs;
 pub mod integrity;

@@ -46,6 +46,8 @@ enum Command {
     },
     /// Check a torchvision ResNet-18 checkpoint (.pth/.pt/.safetensors) before a long run.
     Weights { path: PathBuf },
+    /// Pretrain the frozen RGB-D encoder on a frame set (spawned by `orchestrator encoder pretrain`).
+    PretrainEncoder(PretrainEncoderArgs),
     /// Time a forward of the tiny network (batch 32) and PPO updates on 1280 samples.
     Bench {
         /// Also the dissertation's network (frozen ResNet-18 at 224², GRU 2×512) — slow on a CPU.
@@ -54,6 +56,32 @@ enum Command {
         #[arg(long, default_value_t = 5)]
         reps: usize,
     },
+}
+
+#[derive(Args)]
+struct PretrainEncoderArgs {
+    /// Frame set written by `orchestrator encoder pretrain`.
+    #[arg(long)]
+    frames: PathBuf,
+    /// Output stem: STEM.safetensors (the trunk's weights) and STEM.json (the report).
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    #[arg(long, default_value_t = 12)]
+    epochs: usize,
+    /// Frames per step (default 64).
+    #[arg(long)]
+    batch: Option<usize>,
+    /// Adam's initial learning rate (default 2e-3).
+    #[arg(long)]
+    lr: Option<f64>,
+    /// Weight of the "other" class in the loss (default 0.3).
+    #[arg(long)]
+    other_weight: Option<f64>,
+    /// Torch CPU threads (default 2); the weights depend on it.
+    #[arg(long)]
+    threads: Option<i32>,
 }
 
 /// Which policy answers the workers.
@@ -216,6 +244,14 @@ fn run(cli: Cli) -> Result<()> {
             bench::run(dev, faithful, reps, |f| println!("{f}"))?
         }
         Command::Weights { path } => println!("{}", learner::resnet::check_weights(&path)?),
+        Command::PretrainEncoder(a) => {
+            let mut o = learner::encoder::PretrainOptions::new(a.frames, a.out, a.seed, a.epochs);
+            o.batch = a.batch.unwrap_or(o.batch);
+            o.lr = a.lr.unwrap_or(o.lr);
+            o.other_weight = a.other_weight.unwrap_or(o.other_weight);
+            o.threads = a.threads.unwrap_or(o.threads);
+            learner::encoder::pretrain(&o, dev).map(drop)?
+        }
     }
     Ok(())
 }

@@ -12,6 +12,8 @@ pub mod binaries;
 pub mod child;
 pub mod crew;
 pub mod dataset_cmd;
+pub mod encoder_cmd;
+pub mod encoder_frames;
 pub mod eval;
 pub mod fonts;
 pub mod launch;

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench, dataset_cmd, eval, program_cmd, render_cmd, up};
+use orchestrator::{bench, dataset_cmd, encoder_cmd, eval, program_cmd, render_cmd, up};
 
 #[derive(Parser)]
 #[command(
@@ -34,6 +34,9 @@ enum Command {
     Up(up::UpArgs),
     /// Evaluate a checkpoint (or the Random baseline) on a split: the tables of chapter 4.
     Eval(eval::EvalArgs),
+    /// The frozen visual encoder for CPU runs: render labelled frames, pretrain.
+    #[command(subcommand)]
+    Encoder(encoder_cmd::EncoderCmd),
     /// Throughput benchmarks.
     #[command(subcommand)]
     Bench(bench::BenchCmd),
@@ -48,6 +51,7 @@ fn main() -> ExitCode {
         Command::Replay(a) => program_cmd::replay(a).map(|_| 0),
         Command::Up(a) => up::run(a),
         Command::Eval(a) => eval::run(a).map(|_| 0),
+        Command::Encoder(c) => encoder_cmd::run(c).map(|_| 0),
         Command::Bench(c) => bench::run(c).map(|_| 0),
     };
     match result {

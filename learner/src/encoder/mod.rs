@@ -1,0 +1,67 @@
+//! A frozen visual encoder for CPU runs, pretrained on frames the simulator labels for free
+//! (DESIGN §6): the role ImageNet plays for the dissertation's ResNet-18.
+//!
+//! - [`net`]: the early-fusion RGB-D trunk, its input and its weights file
+//! - [`pretrain`]: `learner pretrain-encoder`: per-cell class and depth from a frame set
+
+pub mod net;
+pub mod pretrain;
+
+pub use net::{EncoderFileError, EncoderInfo, RgbdEncoder, encoder_input, load_weights};
+pub use pretrain::{PretrainOptions, PretrainReport, pretrain};
+
+#[cfg(test)]
+mod tests {
+    use farm::frame_set::{CLASSES, FrameRef, FrameSet, FrameSetHeader};
+    use rand::Rng;
+
+    use super::*;
+
+    /// A random 16×16 frame set with 2×2 cells (random labels: enough to check reproducibility).
+    fn synthetic(dir: &std::path::Path, n: usize) -> std::path::PathBuf {
+        let header = FrameSetHeader { width: 16, height: 16, grid: 2, classes: CLASSES, seed: 5, held_out: vec![19] };
+        let mut set = FrameSet::new(header).unwrap();
+        let mut r = farm::seed::rng(5, &[]);
+        for i in 0..n {
+            let rgb: Vec<u8> = (0..16 * 16 * 3).map(|_| r.random()).collect();
+            let depth: Vec<u16> = (0..16 * 16).map(|_| r.random()).collect();
+            let class: Vec<u8> = (0..4).map(|_| r.random_range(0..3)).collect();
+            let room = if i % 8 == 0 { 19 } else { 1 + (i % 5) as u16 };
+            set.push(&FrameRef { room, flags: 0, rgb: &rgb, depth: &depth, cell_class: &class, cell_depth: &[100; 4] })
+                .unwrap();
+        }
+        let p = dir.join("syn.frames");
+        set.write(&p).unwrap();
+        p
+    }
+
+    #[test]
+    fn same_seed_gives_the_same_weights() {
+        let dir = tempfile::tempdir().unwrap();
+        let frames = synthetic(dir.path(), 64);
+        let run = |name: &str, seed: u64| {
+            let o = PretrainOptions::new(frames.clone(), dir.path().join(name), seed, 1);
+            pretrain(&o, tch::Device::Cpu).unwrap()
+        };
+        let (a, b, c) = (run("a", 3), run("b", 3), run("c", 4));
+        assert_eq!(a.sha256, b.sha256);
+        assert_ne!(a.sha256, c.sha256);
+        assert_eq!(a.held_out_frames, 8);
+        assert_eq!(a.held_out_rooms, vec!["FloorPlan19"]);
+        let bytes = std::fs::read(dir.path().join("a.safetensors")).unwrap();
+        assert_eq!(net::sha256_hex(&bytes), a.sha256);
+        let json: PretrainReport =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join("a.json")).unwrap()).unwrap();
+        assert_eq!(json.sha256, a.sha256);
+    }
+
+    #[test]
+    fn unusable_frame_sets_name_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let header = FrameSetHeader { width: 16, height: 16, grid: 2, classes: 3, seed: 5, held_out: vec![] };
+        let p = dir.path().join("few.frames");
+        FrameSet::new(header).unwrap().write(&p).unwrap();
+        let e = pretrain(&PretrainOptions::new(p, dir.path().join("x"), 1, 1), tch::Device::Cpu).unwrap_err();
+        assert!(e.to_string().contains("few.frames") && e.to_string().contains("classes"), "{e}");
+    }
+}

@@ -1,0 +1,49 @@
+//! `orchestrator encoder pretrain` end to end, on a small build: the same seed gives the same
+//! frames and the same weights (sha256), a different seed other weights.
+
+use std::path::Path;
+use std::process::Command;
+
+use gesthor_tests::{bin, dataset, serial};
+use serde_json::Value;
+
+fn pretrain(out: &Path, seed: u64) -> Value {
+    let o = Command::new(bin("orchestrator"))
+        .args(["encoder", "pretrain", "--frames", "64", "--epochs", "1", "--keep-frames", "--seed"])
+        .arg(seed.to_string())
+        .arg("--dataset")
+        .arg(dataset())
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("running orchestrator encoder pretrain");
+    assert!(
+        o.status.success(),
+        "encoder pretrain failed ({}):\n{}\n{}",
+        o.status,
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let json = out.with_extension("json");
+    serde_json::from_str(&std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{}: {e}", json.display()))).unwrap()
+}
+
+#[test]
+fn the_same_seed_gives_the_same_encoder() {
+    let _one_at_a_time = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b, c) = (dir.path().join("a"), dir.path().join("b"), dir.path().join("c"));
+    let (ja, jb, jc) = (pretrain(&a, 5), pretrain(&b, 5), pretrain(&c, 6));
+    let frames = |p: &Path| std::fs::read(p.with_extension("frames")).unwrap();
+    assert!(frames(&a) == frames(&b), "the frame sets differ");
+    assert_eq!(ja["sha256"], jb["sha256"]);
+    assert_ne!(ja["sha256"], jc["sha256"]);
+    let weights = std::fs::read(a.with_extension("safetensors")).unwrap();
+    assert!(weights.len() > 1000);
+    assert_eq!(ja["frames"], 64);
+    assert_eq!(ja["held_out_frames"], 7);
+    assert_eq!(ja["width"], 64);
+    assert_eq!(ja["held_out_rooms"].as_array().unwrap().len(), 8);
+    assert!(ja["rooms"].as_array().unwrap().iter().all(|r| r.as_str().unwrap().starts_with("FloorPlan")));
+    assert!(ja["held_out"]["accuracy"].as_f64().is_some_and(|x| (0.0..=1.0).contains(&x)), "{ja}");
+}
