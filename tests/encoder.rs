@@ -1,10 +1,12 @@
-//! `orchestrator encoder pretrain` end to end, on a small build: the same seed gives the same
-//! frames and the same weights (sha256), a different seed other weights.
+//! The frozen visual encoder end to end, on a small build: `orchestrator encoder pretrain` gives
+//! the same frames and the same weights (sha256) for the same seed, other weights for another;
+//! a short `orchestrator up` trains on it.
 
 use std::path::Path;
 use std::process::Command;
+use std::time::Duration;
 
-use gesthor_tests::{bin, dataset, serial};
+use gesthor_tests::{Run, bin, dataset, serial};
 use serde_json::Value;
 
 fn pretrain(out: &Path, seed: u64) -> Value {
@@ -46,4 +48,32 @@ fn the_same_seed_gives_the_same_encoder() {
     assert_eq!(ja["held_out_rooms"].as_array().unwrap().len(), 8);
     assert!(ja["rooms"].as_array().unwrap().iter().all(|r| r.as_str().unwrap().starts_with("FloorPlan")));
     assert!(ja["held_out"]["accuracy"].as_f64().is_some_and(|x| (0.0..=1.0).contains(&x)), "{ja}");
+}
+
+/// A short `orchestrator up` on the frozen encoder: the learner loads the weights, stores
+/// features when acting, runs PPO updates on them, and the run ends cleanly.
+#[test]
+fn a_short_run_trains_on_the_frozen_encoder() {
+    let _one_at_a_time = serial();
+    let dir = tempfile::tempdir().unwrap();
+    let enc = dir.path().join("enc");
+    pretrain(&enc, 5);
+    let cfg = dir.path().join("frozen.toml");
+    let text = format!(
+        "[run]\nmethod = \"both\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 64\nheight = 64\n\n\
+         [model]\nencoder = \"pretrained\"\nencoder_weights = \"{}\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\n",
+        dataset().display(),
+        enc.with_extension("safetensors").display()
+    );
+    std::fs::write(&cfg, text).unwrap();
+    let mut run = Run::start(
+        &dir.path().join("run"),
+        &["--workers", "2", "--config", cfg.to_str().unwrap(), "--frames", "300", "--check"],
+    );
+    let status = run.wait(Duration::from_secs(300));
+    assert!(status.success(), "{status}\n{}", run.diagnostics());
+    let log = std::fs::read_to_string(run.dir.join("logs/learner.log")).unwrap();
+    assert!(log.contains("pretrained RGB-D encoder"), "{}", run.diagnostics());
+    let updates = std::fs::read_to_string(run.dir.join("metrics.jsonl")).unwrap_or_default();
+    assert!(updates.lines().count() >= 2, "PPO updates on stored features\n{}", run.diagnostics());
 }

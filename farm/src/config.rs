@@ -189,6 +189,9 @@ pub enum Encoder {
     Resnet18,
     /// A small trained CNN for CPU runs.
     SmallCnn,
+    /// The early-fusion RGB-D encoder of `orchestrator encoder pretrain`, frozen: its features
+    /// are computed once when acting and stored in the rollout (CPU runs).
+    Pretrained,
 }
 
 /// `[model]`: the network (§4.3.3).
@@ -198,6 +201,9 @@ pub struct ModelConfig {
     pub encoder: Encoder,
     /// torchvision ResNet-18 checkpoint (ImageNet weights); without it the encoder is trained.
     pub resnet_weights: Option<PathBuf>,
+    /// Weights of the pretrained encoder (`encoder = "pretrained"`), as `orchestrator encoder
+    /// pretrain` writes them; relative to the working directory.
+    pub encoder_weights: Option<PathBuf>,
     /// Inputs; the method decides semantic and gesture, these switch the visual ones (T4.7).
     pub rgb: bool,
     pub depth: bool,
@@ -214,6 +220,7 @@ impl Default for ModelConfig {
         ModelConfig {
             encoder: Encoder::Resnet18,
             resnet_weights: None,
+            encoder_weights: None,
             rgb: true,
             depth: true,
             person_pose: false,
@@ -411,6 +418,13 @@ impl RunConfig {
             // blind training is allowed only through eval's blind mode
             return e("model.rgb", "at least one of model.rgb and model.depth must be on".into());
         }
+        if self.model.encoder == Encoder::Pretrained && self.model.encoder_weights.is_none() {
+            return e(
+                "model.encoder_weights",
+                "encoder = \"pretrained\" needs the weights file (make one with `orchestrator encoder pretrain`)"
+                    .into(),
+            );
+        }
         for (i, s) in self.run.scenes.iter().enumerate() {
             if crate::rooms::SceneId::parse(s).is_none() {
                 return e(&format!("run.scenes[{i}]"), format!("`{s}` is not a room name like FloorPlan201"));
@@ -449,6 +463,9 @@ mod tests {
         assert!(err.to_string().contains("run.method"), "{err}");
         let err = RunConfig::from_toml("[run]\nmethod = \"both\"\n[env]\nwidth = 4\n", "x.toml").unwrap_err();
         assert!(err.to_string().contains("env.width"), "{err}");
+        let err = RunConfig::from_toml("[run]\nmethod = \"both\"\n[model]\nencoder = \"pretrained\"\n", "x.toml")
+            .unwrap_err();
+        assert!(err.to_string().contains("model.encoder_weights"), "{err}");
     }
 
     #[test]

@@ -10,6 +10,7 @@ use shm_schema::action;
 use tch::nn;
 use tch::{Device, Kind, Tensor};
 
+use crate::encoder::{EncoderFileError, load_weights as load_encoder};
 use crate::inputs::{Inputs, Prepared};
 use crate::network::PolicyNet;
 use crate::obs::{EnvBatch, ObsError};
@@ -21,6 +22,8 @@ use crate::spec::NetSpec;
 pub enum AgentError {
     #[error(transparent)]
     Weights(#[from] WeightsError),
+    #[error(transparent)]
+    Encoder(#[from] EncoderFileError),
     #[error("config: {0}")]
     Config(String),
 }
@@ -75,8 +78,9 @@ impl Agent {
         Agent::build(cfg, n_envs, device, true)
     }
 
-    /// Builds the network; `load_weights`: read the configured ResNet-18 file (not when a
-    /// checkpoint is about to overwrite every variable anyway: `crate::checkpoint::load_agent`).
+    /// Builds the network; `load_weights`: read the configured ResNet-18 or pretrained encoder
+    /// file (not when a checkpoint is about to overwrite every variable anyway:
+    /// `crate::checkpoint::load_agent`).
     pub(crate) fn build(
         cfg: &RunConfig,
         n_envs: usize,
@@ -99,6 +103,9 @@ impl Agent {
             let n = resnet::load_torchvision(&vs, "resnet.", path)?;
             f.refresh(&vs);
             notes.push(format!("loaded {n} ResNet-18 tensors from {} (frozen)", path.display()));
+        } else if let (Some(path), Some(_), true) = (&cfg.model.encoder_weights, net.pretrained(), load_weights) {
+            load_encoder(path, &vs, "encoder", (cfg.env.width, cfg.env.height))?;
+            notes.push(format!("loaded the pretrained RGB-D encoder from {} (frozen)", path.display()));
         }
         if spec.encoder == Encoder::Resnet18 && !spec.frozen && (spec.rgb || spec.depth) && !spec.random() {
             let msg = "NO IMAGENET WEIGHTS: model.resnet_weights is not set, so the ResNet-18 encoders start \
@@ -177,11 +184,7 @@ impl Agent {
     pub(crate) fn prepare<'a>(&self, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
         obs.validate(self.n_envs, (self.spec.height as usize, self.spec.width as usize))?;
         let starts = obs.envs.iter().zip(&self.force_reset).map(|(e, f)| e.episode_start || e.lost || *f).collect();
-        let inputs = if self.spec.random() {
-            Inputs { rgb: None, depth: None, gesture: None, gesture_index: None, target: None, pose: None }
-        } else {
-            self.net.prepare(obs, self.device)
-        };
+        let inputs = if self.spec.random() { Inputs::none() } else { self.net.prepare(obs, self.device) };
         Ok((Prepared::new(inputs, obs), starts))
     }
 
@@ -333,6 +336,7 @@ mod tests {
         let x = Inputs {
             rgb: stack(|x| x.rgb.as_ref()),
             depth: stack(|x| x.depth.as_ref()),
+            visual: None,
             gesture: stack(|x| x.gesture.as_ref()),
             gesture_index: None,
             target: stack(|x| x.target.as_ref()),

@@ -1,11 +1,12 @@
 //! Throughput figures of the learner (used by `learner bench` and the criterion bench): a policy
-//! forward for a batch of envs, and one PPO update on a stored rollout. Timings are measured,
-//! never asserted.
+//! forward for a batch of envs, the visual encoders alone, and one PPO update on a stored
+//! rollout — the tiny small-CNN network beside the same network on the frozen pretrained
+//! encoder. Timings are measured, never asserted.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use farm::config::RunConfig;
+use farm::config::{Encoder, Method, RunConfig};
 use rand::Rng;
 use shm_schema::action;
 use tch::{Device, Tensor, nn};
@@ -23,6 +24,35 @@ pub fn tiny_config() -> RunConfig {
         "bench-tiny",
     )
     .expect("valid")
+}
+
+/// The tiny network on the frozen pretrained RGB-D encoder (`configs/tiny-frozen/both.toml`),
+/// with the given weights file.
+pub fn tiny_frozen_config(weights: &Path) -> RunConfig {
+    let mut c = tiny_config();
+    c.model.encoder = Encoder::Pretrained;
+    c.model.encoder_weights = Some(weights.to_path_buf());
+    c
+}
+
+/// The PPO settings of `configs/tiny/*.toml` (2 epochs × 2 minibatches over 128 steps).
+pub fn with_tiny_ppo(mut c: RunConfig) -> RunConfig {
+    c.ppo.rollout = 128;
+    c.ppo.epochs = 2;
+    c.ppo.minibatches = 2;
+    c
+}
+
+/// Writes a randomly initialised pretrained-encoder file for `size`² frames (timing does not
+/// depend on the values; `orchestrator encoder pretrain` makes real ones).
+pub fn random_encoder_weights(dir: &Path, size: u32) -> Result<PathBuf, LearnerError> {
+    let vs = nn::VarStore::new(Device::Cpu);
+    let _trunk = crate::encoder::RgbdEncoder::new(&(vs.root() / "trunk"));
+    let bytes = crate::encoder::net::weights_bytes(&vs, "trunk", &crate::encoder::EncoderInfo::new(size, size))
+        .map_err(AgentError::Config)?;
+    let path = dir.join(format!("rgbd{size}-random.safetensors"));
+    std::fs::write(&path, bytes).map_err(|e| AgentError::Config(format!("{}: {e}", path.display())))?;
+    Ok(path)
 }
 
 /// The dissertation's network (224², frozen ResNet-18, hidden 512, 2-layer GRU), with the given
@@ -108,6 +138,35 @@ pub fn forward(name: &str, cfg: &RunConfig, batch: usize, device: Device, reps: 
     Ok(Figure { name: format!("{name}: act, batch {batch}"), ms, reps })
 }
 
+/// The visual encoders alone on one step of `batch` envs: frames in, visual features out (what
+/// acting pays for vision: both small CNNs, or the pretrained encoder and its head).
+pub fn visual_forward(
+    name: &str,
+    cfg: &RunConfig,
+    batch: usize,
+    device: Device,
+    reps: usize,
+) -> Result<Figure, LearnerError> {
+    let mut vision = cfg.clone();
+    vision.run.method = Method::VisionOnly;
+    let p = Agent::new(&vision, batch, device)?;
+    let o = random_obs(batch, cfg.env.width as usize, 1);
+    let mut err = None;
+    let ms = median_ms(
+        || match p.prepare(&o.batch()) {
+            Ok((x, _)) => {
+                let _ = tch::no_grad(|| p.net.encode(&x));
+            }
+            Err(e) => err = Some(e),
+        },
+        reps,
+    );
+    if let Some(e) = err {
+        return Err(e.into());
+    }
+    Ok(Figure { name: format!("{name}: batch {batch} ({:.3} ms a frame)", ms / batch as f64), ms, reps })
+}
+
 /// Fills a trainer's rollout with `rollout × envs` steps of stored inputs (the same frames at
 /// every step: acting is not what is measured), episodes of about 30 steps.
 pub fn fill_rollout(t: &mut Trainer, seed: u64) -> Result<(), LearnerError> {
@@ -177,6 +236,14 @@ pub fn run(device: Device, faithful: bool, reps: usize, mut out: impl FnMut(&Fig
     let tiny = tiny_config();
     out(&forward("tiny (64², small CNN, 256, GRU 1)", &tiny, 32, device, reps)?);
     out(&update("tiny (64², small CNN, 256, GRU 1)", &tiny, 10, device, reps)?);
+    // the small CNNs beside the frozen pretrained encoder, 4,096 frames an update (128 × 32)
+    let dir = tempfile::tempdir()?;
+    let frozen = tiny_frozen_config(&random_encoder_weights(dir.path(), 64)?);
+    out(&visual_forward("visual: small CNN for RGB + small CNN for depth", &tiny, 32, device, reps)?);
+    out(&visual_forward("visual: pretrained RGB-D encoder + head", &frozen, 32, device, reps)?);
+    out(&forward("tiny-frozen (pretrained RGB-D encoder, 256, GRU 1)", &frozen, 32, device, reps)?);
+    out(&update("tiny, tiny PPO", &with_tiny_ppo(tiny.clone()), 32, device, reps)?);
+    out(&update("tiny-frozen, tiny PPO", &with_tiny_ppo(frozen), 32, device, reps)?);
     if faithful {
         let dir = tempfile::tempdir()?;
         let weights = random_resnet_weights(dir.path())?;

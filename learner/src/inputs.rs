@@ -17,6 +17,9 @@ pub struct Inputs {
     pub rgb: Option<Tensor>,
     /// Raw 16-bit depth patterns in Int16 `[.., H, W]`, or frozen conv5 features.
     pub depth: Option<Tensor>,
+    /// Features of the frozen early-fusion RGB-D encoder, f32 `[.., 64, H/8, W/8]` (in place of
+    /// `rgb` and `depth` with `model.encoder = "pretrained"`).
+    pub visual: Option<Tensor>,
     /// Half `[.., 100, 95]`, zero where no gesture is shown — or, with `gesture_index`, the
     /// distinct gestures `[G, 100, 95]` the rows show.
     pub gesture: Option<Tensor>,
@@ -38,6 +41,7 @@ impl Inputs {
         Inputs {
             rgb: self.rgb.as_ref().map(&f),
             depth: self.depth.as_ref().map(&f),
+            visual: self.visual.as_ref().map(&f),
             gesture: self.gesture.as_ref().map(|g| if indexed { g.shallow_clone() } else { f(g) }),
             gesture_index: self.gesture_index.as_ref().map(&f),
             target: self.target.as_ref().map(&f),
@@ -46,15 +50,21 @@ impl Inputs {
     }
 
     /// The per-row fields (leading dims `[B]` or `[T, B]`), by name.
-    pub fn fields(&self) -> [(&'static str, Option<&Tensor>); 6] {
+    pub fn fields(&self) -> [(&'static str, Option<&Tensor>); 7] {
         [
             ("rgb", self.rgb.as_ref()),
             ("depth", self.depth.as_ref()),
+            ("visual", self.visual.as_ref()),
             ("gesture", self.gesture.as_ref().filter(|_| self.gesture_index.is_none())),
             ("gesture_index", self.gesture_index.as_ref()),
             ("target", self.target.as_ref()),
             ("pose", self.pose.as_ref()),
         ]
+    }
+
+    /// No inputs at all (the Random baseline's).
+    pub fn none() -> Inputs {
+        Inputs { rgb: None, depth: None, visual: None, gesture: None, gesture_index: None, target: None, pose: None }
     }
 }
 

@@ -1,10 +1,11 @@
 //! The network's building blocks: the visual encoders (a head after the frozen ResNet trunk, a
-//! ResNet trained end to end, a small CNN for CPU runs), the frozen trunk shared by RGB and depth
-//! with its bf16 copy, and the MLP of the actor and critic heads. How they are wired is
-//! `crate::network`.
+//! ResNet trained end to end, a small CNN for CPU runs, the pretrained RGB-D encoder), the frozen
+//! trunk shared by RGB and depth with its bf16 copy, and the MLP of the actor and critic heads.
+//! How they are wired is `crate::network`.
 
 use tch::{Kind, Tensor, nn};
 
+use crate::encoder::net::{FEATURE_CHANNELS, RgbdEncoder, STRIDE, encoder_input};
 use crate::inputs::{depth_unit, rgb_unit};
 use crate::resnet::{self, CONV5_CHANNELS, Resnet18};
 
@@ -114,6 +115,66 @@ impl Visual {
             Visual::Resnet(trunk, head) => head.forward(&trunk.forward(&resnet_input(&unit()))),
             Visual::SmallCnn(cnn) => cnn.forward(&unit()),
         }
+    }
+}
+
+/// The pretrained early-fusion RGB-D encoder (`crate::encoder`), frozen, and the trained head on
+/// its stored features: a 1×1 convolution to a few channels, flatten, FC. One visual feature for
+/// RGB and depth; a run without one of them (T4.7) zeroes its input channels, as the
+/// pretraining did in some frames.
+#[derive(Debug)]
+pub(crate) struct Pretrained {
+    trunk: RgbdEncoder,
+    /// `[1, 4, 1, 1]` of 0/1, when a modality is off.
+    channels: Option<Tensor>,
+    reduce: nn::Conv2D,
+    fc: nn::Linear,
+}
+
+/// Channels of the head's 1×1 reduction (64 → 16: an 8×8 map then feeds a 1,024-wide FC).
+const PRETRAINED_HEAD_CHANNELS: i64 = 16;
+
+impl Pretrained {
+    /// The trunk under `encoder.` in `vs` (left out of training: no gradients; its weights come
+    /// from `crate::encoder::load_weights`), the head under `visual.`.
+    pub(crate) fn new(vs: &nn::VarStore, hw: (i64, i64), rgb: bool, depth: bool, hidden: i64) -> Pretrained {
+        let root = vs.root();
+        let trunk = RgbdEncoder::new(&(&root / "encoder"));
+        for (name, v) in vs.variables() {
+            if name.starts_with("encoder.") {
+                let _ = v.set_requires_grad(false);
+            }
+        }
+        let on = |b: bool| if b { 1f32 } else { 0.0 };
+        let channels = (!(rgb && depth)).then(|| {
+            Tensor::from_slice(&[on(rgb), on(rgb), on(rgb), on(depth)]).view([1, 4, 1, 1]).to_device(vs.device())
+        });
+        let p = &root / "visual";
+        let cells = (hw.0 / STRIDE) * (hw.1 / STRIDE);
+        Pretrained {
+            trunk,
+            channels,
+            reduce: nn::conv2d(&p / "reduce", FEATURE_CHANNELS, PRETRAINED_HEAD_CHANNELS, 1, Default::default()),
+            fc: nn::linear(&p / "fc", PRETRAINED_HEAD_CHANNELS * cells, hidden, Default::default()),
+        }
+    }
+
+    /// The stored form: frames (RGB u8 `[B, H, W, 3]`, depth Int16 `[B, H, W]`) → trunk
+    /// features f32 `[B, 64, H/8, W/8]`, without gradients.
+    pub(crate) fn features(&self, rgb: &Tensor, depth: &Tensor) -> Tensor {
+        tch::no_grad(|| {
+            let x = encoder_input(rgb, depth);
+            let x = match &self.channels {
+                Some(m) => x * m,
+                None => x,
+            };
+            self.trunk.forward(&x)
+        })
+    }
+
+    /// Stored features `[B, 64, h, w]` → `[B, hidden]`.
+    pub(crate) fn forward(&self, features: &Tensor) -> Tensor {
+        features.apply(&self.reduce).relu().flatten(1, -1).apply(&self.fc).relu()
     }
 }
 

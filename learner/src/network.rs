@@ -18,6 +18,11 @@
 //! Frozen conv5 features are computed once when acting and stored in the rollout, so PPO epochs
 //! never re-run the ResNet; the trained encoders (small CNN, ResNet without weights) store the
 //! raw frames instead.
+//!
+//! On CPUs, `model.encoder = "pretrained"` puts one frozen early-fusion RGB-D encoder (made by
+//! `orchestrator encoder pretrain`) in place of the two visual branches: its 64×(H/8)×(W/8)
+//! features are computed once when acting and stored, and PPO trains only the head on them
+//! (1×1 conv 64→16, FC → hidden), one visual feature instead of two.
 
 use farm::config::Encoder;
 use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
@@ -25,17 +30,19 @@ use tch::nn::{self, RNN};
 use tch::{Device, Kind, Tensor};
 
 use crate::inputs::{self, Inputs, depth_unit, rgb_unit};
-use crate::layers::{ConvHead, FrozenTrunk, Mlp, SmallCnn, Visual};
+use crate::layers::{ConvHead, FrozenTrunk, Mlp, Pretrained, SmallCnn, Visual};
 use crate::obs::EnvBatch;
 use crate::resnet::{self, Resnet18};
 use crate::spec::NetSpec;
 
 /// The network. Variables live in the [`crate::agent::Agent`]'s var store under `resnet.` (the
-/// frozen trunk), `rgb.`, `depth.`, `gesture.`, `target.`, `pose.`, `gru.`, `actor.`, `critic.`.
+/// frozen trunk), `encoder.` (the frozen pretrained encoder) and `visual.` (its head), `rgb.`,
+/// `depth.`, `gesture.`, `target.`, `pose.`, `gru.`, `actor.`, `critic.`.
 #[derive(Debug)]
 pub struct PolicyNet {
     spec: NetSpec,
     frozen: Option<FrozenTrunk>,
+    pretrained: Option<Pretrained>,
     rgb: Option<Visual>,
     depth: Option<Visual>,
     gesture: Option<nn::Linear>,
@@ -54,6 +61,8 @@ impl PolicyNet {
         let h = spec.hidden;
         let visual_on = spec.rgb || spec.depth;
         let frozen = (spec.frozen && visual_on).then(|| FrozenTrunk::new(vs, bf16));
+        let pretrained = (spec.fused() && visual_on)
+            .then(|| Pretrained::new(vs, (spec.height, spec.width), spec.rgb, spec.depth, h));
         let side = (resnet::conv5_side(spec.height), resnet::conv5_side(spec.width));
         let visual = |name: &str, c_in: i64| {
             let p = &root / name;
@@ -63,10 +72,12 @@ impl PolicyNet {
                     Visual::Resnet(Resnet18::new(&(&p / "resnet")), ConvHead::new(&p, side, h))
                 }
                 (Encoder::SmallCnn, _) => Visual::SmallCnn(SmallCnn::new(&p, c_in, (spec.height, spec.width), h)),
+                (Encoder::Pretrained, _) => unreachable!("the pretrained encoder is one branch for both"),
             }
         };
-        let rgb = spec.rgb.then(|| visual("rgb", 3));
-        let depth = spec.depth.then(|| visual("depth", 1));
+        // the pretrained encoder is one branch for both (`pretrained` above)
+        let rgb = (spec.rgb && !spec.fused()).then(|| visual("rgb", 3));
+        let depth = (spec.depth && !spec.fused()).then(|| visual("depth", 1));
         let gesture = spec
             .gesture
             .then(|| nn::linear(&root / "gesture", (GESTURE_FRAMES * GESTURE_DIMS) as i64, h, Default::default()));
@@ -84,6 +95,7 @@ impl PolicyNet {
         PolicyNet {
             spec: spec.clone(),
             frozen,
+            pretrained,
             rgb,
             depth,
             gesture,
@@ -99,8 +111,12 @@ impl PolicyNet {
     pub(crate) fn prepare(&self, obs: &EnvBatch, device: Device) -> Inputs {
         tch::no_grad(|| {
             let s = &self.spec;
-            let mut rgb = s.rgb.then(|| inputs::rgb_tensor(obs, device));
-            let mut depth = s.depth.then(|| inputs::depth_tensor(obs, device));
+            let visual = self
+                .pretrained
+                .as_ref()
+                .map(|p| p.features(&inputs::rgb_tensor(obs, device), &inputs::depth_tensor(obs, device)));
+            let mut rgb = (s.rgb && visual.is_none()).then(|| inputs::rgb_tensor(obs, device));
+            let mut depth = (s.depth && visual.is_none()).then(|| inputs::depth_tensor(obs, device));
             if let Some(f) = &self.frozen {
                 let n = obs.n() as i64;
                 let mut images = Vec::new();
@@ -126,6 +142,7 @@ impl PolicyNet {
             Inputs {
                 rgb,
                 depth,
+                visual,
                 gesture,
                 gesture_index: None,
                 target: s.semantic.then(|| inputs::target_tensor(obs, device)),
@@ -137,6 +154,9 @@ impl PolicyNet {
     /// Stored inputs `[B, ..]` → concatenated features `[B, D]`.
     pub(crate) fn encode(&self, x: &Inputs) -> Tensor {
         let mut parts = Vec::new();
+        if let (Some(p), Some(t)) = (&self.pretrained, &x.visual) {
+            parts.push(p.forward(t));
+        }
         if let (Some(enc), Some(t)) = (&self.rgb, &x.rgb) {
             parts.push(enc.forward(t, false));
         }
@@ -193,8 +213,115 @@ impl PolicyNet {
         self.heads(&out)
     }
 
+    /// The pretrained RGB-D encoder, when the network has one.
+    pub(crate) fn pretrained(&self) -> Option<&Pretrained> {
+        self.pretrained.as_ref()
+    }
+
     /// The frozen ImageNet trunk, when the network has one.
     pub(crate) fn frozen(&self) -> Option<&FrozenTrunk> {
         self.frozen.as_ref()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::agent::Agent;
+    use crate::bench::{random_encoder_weights, random_obs, tiny_frozen_config};
+    use crate::rollout::Rollout;
+
+    /// The tiny network on the pretrained encoder: 64×64 (the encoder's frame), hidden 32.
+    fn frozen_config(dir: &std::path::Path) -> farm::config::RunConfig {
+        let mut c = tiny_frozen_config(&random_encoder_weights(dir, 64).unwrap());
+        c.model.hidden = 32;
+        c.ppo.rollout = 4;
+        c
+    }
+
+    /// Features are computed once when acting and stored: the rollout's copy equals the trunk
+    /// re-run on the frames, PPO's sequence evaluation gives the values acting gave, and only the
+    /// head (not the trunk) has gradients.
+    #[test]
+    fn stored_features_equal_recomputed_ones() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = frozen_config(dir.path());
+        let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+        assert!(p.notes().iter().any(|n| n.contains("pretrained RGB-D encoder")), "{:?}", p.notes());
+        assert_eq!(p.spec.input_width(), 3 * 32, "one visual feature, gesture, target");
+        let vars = p.vs.variables();
+        assert!(vars.iter().filter(|(k, _)| k.starts_with("encoder.")).all(|(_, v)| !v.requires_grad()));
+        assert!(vars.keys().all(|k| !k.starts_with("rgb.") && !k.starts_with("depth.")));
+        let h0 = p.hidden().copy();
+        let mut r = Rollout::new(4, 2, &h0);
+        let mut frames = Vec::new();
+        let mut acted_values = Vec::new();
+        for t in 0..4u64 {
+            let mut o = random_obs(2, 64, 20 + t);
+            o.envs.iter_mut().for_each(|e| e.episode_start = t == 0);
+            let (x, st) = p.prepare(&o.batch()).unwrap();
+            assert!(x.rgb.is_none() && x.depth.is_none());
+            assert_eq!(x.visual.as_ref().unwrap().size(), [2, 64, 8, 8]);
+            let f = p.forward(&x, st);
+            acted_values.extend(f.values.clone());
+            let acted =
+                crate::agent::Actions { actions: vec![0; 2], log_probs: vec![0.0; 2], values: f.values.clone() };
+            r.push(&x, &[t == 0; 2], &acted, &[true; 2]);
+            p.commit(f, &o.batch());
+            frames.push(o);
+        }
+        let stored = r.inputs().unwrap().visual.as_ref().unwrap().shallow_clone();
+        let trunk = p.net.pretrained().unwrap();
+        for (t, o) in frames.iter().enumerate() {
+            let b = o.batch();
+            let again = trunk.features(&inputs::rgb_tensor(&b, Device::Cpu), &inputs::depth_tensor(&b, Device::Cpu));
+            assert!(stored.get(t as i64).allclose(&again, 1e-5, 1e-6, false), "step {t}");
+        }
+        let idx = Tensor::from_slice(&[0i64, 1]);
+        let x = r.minibatch(&idx).unwrap();
+        let keep = Tensor::from_slice(&[0f32, 0., 1., 1., 1., 1., 1., 1.]).view([4, 2]);
+        let (logits, values) = p.net.evaluate(&x, &h0, &keep, &[true, false, false, false]);
+        let got = Vec::<f32>::try_from(values.detach().flatten(0, -1)).unwrap();
+        for (a, b) in acted_values.iter().zip(&got) {
+            assert!((a - b).abs() < 1e-5, "{acted_values:?} vs {got:?}");
+        }
+        logits.sum(Kind::Float).backward();
+        for (k, v) in p.vs.variables() {
+            if k.starts_with("visual.") {
+                assert!(v.grad().defined() && v.grad().abs().sum(Kind::Float).double_value(&[]) > 0.0, "{k}");
+            }
+        }
+    }
+
+    /// T4.7's variants drop a modality: its input channels are zeroed, so what the frames show
+    /// there does not matter.
+    #[test]
+    fn a_switched_off_modality_is_zeroed() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = frozen_config(dir.path());
+        cfg.model.rgb = false;
+        let p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+        let a = random_obs(2, 64, 1);
+        let mut b = random_obs(2, 64, 1);
+        b.rgb.iter_mut().for_each(|v| *v = v.wrapping_add(77));
+        let feats = |o: &crate::obs::OwnedObs| p.prepare(&o.batch()).unwrap().0.visual.as_ref().unwrap().copy();
+        assert!(feats(&a).equal(&feats(&b)), "RGB is off: it must not change the features");
+        let mut c = random_obs(2, 64, 1);
+        c.depth.iter_mut().for_each(|v| *v = v.wrapping_add(999));
+        assert!(!feats(&a).equal(&feats(&c)), "depth is on");
+    }
+
+    #[test]
+    fn missing_or_mismatched_weights_name_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cfg = frozen_config(dir.path());
+        cfg.model.encoder_weights = Some(dir.path().join("absent.safetensors"));
+        let e = Agent::new(&cfg, 1, Device::Cpu).unwrap_err().to_string();
+        assert!(e.contains("absent.safetensors") && e.contains("orchestrator encoder pretrain"), "{e}");
+        let mut cfg = frozen_config(dir.path());
+        cfg.env.width = 32;
+        cfg.env.height = 32;
+        let e = Agent::new(&cfg, 1, Device::Cpu).unwrap_err().to_string();
+        assert!(e.contains("rgbd64-random.safetensors") && e.contains("64×64") && e.contains("32×32"), "{e}");
     }
 }

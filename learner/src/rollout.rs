@@ -219,6 +219,7 @@ mod tests {
         Inputs {
             rgb: None,
             depth: None,
+            visual: None,
             gesture: None,
             gesture_index: None,
             target: Some(Tensor::from_slice(&[3i64])),
@@ -300,6 +301,7 @@ mod tests {
         let x = Inputs {
             rgb: None,
             depth: None,
+            visual: None,
             gesture: None,
             gesture_index: None,
             target: Some(Tensor::from_slice(&[3i64, 4])),

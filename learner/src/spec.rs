@@ -46,9 +46,20 @@ impl NetSpec {
         self.method == Method::Random
     }
 
+    /// One visual feature vector for RGB and depth together (the pretrained early-fusion
+    /// encoder), instead of one per modality.
+    pub fn fused(&self) -> bool {
+        self.encoder == Encoder::Pretrained
+    }
+
     /// Width of the concatenated features fed to the GRU.
     pub fn input_width(&self) -> i64 {
-        let n = [self.rgb, self.depth, self.gesture, self.semantic, self.pose].iter().filter(|b| **b).count();
+        let visual = if self.fused() {
+            usize::from(self.rgb || self.depth)
+        } else {
+            usize::from(self.rgb) + usize::from(self.depth)
+        };
+        let n = visual + [self.gesture, self.semantic, self.pose].iter().filter(|b| **b).count();
         self.hidden * n as i64
     }
 
@@ -70,6 +81,7 @@ impl NetSpec {
             (Encoder::Resnet18, true) => "ResNet-18 (frozen, ImageNet weights)",
             (Encoder::Resnet18, false) => "ResNet-18 (TRAINED from random weights)",
             (Encoder::SmallCnn, _) => "small CNN (trained)",
+            (Encoder::Pretrained, _) => "pretrained RGB-D encoder (frozen, one for both)",
         };
         format!(
             "{}: {} {}x{}, inputs [{}] → {} → GRU {}x{} → actor/critic",
@@ -111,6 +123,12 @@ pub(crate) mod tests {
         c.model.person_pose = true;
         c.model.depth = false;
         assert_eq!(NetSpec::from_config(&c).input_width(), 4 * 32);
+        // the pretrained encoder: one visual feature for RGB and depth, and for either alone (T4.7)
+        let mut c = tiny_config("both");
+        c.model.encoder = farm::config::Encoder::Pretrained;
+        assert_eq!(NetSpec::from_config(&c).input_width(), 3 * 32);
+        c.model.rgb = false;
+        assert_eq!(NetSpec::from_config(&c).input_width(), 3 * 32);
         // faithful: 2048 into the GRU (§4.3.3)
         let f = RunConfig::from_toml("[run]\nmethod = \"both\"\n", "x.toml").unwrap();
         assert_eq!(NetSpec::from_config(&f).input_width(), 2048);

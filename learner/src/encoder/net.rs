@@ -179,31 +179,53 @@ pub fn read_weights(path: &Path) -> Result<(EncoderInfo, BTreeMap<String, Tensor
     Ok((info, tensors))
 }
 
-/// Loads a weights file into the variables of `vs` under `prefix.`: every variable there must
-/// be in the file with its shape, and nothing else may be.
-pub fn load_weights(path: &Path, vs: &nn::VarStore, prefix: &str) -> Result<EncoderInfo, EncoderFileError> {
+/// Loads a weights file into the variables of `vs` under `prefix.`: it must have been trained on
+/// frames of `frame` (width, height), every variable there must be in the file with its shape,
+/// and nothing else may be.
+pub fn load_weights(
+    path: &Path,
+    vs: &nn::VarStore,
+    prefix: &str,
+    frame: (u32, u32),
+) -> Result<EncoderInfo, EncoderFileError> {
     let (info, tensors) = read_weights(path)?;
+    if (info.width, info.height) != frame {
+        return Err(file_error(
+            path,
+            format!(
+                "trained on {}×{} frames; this run's are {}×{} (env.width, env.height): pretrain one with \
+                 `orchestrator encoder pretrain --size {}`",
+                info.width, info.height, frame.0, frame.1, frame.0
+            ),
+        ));
+    }
+    if (info.in_channels, info.feature_channels, info.stride) != (IN_CHANNELS, FEATURE_CHANNELS, STRIDE) {
+        return Err(file_error(
+            path,
+            format!(
+                "an encoder of {} input channels, {} features, stride {}; this build's has {IN_CHANNELS}, \
+                 {FEATURE_CHANNELS}, {STRIDE}",
+                info.in_channels, info.feature_channels, info.stride
+            ),
+        ));
+    }
     let lead = format!("{prefix}.");
     let vars: BTreeMap<String, Tensor> =
         vs.variables().into_iter().filter_map(|(n, t)| n.strip_prefix(&lead).map(|s| (s.to_string(), t))).collect();
-    for name in tensors.keys() {
-        if !vars.contains_key(name) {
-            return Err(file_error(path, format!("holds `{name}`, which this encoder does not have")));
+    for (name, var) in &vars {
+        let src = tensors.get(name).ok_or_else(|| file_error(path, format!("has no `{name}`")))?;
+        if src.size() != var.size() {
+            return Err(file_error(path, format!("`{name}` is {:?}, the encoder needs {:?}", src.size(), var.size())));
         }
+    }
+    if let Some(name) = tensors.keys().find(|n| !vars.contains_key(*n)) {
+        return Err(file_error(path, format!("holds `{name}`, which this encoder does not have")));
     }
     tch::no_grad(|| {
         for (name, mut var) in vars {
-            let src = tensors.get(&name).ok_or_else(|| file_error(path, format!("has no `{name}`")))?;
-            if src.size() != var.size() {
-                return Err(file_error(
-                    path,
-                    format!("`{name}` is {:?}, the encoder needs {:?}", src.size(), var.size()),
-                ));
-            }
-            var.copy_(&src.to_kind(var.kind()).to_device(var.device()));
+            var.copy_(&tensors[&name].to_kind(var.kind()).to_device(var.device()));
         }
-        Ok(())
-    })?;
+    });
     Ok(info)
 }
 
@@ -241,16 +263,23 @@ mod tests {
         tch::manual_seed(2);
         let other = nn::VarStore::new(Device::Cpu);
         let enc2 = RgbdEncoder::new(&(other.root() / "policy" / "encoder"));
-        assert_eq!(load_weights(&path, &other, "policy.encoder").unwrap(), info);
+        assert_eq!(load_weights(&path, &other, "policy.encoder", (64, 64)).unwrap(), info);
         let x = Tensor::rand([1, 4, 64, 64], (Kind::Float, Device::Cpu));
         assert!(enc.forward(&x).allclose(&enc2.forward(&x), 0.0, 0.0, false));
 
-        let e = load_weights(&dir.path().join("none.safetensors"), &other, "policy.encoder").unwrap_err().to_string();
+        let e = load_weights(&path, &other, "policy.encoder", (128, 128)).unwrap_err().to_string();
+        assert!(e.contains("enc.safetensors") && e.contains("64×64") && e.contains("128×128"), "{e}");
+        let e = load_weights(&dir.path().join("none.safetensors"), &other, "policy.encoder", (64, 64))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("none.safetensors") && e.contains("encoder pretrain"), "{e}");
+        // another network's variables under the prefix: a shape that does not fit is named
+        let small = nn::VarStore::new(Device::Cpu);
+        let _ = nn::conv2d(small.root() / "enc" / "patch", 3, 32, 4, Default::default());
+        let e = load_weights(&path, &small, "enc", (64, 64)).unwrap_err().to_string();
+        assert!(e.contains("enc.safetensors") && e.contains("patch.weight"), "{e}");
         std::fs::write(&path, &bytes[..bytes.len() - 3]).unwrap();
-        let e = load_weights(&path, &other, "policy.encoder").unwrap_err().to_string();
+        let e = load_weights(&path, &other, "policy.encoder", (64, 64)).unwrap_err().to_string();
         assert!(e.contains("enc.safetensors") && e.contains("truncated"), "{e}");
-        let e = load_weights(&dir.path().join("none.safetensors"), &other, "x").unwrap_err().to_string();
-        assert!(e.contains("cannot read"), "{e}");
     }
 }
