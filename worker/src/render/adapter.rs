@@ -18,12 +18,6 @@ pub(super) fn open(cfg: &RenderConfig) -> Result<Gpu, RenderError> {
     let (_instance, adapter) = pick_adapter(&backends_from_env()?)?;
     let info = adapter.get_info();
     let limits = adapter.limits();
-    if !adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::VERTEX_STORAGE) {
-        return Err(RenderError::Device {
-            adapter: describe(&info),
-            message: "vertex shaders cannot read storage buffers on this adapter".into(),
-        });
-    }
     if cfg.width > limits.max_texture_dimension_2d || cfg.height > limits.max_texture_dimension_2d {
         return Err(RenderError::Config(format!(
             "image size {}×{} exceeds the adapter's limit of {} pixels",

@@ -1,10 +1,11 @@
-//! Frustum culling: per view, the parts whose bounding sphere may show in the image, as lists
-//! of instance indices and one draw per unit mesh. Conservative, so it never changes a pixel.
+//! Frustum culling: per view, the parts whose bounding sphere may show in the image, copied
+//! into the chunk's instance list with one draw per unit mesh. Conservative, so it never
+//! changes a pixel.
 
 use nalgebra::Vector3;
 
 use super::config::RenderConfig;
-use super::instances::Group;
+use super::instances::{Grouped, Instance};
 use super::projection::projection_scale;
 use crate::camera::{Camera, FAR, NEAR};
 
@@ -52,37 +53,28 @@ impl Frustum {
     }
 }
 
-/// One draw call: `count` instance references from `first` in the chunk's reference list,
-/// resolved in the scene's or the chunk's dynamic instance buffer.
+/// One draw call: `count` instances from `first` in the chunk's instance list.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) struct Draw {
     pub mesh: usize,
     pub first: u32,
     pub count: u32,
-    pub dynamic: bool,
 }
 
-/// Appends, for each group, the indices of its instances whose bounding sphere may show in
-/// the frustum, and one draw for the survivors.
-pub(super) fn cull(
-    frustum: Option<&Frustum>,
-    bounds: &[[f32; 4]],
-    groups: &[Group],
-    dynamic: bool,
-    refs: &mut Vec<u32>,
-    draws: &mut Vec<Draw>,
-) {
-    for g in groups {
-        let first = refs.len() as u32;
-        for i in g.first..g.first + g.count {
-            let b = bounds[i as usize];
+/// Appends, for each group of `parts`, its instances whose bounding sphere may show in the
+/// frustum to `out`, and one draw for the survivors.
+pub(super) fn cull(frustum: Option<&Frustum>, parts: &Grouped, out: &mut Vec<Instance>, draws: &mut Vec<Draw>) {
+    for g in &parts.groups {
+        let first = out.len() as u32;
+        for i in g.first as usize..(g.first + g.count) as usize {
+            let b = parts.bounds[i];
             if frustum.is_none_or(|f| f.may_see_sphere([b[0], b[1], b[2]], b[3])) {
-                refs.push(i);
+                out.push(parts.instances[i]);
             }
         }
-        let count = refs.len() as u32 - first;
+        let count = out.len() as u32 - first;
         if count > 0 {
-            draws.push(Draw { mesh: g.mesh, first, count, dynamic });
+            draws.push(Draw { mesh: g.mesh, first, count });
         }
     }
 }

@@ -1,14 +1,14 @@
 //! Parts as the shader reads them: instances of unit meshes, grouped by mesh with their
-//! bounding spheres, and the growable GPU buffers that carry the per-chunk ones.
+//! bounding spheres, and the growable GPU buffer that carries a chunk's visible ones.
 
 use bytemuck::Zeroable;
 
 use super::mesh::{MESH_COUNT, mesh_index};
 use crate::geometry::{ID_STRUCTURE, Part};
 
-/// One part as the vertex shader reads it from a storage buffer: the columns of rotation ×
-/// half extents with the centre in their w, the colour, and `id | material << 16`.
-/// Matches `struct Instance` in scene.wgsl (64 bytes, std430).
+/// One part as the vertex shader reads it, as instance-rate vertex attributes 2–6: the columns
+/// of rotation × half extents with the centre in their w, the colour, and `id | material << 16`.
+/// Matches `struct Instance` in scene.wgsl (64 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct Instance {

@@ -7,12 +7,12 @@ use super::adapter::{self, Gpu, describe};
 use super::config::RenderConfig;
 use super::culling::{Draw, Frustum, cull};
 use super::error::RenderError;
-use super::instances::{Grouped, Growable};
+use super::instances::{Grouped, Growable, Instance};
 use super::mesh::{self, MESH_COUNT, MeshRange};
 use super::pipeline::Pipeline;
 use super::projection::ViewUniform;
 use super::readback::Readback;
-use super::scenes::{GpuScene, SceneHandle, Scenes};
+use super::scenes::{SceneHandle, Scenes};
 use super::targets::{INFO_CLEAR, Targets};
 use super::view::{View, ViewOut};
 use crate::geometry::Part;
@@ -26,7 +26,6 @@ pub struct Renderer {
     queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
     pipeline: wgpu::RenderPipeline,
-    instance_layout: wgpu::BindGroupLayout,
     vertices: wgpu::Buffer,
     indices: wgpu::Buffer,
     ranges: [MeshRange; MESH_COUNT],
@@ -35,17 +34,13 @@ pub struct Renderer {
     view_bind_group: wgpu::BindGroup,
     targets: Targets,
     readback: Readback,
-    /// The person's (and any other moving) parts of every view of the chunk.
-    dynamic: Growable,
-    dynamic_bind_group: Option<wgpu::BindGroup>,
-    /// Per view, the indices of the instances that survive frustum culling (instance-rate
-    /// vertex attribute), so a static scene buffer serves every camera.
-    refs: Growable,
+    /// Per view, the instances (the person's, then the scene's) that survive frustum culling.
+    instances: Growable,
     /// Skip parts outside each view's frustum (on by default; off only to measure it).
     culling: bool,
     scenes: Scenes,
     scratch_dynamic: Grouped,
-    scratch_refs: Vec<u32>,
+    scratch_instances: Vec<Instance>,
     scratch_draws: Vec<Draw>,
     scratch_view_draws: Vec<(usize, usize)>,
     scratch_uniforms: Vec<u8>,
@@ -62,7 +57,7 @@ impl Renderer {
         let view_stride = (std::mem::size_of::<ViewUniform>() as u64)
             .next_multiple_of(limits.min_uniform_buffer_offset_alignment as u64);
 
-        let Pipeline { pipeline, view_layout, instance_layout } = Pipeline::new(&device);
+        let Pipeline { pipeline, view_layout } = Pipeline::new(&device);
 
         let (verts, idx, ranges) = mesh::all_unit_meshes();
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -105,7 +100,6 @@ impl Renderer {
             queue,
             info,
             pipeline,
-            instance_layout,
             vertices,
             indices,
             ranges,
@@ -114,13 +108,11 @@ impl Renderer {
             view_bind_group,
             targets,
             readback,
-            dynamic: Growable::new("dynamic instances", wgpu::BufferUsages::STORAGE),
-            dynamic_bind_group: None,
-            refs: Growable::new("instance references", wgpu::BufferUsages::VERTEX),
+            instances: Growable::new("instances", wgpu::BufferUsages::VERTEX),
             culling: true,
             scenes: Scenes::default(),
             scratch_dynamic: Grouped::default(),
-            scratch_refs: Vec::new(),
+            scratch_instances: Vec::new(),
             scratch_draws: Vec::new(),
             scratch_view_draws: Vec::new(),
             scratch_uniforms: Vec::new(),
@@ -152,30 +144,15 @@ impl Renderer {
         self.culling = on;
     }
 
-    /// Uploads a scene's static parts once; views then refer to it by handle.
+    /// Takes a scene's static parts once (grouped by mesh, with their bounds); views then
+    /// refer to it by handle.
     pub fn upload_scene(&mut self, parts: &[Part]) -> SceneHandle {
         let mut g = Grouped::default();
         g.push(parts, true);
-        let bind_group = (!g.instances.is_empty()).then(|| {
-            let buffer = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("scene instances"),
-                contents: bytemuck::cast_slice(&g.instances),
-                usage: wgpu::BufferUsages::STORAGE,
-            });
-            self.instance_bind_group(&buffer)
-        });
-        self.scenes.insert(GpuScene { bind_group, bounds: g.bounds, groups: g.groups })
+        self.scenes.insert(g)
     }
 
-    fn instance_bind_group(&self, buffer: &wgpu::Buffer) -> wgpu::BindGroup {
-        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("instances"),
-            layout: &self.instance_layout,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() }],
-        })
-    }
-
-    /// Frees a scene's GPU buffers; the handle becomes invalid.
+    /// Frees a scene; the handle becomes invalid.
     pub fn release_scene(&mut self, h: SceneHandle) {
         self.scenes.release(h);
     }
@@ -206,8 +183,8 @@ impl Renderer {
         Ok(())
     }
 
-    /// Writes the chunk's camera uniforms, dynamic instances and per-view instance
-    /// references (frustum-culled), one buffer write each, and records the draws.
+    /// Writes the chunk's camera uniforms and every view's frustum-culled instances (the
+    /// person's, then the scene's), one buffer write each, and records the draws.
     fn upload_chunk(&mut self, views: &[View<'_>]) {
         let stride = self.view_stride as usize;
         self.scratch_uniforms.clear();
@@ -220,36 +197,22 @@ impl Renderer {
         self.queue.write_buffer(&self.view_buffer, 0, &self.scratch_uniforms);
 
         let dynamic = &mut self.scratch_dynamic;
-        dynamic.clear();
-        self.scratch_refs.clear();
+        self.scratch_instances.clear();
         self.scratch_draws.clear();
         self.scratch_view_draws.clear();
         for v in views {
             let frustum = self.culling.then(|| Frustum::new(&v.camera, &self.cfg));
             let frustum = frustum.as_ref();
             let start = self.scratch_draws.len();
-            let first_group = dynamic.groups.len();
+            // the person first, then the scene: draw order decides depth ties
+            dynamic.clear();
             dynamic.push(v.dynamic, false);
-            cull(
-                frustum,
-                &dynamic.bounds,
-                &dynamic.groups[first_group..],
-                true,
-                &mut self.scratch_refs,
-                &mut self.scratch_draws,
-            );
+            cull(frustum, dynamic, &mut self.scratch_instances, &mut self.scratch_draws);
             let scene = self.scenes.get(v.scene).expect("checked in render()");
-            cull(frustum, &scene.bounds, &scene.groups, false, &mut self.scratch_refs, &mut self.scratch_draws);
+            cull(frustum, scene, &mut self.scratch_instances, &mut self.scratch_draws);
             self.scratch_view_draws.push((start, self.scratch_draws.len()));
         }
-        if !dynamic.instances.is_empty() {
-            let grown = self.dynamic.write(&self.device, &self.queue, bytemuck::cast_slice(&dynamic.instances));
-            if grown || self.dynamic_bind_group.is_none() {
-                let buffer = self.dynamic.buffer.as_ref().expect("written above");
-                self.dynamic_bind_group = Some(self.instance_bind_group(buffer));
-            }
-        }
-        self.refs.write(&self.device, &self.queue, bytemuck::cast_slice(&self.scratch_refs));
+        self.instances.write(&self.device, &self.queue, bytemuck::cast_slice(&self.scratch_instances));
     }
 
     fn render_chunk(&mut self, views: &[View<'_>], out: &mut [ViewOut<'_>]) -> Result<(), RenderError> {
@@ -258,8 +221,7 @@ impl Renderer {
         self.upload_chunk(views);
 
         let mut encoder = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("views") });
-        for (i, v) in views.iter().enumerate() {
-            let scene = self.scenes.get(v.scene).expect("checked in render()");
+        for i in 0..k {
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: None,
                 color_attachments: &[
@@ -297,15 +259,9 @@ impl Renderer {
             pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
             let (d0, d1) = self.scratch_view_draws[i];
             if d1 > d0 {
-                pass.set_vertex_buffer(1, self.refs.buffer.as_ref().expect("references were written").slice(..));
+                pass.set_vertex_buffer(1, self.instances.buffer.as_ref().expect("instances were written").slice(..));
             }
-            let mut bound_dynamic = None;
             for d in &self.scratch_draws[d0..d1] {
-                if bound_dynamic != Some(d.dynamic) {
-                    let group = if d.dynamic { self.dynamic_bind_group.as_ref() } else { scene.bind_group.as_ref() };
-                    pass.set_bind_group(1, group.expect("a draw implies instances"), &[]);
-                    bound_dynamic = Some(d.dynamic);
-                }
                 let r = self.ranges[d.mesh];
                 pass.draw_indexed(
                     r.first_index..r.first_index + r.index_count,
