@@ -1,6 +1,6 @@
-//! Frustum culling: per view, the parts whose bounding sphere may show in the image, copied
-//! into the chunk's instance list with one draw per unit mesh. Conservative, so it never
-//! changes a pixel.
+//! Frustum culling: per view, the parts whose bounding sphere may show in the image and cover
+//! a pixel centre, copied into the chunk's instance list with one draw per unit mesh.
+//! Conservative, so it never changes a pixel.
 
 use nalgebra::Vector3;
 
@@ -21,6 +21,11 @@ pub struct Frustum {
     sy: f32,
     nx: f32,
     ny: f32,
+    /// Pixels per unit of view-plane offset at 1 m depth (the focal length in pixels).
+    focal_px: f32,
+    /// Half the image size in pixels.
+    half_w: f32,
+    half_h: f32,
 }
 
 impl Frustum {
@@ -36,6 +41,9 @@ impl Frustum {
             sy,
             nx: 1.0 / (sx * sx + 1.0).sqrt(),
             ny: 1.0 / (sy * sy + 1.0).sqrt(),
+            focal_px: sy * cfg.height as f32 / 2.0,
+            half_w: cfg.width as f32 / 2.0,
+            half_h: cfg.height as f32 / 2.0,
         }
     }
 
@@ -51,6 +59,25 @@ impl Frustum {
             && (x.abs() * self.sx - z) * self.nx <= r
             && (y.abs() * self.sy - z) * self.ny <= r
     }
+
+    /// Whether a sphere's image may contain a pixel centre, the only points the rasteriser
+    /// samples: a part whose image falls between the centres (common for sub-pixel parts at
+    /// 64×64) produces no fragment at all, so skipping it changes nothing. Conservative: the
+    /// image lies within f·r·(|d| + r)/(z − r)² of the projected centre (the largest stretch
+    /// of the projection over the sphere), plus 1/64 px for the rasteriser's 1/256 px snapping
+    /// and rounding.
+    pub fn may_cover_a_pixel_center(&self, center: [f32; 3], radius: f32) -> bool {
+        let d = Vector3::from(center) - self.eye;
+        let z = d.dot(&self.forward);
+        if z - radius <= NEAR {
+            return true;
+        }
+        let reach = self.focal_px * radius * (d.norm() + radius) / ((z - radius) * (z - radius)) + 1.0 / 64.0;
+        let x = (d.dot(&self.right) * self.sx / z + 1.0) * self.half_w;
+        let y = (1.0 - d.dot(&self.up) * self.sy / z) * self.half_h;
+        let has_center = |lo: f32, hi: f32| (hi - 0.5).floor() >= (lo - 0.5).ceil();
+        has_center(x - reach, x + reach) && has_center(y - reach, y + reach)
+    }
 }
 
 /// One draw call: `count` instances from `first` in the chunk's instance list.
@@ -62,13 +89,14 @@ pub(super) struct Draw {
 }
 
 /// Appends, for each group of `parts`, its instances whose bounding sphere may show in the
-/// frustum to `out`, and one draw for the survivors.
+/// frustum and cover a pixel centre to `out`, and one draw for the survivors.
 pub(super) fn cull(frustum: Option<&Frustum>, parts: &Grouped, out: &mut Vec<Instance>, draws: &mut Vec<Draw>) {
     for g in &parts.groups {
         let first = out.len() as u32;
         for i in g.first as usize..(g.first + g.count) as usize {
             let b = parts.bounds[i];
-            if frustum.is_none_or(|f| f.may_see_sphere([b[0], b[1], b[2]], b[3])) {
+            let center = [b[0], b[1], b[2]];
+            if frustum.is_none_or(|f| f.may_see_sphere(center, b[3]) && f.may_cover_a_pixel_center(center, b[3])) {
                 out.push(parts.instances[i]);
             }
         }
@@ -119,5 +147,48 @@ mod tests {
             }
         }
         assert!(culled > 500, "{culled}");
+    }
+
+    #[test]
+    fn a_sphere_skipped_as_between_pixel_centres_has_its_whole_image_between_them() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let c = RenderConfig { width: 64, height: 48, fov_deg: 90.0, max_views_per_submit: 1 };
+        let mut skipped = 0;
+        for _ in 0..20000 {
+            let cam = Camera {
+                position: Point3::new(0.0, 1.5, 0.0),
+                yaw_deg: rng.random_range(0.0..360.0),
+                pitch_deg: rng.random_range(-30.0..30.0),
+            };
+            let f = Frustum::new(&cam, &c);
+            let (right, up, forward) = cam.basis();
+            let at = cam.position
+                + forward * rng.random_range(0.3..6.0f32)
+                + right * rng.random_range(-2.0..2.0f32)
+                + up * rng.random_range(-2.0..2.0f32);
+            let radius = rng.random_range(0.001..0.05f32);
+            let center = [at.x, at.y, at.z];
+            if !f.may_see_sphere(center, radius) || f.may_cover_a_pixel_center(center, radius) {
+                continue;
+            }
+            skipped += 1;
+            // the image's bounding box, from points all over the sphere, holds no pixel centre
+            let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
+            for i in 0..400 {
+                let (t, p) = (i as f32 * 2.399_963, (i as f32 + 0.5) / 400.0);
+                let (z, r) = (1.0 - 2.0 * p, (1.0 - (1.0 - 2.0 * p).powi(2)).sqrt());
+                let q = at + Vector3::new(r * t.cos(), r * t.sin(), z) * radius;
+                let (x, y, _) = cam.project(&c.intrinsics(), &q).unwrap();
+                lo = [lo[0].min(x), lo[1].min(y)];
+                hi = [hi[0].max(x), hi[1].max(y)];
+            }
+            let holds_center = |a: f32, b: f32| (b - 0.5).floor() >= (a - 0.5).ceil();
+            assert!(
+                !(holds_center(lo[0], hi[0]) && holds_center(lo[1], hi[1])),
+                "sphere {center:?} r {radius}: image {lo:?}..{hi:?} holds a pixel centre"
+            );
+        }
+        assert!(skipped > 1000, "{skipped}");
     }
 }

@@ -165,6 +165,23 @@ fn a_batch_equals_the_same_views_one_by_one_and_repeats_exactly() {
 }
 
 #[test]
+fn culling_never_changes_a_pixel_of_small_images() {
+    // at 32×32 many parts fall between pixel centres and are skipped
+    let Some(mut r) = renderer(&cfg(32, 32, 8)) else { return };
+    let parts = benchmark_room().parts();
+    let scene = r.upload_scene(&parts);
+    let figure = figure_parts(Point3::new(0.3, 0.0, 0.2), 30.0, true);
+    let views: Vec<View> = room_views(&parts, 8)
+        .iter()
+        .enumerate()
+        .map(|(i, &camera)| View { scene, camera, dynamic: if i % 2 == 0 { &figure } else { &[] } })
+        .collect();
+    let culled = render(&mut r, &views);
+    r.set_frustum_culling(false);
+    assert!(render(&mut r, &views) == culled, "culling changed the image");
+}
+
+#[test]
 fn a_dynamic_part_appears_and_disappears_between_frames() {
     let Some(mut r) = renderer(&cfg(128, 128, 4)) else { return };
     let parts = benchmark_room().parts();
