@@ -1,11 +1,13 @@
-//! Frustum culling: per view, the parts whose bounding sphere may show in the image and cover
-//! a pixel centre, copied into the chunk's instance list with one draw per unit mesh.
-//! Conservative, so it never changes a pixel.
+//! Frustum culling and level of detail: per view, the parts whose bounding sphere may show in
+//! the image and cover a pixel centre, copied into the chunk's instance list with one draw per run of parts that use
+//! one unit mesh. Culling is conservative, so it never changes a pixel; round parts whose
+//! image is small enough take their coarse mesh (`mesh::LOD_TOLERANCE_PX`).
 
 use nalgebra::Vector3;
 
 use super::config::RenderConfig;
 use super::instances::{Grouped, Instance};
+use super::mesh::{LOD_TOLERANCE_PX, coarse_error, coarse_of};
 use super::projection::projection_scale;
 use crate::camera::{Camera, FAR, NEAR};
 
@@ -59,6 +61,21 @@ impl Frustum {
             && (x.abs() * self.sx - z) * self.nx <= r
             && (y.abs() * self.sy - z) * self.ny <= r
     }
+}
+
+impl Frustum {
+    /// An upper bound on how many pixels a length of `radius` at a part (bounding sphere
+    /// `center`, `bound`) spans in the image: f·r·|d| / (z − bound)², the largest stretch of
+    /// the perspective projection over the sphere. Infinite when the sphere reaches the eye's
+    /// plane.
+    pub fn max_pixels(&self, center: [f32; 3], bound: f32, radius: f32) -> f32 {
+        let d = Vector3::from(center) - self.eye;
+        let z = d.dot(&self.forward) - bound;
+        if z <= NEAR {
+            return f32::INFINITY;
+        }
+        self.focal_px * radius * d.norm() / (z * z)
+    }
 
     /// Whether a sphere's image may contain a pixel centre, the only points the rasteriser
     /// samples: a part whose image falls between the centres (common for sub-pixel parts at
@@ -89,21 +106,35 @@ pub(super) struct Draw {
 }
 
 /// Appends, for each group of `parts`, its instances whose bounding sphere may show in the
-/// frustum and cover a pixel centre to `out`, and one draw for the survivors.
-pub(super) fn cull(frustum: Option<&Frustum>, parts: &Grouped, out: &mut Vec<Instance>, draws: &mut Vec<Draw>) {
+/// frustum and cover a pixel centre (all of them without `culling`) to `out`, and one draw per run of survivors that
+/// share a mesh: a fine round part whose coarse mesh stays within `LOD_TOLERANCE_PX` of its
+/// silhouette takes the coarse one. Order is kept, so without coarse swaps the draws are the
+/// groups themselves.
+pub(super) fn cull(frustum: &Frustum, culling: bool, parts: &Grouped, out: &mut Vec<Instance>, draws: &mut Vec<Draw>) {
+    let max_radius_px = LOD_TOLERANCE_PX / coarse_error();
     for g in &parts.groups {
-        let first = out.len() as u32;
+        let coarse = coarse_of(g.mesh);
+        let mut run: Option<Draw> = None;
         for i in g.first as usize..(g.first + g.count) as usize {
             let b = parts.bounds[i];
             let center = [b[0], b[1], b[2]];
-            if frustum.is_none_or(|f| f.may_see_sphere(center, b[3]) && f.may_cover_a_pixel_center(center, b[3])) {
-                out.push(parts.instances[i]);
+            if culling && !(frustum.may_see_sphere(center, b[3]) && frustum.may_cover_a_pixel_center(center, b[3])) {
+                continue;
             }
+            let mesh = match coarse {
+                Some(c) if frustum.max_pixels(center, b[3], parts.round[i]) <= max_radius_px => c,
+                _ => g.mesh,
+            };
+            match &mut run {
+                Some(d) if d.mesh == mesh => d.count += 1,
+                _ => {
+                    draws.extend(run.take());
+                    run = Some(Draw { mesh, first: out.len() as u32, count: 1 });
+                }
+            }
+            out.push(parts.instances[i]);
         }
-        let count = out.len() as u32 - first;
-        if count > 0 {
-            draws.push(Draw { mesh: g.mesh, first, count });
-        }
+        draws.extend(run);
     }
 }
 
@@ -190,5 +221,35 @@ mod tests {
             );
         }
         assert!(skipped > 1000, "{skipped}");
+    }
+
+    #[test]
+    fn round_parts_take_the_coarse_mesh_where_it_stays_within_the_tolerance_and_keep_their_order() {
+        use crate::geometry::{Part, Shape};
+        let head = |z: f32| Part::new(Shape::Sphere, Point3::new(0.0, 1.5, z), Vector3::repeat(0.11), [0.8; 3]);
+        let cam = Camera::new(Point3::new(0.0, 1.5, 0.0), 0.0);
+        let meshes = |size: u32, parts: &[Part]| {
+            let c = RenderConfig { width: size, height: size, fov_deg: 90.0, max_views_per_submit: 1 };
+            let mut g = Grouped::default();
+            g.push(parts, true);
+            let (mut out, mut draws) = (Vec::new(), Vec::new());
+            cull(&Frustum::new(&cam, &c), true, &g, &mut out, &mut draws);
+            assert_eq!(out.len(), parts.len());
+            draws.iter().map(|d| (d.mesh, d.count)).collect::<Vec<_>>()
+        };
+        let (fine, coarse) = (2, 5);
+        // a head at 1.5 m spans at most 3 px at 64x64: within a quarter pixel with the coarse
+        // mesh; at half a metre it does not
+        assert_eq!(meshes(64, &[head(1.5)]), [(coarse, 1)]);
+        assert_eq!(meshes(64, &[head(0.5)]), [(fine, 1)]);
+        // at 224x224 it spans up to 19 px at 1 m: fine until it is about 2.8 m away
+        assert_eq!(meshes(224, &[head(1.0)]), [(fine, 1)]);
+        assert_eq!(meshes(224, &[head(3.0)]), [(coarse, 1)]);
+        // a run that switches keeps the parts in order
+        assert_eq!(meshes(224, &[head(1.0), head(4.0), head(5.0), head(1.5)]), [(fine, 1), (coarse, 2), (fine, 1)]);
+        // the swap stays within the tolerance: coarse error × image radius
+        let c = RenderConfig { width: 64, height: 64, fov_deg: 90.0, max_views_per_submit: 1 };
+        let px = Frustum::new(&cam, &c).max_pixels([0.0, 1.5, 1.5], 0.11 * 3f32.sqrt(), 0.11);
+        assert!(px * coarse_error() <= LOD_TOLERANCE_PX, "{px} px");
     }
 }

@@ -139,7 +139,8 @@ impl Renderer {
     }
 
     /// Turns per-view frustum culling of parts on or off. The images are identical either way
-    /// (the test is conservative); culling only saves vertex work. For measurements.
+    /// (the test is conservative; the level of detail does not depend on it); culling only
+    /// saves vertex work. For measurements.
     pub fn set_frustum_culling(&mut self, on: bool) {
         self.culling = on;
     }
@@ -201,15 +202,14 @@ impl Renderer {
         self.scratch_draws.clear();
         self.scratch_view_draws.clear();
         for v in views {
-            let frustum = self.culling.then(|| Frustum::new(&v.camera, &self.cfg));
-            let frustum = frustum.as_ref();
+            let frustum = Frustum::new(&v.camera, &self.cfg);
             let start = self.scratch_draws.len();
             // the person first, then the scene: draw order decides depth ties
             dynamic.clear();
             dynamic.push(v.dynamic, false);
-            cull(frustum, dynamic, &mut self.scratch_instances, &mut self.scratch_draws);
+            cull(&frustum, self.culling, dynamic, &mut self.scratch_instances, &mut self.scratch_draws);
             let scene = self.scenes.get(v.scene).expect("checked in render()");
-            cull(frustum, scene, &mut self.scratch_instances, &mut self.scratch_draws);
+            cull(&frustum, self.culling, scene, &mut self.scratch_instances, &mut self.scratch_draws);
             self.scratch_view_draws.push((start, self.scratch_draws.len()));
         }
         self.instances.write(&self.device, &self.queue, bytemuck::cast_slice(&self.scratch_instances));
