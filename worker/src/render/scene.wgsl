@@ -22,8 +22,8 @@ struct ViewUniform {
 
 // One part: model matrix columns (rotation × half extents) with the translation in w, the
 // linear colour, and id | material << 16, as instance-rate vertex attributes. (Read from a
-// storage buffer instead, lavapipe loads each word one SIMD lane at a time in a scalar loop: that cost
-// more than all the vertex shader's arithmetic.)
+// storage buffer instead, lavapipe loads each word one SIMD lane at a time in a scalar
+// loop: that cost more than all the vertex shader's arithmetic.)
 struct Instance {
     col0: vec4<f32>,
     col1: vec4<f32>,
