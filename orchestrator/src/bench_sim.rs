@@ -55,7 +55,7 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     for vps in [1usize, 8, 16] {
         let cfg = RenderConfig { width: a.size, height: a.size, fov_deg: 90.0, max_views_per_submit: vps };
         let mut r = Renderer::new(&cfg)?;
-        info = r.adapter_info();
+        info = format!("{}, {} lane(s)", r.adapter_info(), r.lanes());
         let v = bench_views(&mut r, &parts, vps, a.seconds)?;
         eprintln!("render {vps:2} views/submit: {v:.0} views/s");
         rows.push((format!("render {}×{}, {vps} views/submit", a.size, a.size), v, "views/s"));

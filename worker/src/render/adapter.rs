@@ -18,12 +18,6 @@ pub(super) fn open(cfg: &RenderConfig) -> Result<Gpu, RenderError> {
     let (_instance, adapter) = pick_adapter(&backends_from_env()?)?;
     let info = adapter.get_info();
     let limits = adapter.limits();
-    if !adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::VERTEX_STORAGE) {
-        return Err(RenderError::Device {
-            adapter: describe(&info),
-            message: "vertex shaders cannot read storage buffers on this adapter".into(),
-        });
-    }
     if cfg.width > limits.max_texture_dimension_2d || cfg.height > limits.max_texture_dimension_2d {
         return Err(RenderError::Config(format!(
             "image size {}×{} exceeds the adapter's limit of {} pixels",
@@ -52,6 +46,22 @@ fn backends_from_env() -> Result<Vec<wgpu::Backends>, RenderError> {
         },
     }
 }
+
+/// How many devices render in parallel, from GESTHOR_RENDER_LANES (unset: 1). On lavapipe,
+/// where a device executes its commands on one thread and most of a small view's cost is
+/// that thread's vertex work, two lanes let one process use two cores.
+pub(super) fn lanes_from_env() -> Result<usize, RenderError> {
+    match std::env::var("GESTHOR_RENDER_LANES") {
+        Err(_) => Ok(1),
+        Ok(s) => match s.trim().parse::<usize>() {
+            Ok(n) if (1..=MAX_LANES).contains(&n) => Ok(n),
+            _ => Err(RenderError::BadLanes(s)),
+        },
+    }
+}
+
+/// The most lanes a renderer opens.
+pub(super) const MAX_LANES: usize = 16;
 
 fn device_rank(t: wgpu::DeviceType) -> u32 {
     match t {

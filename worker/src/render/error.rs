@@ -9,6 +9,8 @@ pub enum RenderError {
     NoAdapter(String),
     #[error("GESTHOR_WGPU_BACKEND={0:?}: expected `vulkan` or `gl`")]
     BadBackend(String),
+    #[error("GESTHOR_RENDER_LANES={0:?}: expected a whole number from 1 to 16")]
+    BadLanes(String),
     #[error("cannot open a device on adapter {adapter}: {message}")]
     Device { adapter: String, message: String },
     #[error("render config: {0}")]

@@ -1,14 +1,14 @@
 //! Parts as the shader reads them: instances of unit meshes, grouped by mesh with their
-//! bounding spheres, and the growable GPU buffers that carry the per-chunk ones.
+//! bounding spheres, and the growable GPU buffer that carries a chunk's visible ones.
 
 use bytemuck::Zeroable;
 
-use super::mesh::{MESH_COUNT, mesh_index};
+use super::mesh::{MESH_COUNT, mesh_index, round_radius};
 use crate::geometry::{ID_STRUCTURE, Part};
 
-/// One part as the vertex shader reads it from a storage buffer: the columns of rotation ×
-/// half extents with the centre in their w, the colour, and `id | material << 16`.
-/// Matches `struct Instance` in scene.wgsl (64 bytes, std430).
+/// One part as the vertex shader reads it, as instance-rate vertex attributes 2–6: the columns
+/// of rotation × half extents with the centre in their w, the colour, and `id | material << 16`.
+/// Matches `struct Instance` in scene.wgsl (64 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct Instance {
@@ -50,11 +50,13 @@ pub(super) struct Group {
     pub count: u32,
 }
 
-/// Parts as instances sorted into groups by unit mesh, with their bounding spheres.
+/// Parts as instances sorted into groups by unit mesh, with their bounding spheres and the
+/// radii of round ones (for the level of detail).
 #[derive(Default)]
 pub(super) struct Grouped {
     pub instances: Vec<Instance>,
     pub bounds: Vec<[f32; 4]>,
+    pub round: Vec<f32>,
     pub groups: Vec<Group>,
 }
 
@@ -62,6 +64,7 @@ impl Grouped {
     pub(super) fn clear(&mut self) {
         self.instances.clear();
         self.bounds.clear();
+        self.round.clear();
         self.groups.clear();
     }
 
@@ -85,10 +88,12 @@ impl Grouped {
         }
         self.instances.resize(acc as usize, Instance::zeroed());
         self.bounds.resize(acc as usize, [0.0; 4]);
+        self.round.resize(acc as usize, 0.0);
         for p in parts {
             let b = bucket(p);
             self.instances[next[b] as usize] = Instance::from_part(p);
             self.bounds[next[b] as usize] = bounding_sphere(p);
+            self.round[next[b] as usize] = round_radius(p);
             next[b] += 1;
         }
     }

@@ -20,6 +20,10 @@ pub const SMALL_SEGMENTS: u32 = 10;
 pub const SMALL_SPHERE_RINGS: u32 = 6;
 /// Round parts with a radius below this use the coarse meshes (metres).
 pub const SMALL_RADIUS: f32 = 0.08;
+/// A round part is also drawn with its coarse mesh in a view where that moves its silhouette
+/// by at most this many pixels (images up to 5 px in radius): at 64×64 most round parts
+/// beyond a metre, where the fine mesh's hundreds of triangles fall on a handful of pixels.
+pub const LOD_TOLERANCE_PX: f32 = 0.25;
 /// Number of unit meshes: box, then fine cylinder, sphere, cone, then coarse ones.
 pub const MESH_COUNT: usize = 7;
 
@@ -253,14 +257,43 @@ pub fn all_unit_meshes() -> (Vec<Vertex>, Vec<u16>, [MeshRange; MESH_COUNT]) {
 
 /// Which unit mesh draws a part: its shape, coarse for small round parts.
 pub fn mesh_index(part: &crate::geometry::Part) -> usize {
+    let radius = round_radius(part);
+    match part.shape {
+        Shape::Box => 0,
+        _ if radius < SMALL_RADIUS => fine_mesh(part.shape) + 3,
+        _ => fine_mesh(part.shape),
+    }
+}
+
+fn fine_mesh(shape: Shape) -> usize {
+    match shape {
+        Shape::Box => 0,
+        Shape::Cylinder => 1,
+        Shape::Sphere => 2,
+        Shape::Cone => 3,
+    }
+}
+
+/// The radius of a round part's cross-section (what its segment count approximates); 0 for
+/// a box.
+pub fn round_radius(part: &crate::geometry::Part) -> f32 {
     let h = part.half_extents;
-    let (fine, radius) = match part.shape {
-        Shape::Box => return 0,
-        Shape::Cylinder => (1, h.x.max(h.z)),
-        Shape::Sphere => (2, h.x.max(h.y).max(h.z)),
-        Shape::Cone => (3, h.x.max(h.z)),
-    };
-    if radius < SMALL_RADIUS { fine + 3 } else { fine }
+    match part.shape {
+        Shape::Box => 0.0,
+        Shape::Cylinder | Shape::Cone => h.x.max(h.z),
+        Shape::Sphere => h.x.max(h.y).max(h.z),
+    }
+}
+
+/// The coarse mesh of a fine round one (None for the box and the coarse meshes).
+pub fn coarse_of(mesh: usize) -> Option<usize> {
+    (1..=3).contains(&mesh).then_some(mesh + 3)
+}
+
+/// How far the coarse meshes' silhouettes lie inside the true surface, as a share of the
+/// radius: 1 − cos(π / segments) (the sphere's 30° latitude bands deviate less).
+pub fn coarse_error() -> f32 {
+    1.0 - (std::f32::consts::PI / SMALL_SEGMENTS as f32).cos()
 }
 
 #[cfg(test)]

@@ -4,16 +4,25 @@
 //! (Vulkan on the CPU) where there is not. Everything visible is a `geometry::Part`, drawn as an
 //! instance of a unit mesh (`mesh.rs`: box, and fine or coarse cylinder, sphere, cone).
 //!
-//! - A scene's parts are uploaded once into a static storage buffer and reused by every view
-//!   of it; the person's parts change per frame and go into a per-chunk dynamic buffer.
-//! - Per view, parts outside the camera's frustum are skipped on the CPU (conservatively, so
-//!   no pixel changes): the view draws an instance-rate list of indices into those buffers.
-//!   On lavapipe, where vertex work runs on the submitting thread, this saves about a third
-//!   of the time per view.
+//! - A scene's parts stay on the CPU, grouped by mesh with their bounding spheres. Per view,
+//!   the parts that may show (inside the frustum and covering a pixel centre: conservative,
+//!   so no pixel changes) are copied with the person's into the chunk's instance buffer and
+//!   drawn as instance-rate vertex attributes. (lavapipe reads a storage buffer one SIMD lane
+//!   at a time in a scalar loop: through one, the parts cost more than the whole vertex
+//!   shader.)
+//! - Level of detail: a round part whose image is small takes its coarse mesh where that
+//!   moves its silhouette by at most `mesh::LOD_TOLERANCE_PX` (a quarter pixel): at 64×64
+//!   the fine meshes' hundreds of triangles otherwise land on a handful of pixels. This is
+//!   the one change to the images (0.06% of pixels at 64×64, 0.001% at 224×224).
 //! - Views are rendered in chunks of `max_views_per_submit`, each view into its own layer of
 //!   a texture array, so its bytes never depend on which chunk or slot it was rendered in
 //!   (a tiled atlas would shift the rasteriser's sub-pixel arithmetic per tile). One copy and
 //!   one map per chunk; rows go straight into the caller's slices (which may be shared memory).
+//! - Lanes: GESTHOR_RENDER_LANES=N opens N devices and splits each chunk between them. On
+//!   lavapipe a device executes its commands on one thread, where a small view's vertex work
+//!   dominates, so one lane keeps one core busy; N lanes let one process use N cores (with
+//!   LP_NUM_THREADS=0 each lane also rasterises on its own thread). Every lane renders the
+//!   same bytes.
 //! - Two targets: Rgba8Unorm colour and R32Uint `depth16 << 16 | id` (GL cannot render to
 //!   R32Float; a single packed Rg32Uint target measured slower on lavapipe).
 //!
@@ -24,10 +33,11 @@
 //! Files, in the order a frame passes through them: `config` (what is asked for), `adapter`
 //! (which device), `pipeline` (shader and fixed-function state), `instances` (parts as the
 //! shader reads them), `scenes` (uploaded scenes and their handles), `projection` (the
-//! per-view uniforms and the same projection on the CPU), `culling` (per-view frustum
-//! culling into draws), `targets` (the per-chunk texture arrays), `readback` (copy, map,
-//! unpack), `view` (per-view inputs and outputs), `renderer` (the `Renderer` API that ties
-//! them together); `mesh` (unit meshes) and `bench` (throughput fixtures).
+//! per-view uniforms and the same projection on the CPU), `culling` (per-view culling and
+//! level of detail into draws), `targets` (the per-chunk texture arrays), `readback` (copy, map,
+//! unpack), `lane` (one device: records, submits and reads back its share of a chunk),
+//! `view` (per-view inputs and outputs), `renderer` (the `Renderer` API that ties them
+//! together); `mesh` (unit meshes) and `bench` (throughput fixtures).
 
 pub mod bench;
 pub mod mesh;
@@ -37,6 +47,7 @@ mod config;
 mod culling;
 mod error;
 mod instances;
+mod lane;
 mod pipeline;
 mod projection;
 mod readback;

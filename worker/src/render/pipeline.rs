@@ -1,18 +1,17 @@
-//! The render pipeline: scene.wgsl, its bind group layouts (per-view uniforms, instances) and
-//! the fixed-function state (winding, reversed-Z depth test, the two colour targets).
+//! The render pipeline: scene.wgsl, its bind group layout (per-view uniforms), its vertex
+//! layouts (unit mesh vertices, instance-rate parts) and the fixed-function state (winding,
+//! reversed-Z depth test, the two colour targets).
 
 use super::instances::Instance;
 use super::mesh;
 use super::projection::ViewUniform;
 use super::targets::{COLOR_FORMAT, DEPTH_FORMAT, INFO_FORMAT};
 
-/// The pipeline and the layouts its bind groups are made with.
+/// The pipeline and the layout its bind group is made with.
 pub(super) struct Pipeline {
     pub pipeline: wgpu::RenderPipeline,
     /// Group 0: one `ViewUniform` per view, at a dynamic offset.
     pub view_layout: wgpu::BindGroupLayout,
-    /// Group 1: the instances (a scene's or a chunk's dynamic ones).
-    pub instance_layout: wgpu::BindGroupLayout,
 }
 
 impl Pipeline {
@@ -34,26 +33,14 @@ impl Pipeline {
                 count: None,
             }],
         });
-        let instance_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("instances"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::VERTEX,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Storage { read_only: true },
-                    has_dynamic_offset: false,
-                    min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<Instance>() as u64),
-                },
-                count: None,
-            }],
-        });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("scene"),
-            bind_group_layouts: &[Some(&view_layout), Some(&instance_layout)],
+            bind_group_layouts: &[Some(&view_layout)],
             immediate_size: 0,
         });
         let vertex_attrs = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3];
-        let instance_attrs = wgpu::vertex_attr_array![2 => Uint32];
+        let instance_attrs =
+            wgpu::vertex_attr_array![2 => Float32x4, 3 => Float32x4, 4 => Float32x4, 5 => Float32x3, 6 => Uint32];
         let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("scene"),
             layout: Some(&layout),
@@ -68,7 +55,7 @@ impl Pipeline {
                         attributes: &vertex_attrs,
                     }),
                     Some(wgpu::VertexBufferLayout {
-                        array_stride: std::mem::size_of::<u32>() as u64,
+                        array_stride: std::mem::size_of::<Instance>() as u64,
                         step_mode: wgpu::VertexStepMode::Instance,
                         attributes: &instance_attrs,
                     }),
@@ -110,6 +97,6 @@ impl Pipeline {
             multiview_mask: None,
             cache: None,
         });
-        Pipeline { pipeline, view_layout, instance_layout }
+        Pipeline { pipeline, view_layout }
     }
 }

@@ -1,181 +1,111 @@
-//! The `Renderer`: opens the device, keeps uploaded scenes, and renders views in chunks, one
-//! submission and one readback per chunk.
+//! The `Renderer`: opens its lanes (devices), keeps uploaded scenes, and renders views in
+//! chunks: per chunk it culls every view's parts on the CPU and hands each lane its share,
+//! one submission and one readback per lane, the lanes running in parallel.
 
-use wgpu::util::DeviceExt;
-
-use super::adapter::{self, Gpu, describe};
+use super::adapter::{MAX_LANES, describe, lanes_from_env};
 use super::config::RenderConfig;
 use super::culling::{Draw, Frustum, cull};
 use super::error::RenderError;
-use super::instances::{Grouped, Growable};
-use super::mesh::{self, MESH_COUNT, MeshRange};
-use super::pipeline::Pipeline;
+use super::instances::{Grouped, Instance};
+use super::lane::{Lane, LaneWork};
+use super::mesh;
 use super::projection::ViewUniform;
-use super::readback::Readback;
-use super::scenes::{GpuScene, SceneHandle, Scenes};
-use super::targets::{INFO_CLEAR, Targets};
+use super::scenes::{SceneHandle, Scenes};
 use super::view::{View, ViewOut};
 use crate::geometry::Part;
 
-/// Renders views of uploaded scenes; owns the wgpu device and every buffer it reuses.
+/// Renders views of uploaded scenes; owns the wgpu devices and every buffer it reuses.
 pub struct Renderer {
     cfg: RenderConfig,
-    /// Views per submit after clamping to the device's texture-array limit.
+    /// Views per chunk: the configured number, limited by what the lanes' targets hold.
     capacity: usize,
-    device: wgpu::Device,
-    queue: wgpu::Queue,
-    info: wgpu::AdapterInfo,
-    pipeline: wgpu::RenderPipeline,
-    instance_layout: wgpu::BindGroupLayout,
-    vertices: wgpu::Buffer,
-    indices: wgpu::Buffer,
-    ranges: [MeshRange; MESH_COUNT],
-    view_buffer: wgpu::Buffer,
-    view_stride: u64,
-    view_bind_group: wgpu::BindGroup,
-    targets: Targets,
-    readback: Readback,
-    /// The person's (and any other moving) parts of every view of the chunk.
-    dynamic: Growable,
-    dynamic_bind_group: Option<wgpu::BindGroup>,
-    /// Per view, the indices of the instances that survive frustum culling (instance-rate
-    /// vertex attribute), so a static scene buffer serves every camera.
-    refs: Growable,
+    lanes: Vec<Lane>,
     /// Skip parts outside each view's frustum (on by default; off only to measure it).
     culling: bool,
     scenes: Scenes,
-    scratch_dynamic: Grouped,
-    scratch_refs: Vec<u32>,
-    scratch_draws: Vec<Draw>,
-    scratch_view_draws: Vec<(usize, usize)>,
-    scratch_uniforms: Vec<u8>,
+    scratch: Scratch,
+}
+
+/// A lane's share of a chunk as the CPU prepares it.
+#[derive(Default)]
+struct Scratch {
+    dynamic: Grouped,
+    uniforms: Vec<ViewUniform>,
+    instances: Vec<Instance>,
+    draws: Vec<Draw>,
+    view_draws: Vec<(usize, usize)>,
 }
 
 impl Renderer {
-    /// Opens the best adapter (GESTHOR_WGPU_BACKEND=vulkan|gl restricts the choice) and
-    /// builds the pipeline, meshes and per-chunk targets.
+    /// Opens the best adapter (GESTHOR_WGPU_BACKEND=vulkan|gl restricts the choice), once per
+    /// lane (GESTHOR_RENDER_LANES, default 1), and builds the pipelines, meshes and targets.
     pub fn new(cfg: &RenderConfig) -> Result<Renderer, RenderError> {
+        Renderer::with_lanes(cfg, lanes_from_env()?)
+    }
+
+    /// A renderer with `lanes` devices (at most one per view of a chunk). Every lane renders
+    /// the same bytes, so how a chunk is split does not show in the images.
+    pub fn with_lanes(cfg: &RenderConfig, lanes: usize) -> Result<Renderer, RenderError> {
         cfg.validate()?;
-        let Gpu { device, queue, info, limits } = adapter::open(cfg)?;
-
-        let capacity = cfg.max_views_per_submit.min(limits.max_texture_array_layers as usize).max(1);
-        let view_stride = (std::mem::size_of::<ViewUniform>() as u64)
-            .next_multiple_of(limits.min_uniform_buffer_offset_alignment as u64);
-
-        let Pipeline { pipeline, view_layout, instance_layout } = Pipeline::new(&device);
-
-        let (verts, idx, ranges) = mesh::all_unit_meshes();
-        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("unit meshes"),
-            contents: bytemuck::cast_slice(&verts),
-            usage: wgpu::BufferUsages::VERTEX,
-        });
-        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("unit mesh indices"),
-            contents: bytemuck::cast_slice(&idx),
-            usage: wgpu::BufferUsages::INDEX,
-        });
-
-        let view_buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("views"),
-            size: view_stride * capacity as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let view_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("views"),
-            layout: &view_layout,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer: &view_buffer,
-                    offset: 0,
-                    size: wgpu::BufferSize::new(std::mem::size_of::<ViewUniform>() as u64),
-                }),
-            }],
-        });
-
-        let targets = Targets::new(&device, cfg, capacity);
-        let readback = Readback::new(&device, cfg, capacity);
-
+        if !(1..=MAX_LANES).contains(&lanes) {
+            return Err(RenderError::BadLanes(lanes.to_string()));
+        }
+        let lanes = lanes.min(cfg.max_views_per_submit);
+        let share = cfg.max_views_per_submit.div_ceil(lanes);
+        let meshes = mesh::all_unit_meshes();
+        let lanes = (0..lanes).map(|_| Lane::open(cfg, share, &meshes)).collect::<Result<Vec<_>, _>>()?;
+        let capacity = lanes.iter().map(|l| l.capacity).sum::<usize>().min(cfg.max_views_per_submit);
         Ok(Renderer {
             cfg: cfg.clone(),
             capacity,
-            device,
-            queue,
-            info,
-            pipeline,
-            instance_layout,
-            vertices,
-            indices,
-            ranges,
-            view_buffer,
-            view_stride,
-            view_bind_group,
-            targets,
-            readback,
-            dynamic: Growable::new("dynamic instances", wgpu::BufferUsages::STORAGE),
-            dynamic_bind_group: None,
-            refs: Growable::new("instance references", wgpu::BufferUsages::VERTEX),
+            lanes,
             culling: true,
             scenes: Scenes::default(),
-            scratch_dynamic: Grouped::default(),
-            scratch_refs: Vec::new(),
-            scratch_draws: Vec::new(),
-            scratch_view_draws: Vec::new(),
-            scratch_uniforms: Vec::new(),
+            scratch: Scratch::default(),
         })
     }
 
     /// "name (backend, device type)" of the adapter in use, for logs and benchmark records.
     pub fn adapter_info(&self) -> String {
-        describe(&self.info)
+        describe(&self.lanes[0].info)
     }
 
     /// Whether the adapter is a CPU rasteriser (lavapipe, llvmpipe).
     pub fn is_cpu(&self) -> bool {
-        self.info.device_type == wgpu::DeviceType::Cpu
+        self.lanes[0].info.device_type == wgpu::DeviceType::Cpu
     }
 
     pub fn config(&self) -> &RenderConfig {
         &self.cfg
     }
 
-    /// Views rendered per submission (the configured number, limited by the device).
+    /// Views rendered per chunk, one submission per lane (the configured number, limited by
+    /// the devices).
     pub fn views_per_submit(&self) -> usize {
         self.capacity
     }
 
+    /// Devices rendering each chunk in parallel.
+    pub fn lanes(&self) -> usize {
+        self.lanes.len()
+    }
+
     /// Turns per-view frustum culling of parts on or off. The images are identical either way
-    /// (the test is conservative); culling only saves vertex work. For measurements.
+    /// (the test is conservative; the level of detail does not depend on it); culling only
+    /// saves vertex work. For measurements.
     pub fn set_frustum_culling(&mut self, on: bool) {
         self.culling = on;
     }
 
-    /// Uploads a scene's static parts once; views then refer to it by handle.
+    /// Takes a scene's static parts once (grouped by mesh, with their bounds); views then
+    /// refer to it by handle.
     pub fn upload_scene(&mut self, parts: &[Part]) -> SceneHandle {
         let mut g = Grouped::default();
         g.push(parts, true);
-        let bind_group = (!g.instances.is_empty()).then(|| {
-            let buffer = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("scene instances"),
-                contents: bytemuck::cast_slice(&g.instances),
-                usage: wgpu::BufferUsages::STORAGE,
-            });
-            self.instance_bind_group(&buffer)
-        });
-        self.scenes.insert(GpuScene { bind_group, bounds: g.bounds, groups: g.groups })
+        self.scenes.insert(g)
     }
 
-    fn instance_bind_group(&self, buffer: &wgpu::Buffer) -> wgpu::BindGroup {
-        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("instances"),
-            layout: &self.instance_layout,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() }],
-        })
-    }
-
-    /// Frees a scene's GPU buffers; the handle becomes invalid.
+    /// Frees a scene; the handle becomes invalid.
     pub fn release_scene(&mut self, h: SceneHandle) {
         self.scenes.release(h);
     }
@@ -206,117 +136,47 @@ impl Renderer {
         Ok(())
     }
 
-    /// Writes the chunk's camera uniforms, dynamic instances and per-view instance
-    /// references (frustum-culled), one buffer write each, and records the draws.
-    fn upload_chunk(&mut self, views: &[View<'_>]) {
-        let stride = self.view_stride as usize;
-        self.scratch_uniforms.clear();
-        self.scratch_uniforms.resize(stride * views.len(), 0);
-        for (i, v) in views.iter().enumerate() {
-            let u = ViewUniform::new(&v.camera, &self.cfg);
-            self.scratch_uniforms[i * stride..i * stride + std::mem::size_of::<ViewUniform>()]
-                .copy_from_slice(bytemuck::bytes_of(&u));
-        }
-        self.queue.write_buffer(&self.view_buffer, 0, &self.scratch_uniforms);
-
-        let dynamic = &mut self.scratch_dynamic;
-        dynamic.clear();
-        self.scratch_refs.clear();
-        self.scratch_draws.clear();
-        self.scratch_view_draws.clear();
-        for v in views {
-            let frustum = self.culling.then(|| Frustum::new(&v.camera, &self.cfg));
-            let frustum = frustum.as_ref();
-            let start = self.scratch_draws.len();
-            let first_group = dynamic.groups.len();
-            dynamic.push(v.dynamic, false);
-            cull(
-                frustum,
-                &dynamic.bounds,
-                &dynamic.groups[first_group..],
-                true,
-                &mut self.scratch_refs,
-                &mut self.scratch_draws,
-            );
-            let scene = self.scenes.get(v.scene).expect("checked in render()");
-            cull(frustum, &scene.bounds, &scene.groups, false, &mut self.scratch_refs, &mut self.scratch_draws);
-            self.scratch_view_draws.push((start, self.scratch_draws.len()));
-        }
-        if !dynamic.instances.is_empty() {
-            let grown = self.dynamic.write(&self.device, &self.queue, bytemuck::cast_slice(&dynamic.instances));
-            if grown || self.dynamic_bind_group.is_none() {
-                let buffer = self.dynamic.buffer.as_ref().expect("written above");
-                self.dynamic_bind_group = Some(self.instance_bind_group(buffer));
-            }
-        }
-        self.refs.write(&self.device, &self.queue, bytemuck::cast_slice(&self.scratch_refs));
-    }
-
+    /// Splits the chunk between the lanes: prepares and submits each lane's share in turn
+    /// (the CPU culls the next share while the previous lanes render), then reads them back.
     fn render_chunk(&mut self, views: &[View<'_>], out: &mut [ViewOut<'_>]) -> Result<(), RenderError> {
-        let k = views.len();
-        debug_assert!(k <= self.capacity);
-        self.upload_chunk(views);
-
-        let mut encoder = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("views") });
-        for (i, v) in views.iter().enumerate() {
-            let scene = self.scenes.get(v.scene).expect("checked in render()");
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: None,
-                color_attachments: &[
-                    Some(wgpu::RenderPassColorAttachment {
-                        view: &self.targets.color_layers[i],
-                        depth_slice: None,
-                        resolve_target: None,
-                        ops: wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(wgpu::Color::BLACK),
-                            store: wgpu::StoreOp::Store,
-                        },
-                    }),
-                    Some(wgpu::RenderPassColorAttachment {
-                        view: &self.targets.info_layers[i],
-                        depth_slice: None,
-                        resolve_target: None,
-                        ops: wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(wgpu::Color { r: INFO_CLEAR as f64, g: 0.0, b: 0.0, a: 0.0 }),
-                            store: wgpu::StoreOp::Store,
-                        },
-                    }),
-                ],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &self.targets.depth_layers[i],
-                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Discard }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
+        debug_assert!(views.len() <= self.capacity);
+        let share = views.len().div_ceil(self.lanes.len());
+        for (lane, vs) in self.lanes.iter_mut().zip(views.chunks(share)) {
+            let s = &mut self.scratch;
+            s.prepare(vs, &self.scenes, &self.cfg, self.culling);
+            lane.submit(&LaneWork {
+                uniforms: &s.uniforms,
+                instances: &s.instances,
+                draws: &s.draws,
+                view_draws: &s.view_draws,
             });
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &self.view_bind_group, &[(i as u64 * self.view_stride) as u32]);
-            pass.set_vertex_buffer(0, self.vertices.slice(..));
-            pass.set_index_buffer(self.indices.slice(..), wgpu::IndexFormat::Uint16);
-            let (d0, d1) = self.scratch_view_draws[i];
-            if d1 > d0 {
-                pass.set_vertex_buffer(1, self.refs.buffer.as_ref().expect("references were written").slice(..));
-            }
-            let mut bound_dynamic = None;
-            for d in &self.scratch_draws[d0..d1] {
-                if bound_dynamic != Some(d.dynamic) {
-                    let group = if d.dynamic { self.dynamic_bind_group.as_ref() } else { scene.bind_group.as_ref() };
-                    pass.set_bind_group(1, group.expect("a draw implies instances"), &[]);
-                    bound_dynamic = Some(d.dynamic);
-                }
-                let r = self.ranges[d.mesh];
-                pass.draw_indexed(
-                    r.first_index..r.first_index + r.index_count,
-                    r.base_vertex,
-                    d.first..d.first + d.count,
-                );
-            }
         }
-        self.readback.copy(&mut encoder, &self.targets, k);
-        self.queue.submit([encoder.finish()]);
+        for (lane, os) in self.lanes.iter().zip(out.chunks_mut(share)) {
+            lane.read(os)?;
+        }
+        Ok(())
+    }
+}
 
-        self.readback.read(&self.device, out)
+impl Scratch {
+    /// Every view's camera uniforms and the instances that survive culling (the person's,
+    /// then the scene's), with the draws.
+    fn prepare(&mut self, views: &[View<'_>], scenes: &Scenes, cfg: &RenderConfig, culling: bool) {
+        self.uniforms.clear();
+        self.instances.clear();
+        self.draws.clear();
+        self.view_draws.clear();
+        for v in views {
+            self.uniforms.push(ViewUniform::new(&v.camera, cfg));
+            let frustum = Frustum::new(&v.camera, cfg);
+            let start = self.draws.len();
+            // the person first, then the scene: draw order decides depth ties
+            self.dynamic.clear();
+            self.dynamic.push(v.dynamic, false);
+            cull(&frustum, culling, &self.dynamic, &mut self.instances, &mut self.draws);
+            let scene = scenes.get(v.scene).expect("checked in render()");
+            cull(&frustum, culling, scene, &mut self.instances, &mut self.draws);
+            self.view_draws.push((start, self.draws.len()));
+        }
     }
 }

@@ -21,8 +21,9 @@ struct ViewUniform {
 @group(0) @binding(0) var<uniform> view: ViewUniform;
 
 // One part: model matrix columns (rotation × half extents) with the translation in w, the
-// linear colour, and id | material << 16. Scenes keep theirs in a static buffer; each view
-// draws the ones that survive frustum culling through an instance-rate index.
+// linear colour, and id | material << 16, as instance-rate vertex attributes. (Read from a
+// storage buffer instead, lavapipe loads each word one SIMD lane at a time in a scalar
+// loop: that cost more than all the vertex shader's arithmetic.)
 struct Instance {
     col0: vec4<f32>,
     col1: vec4<f32>,
@@ -31,12 +32,14 @@ struct Instance {
     tag: u32,
 };
 
-@group(1) @binding(0) var<storage, read> instances: array<Instance>;
-
 struct VertexIn {
     @location(0) position: vec3<f32>,
     @location(1) normal: vec3<f32>,
-    @location(2) instance: u32,
+    @location(2) col0: vec4<f32>,
+    @location(3) col1: vec4<f32>,
+    @location(4) col2: vec4<f32>,
+    @location(5) color: vec3<f32>,
+    @location(6) tag: u32,
 };
 
 struct VertexOut {
@@ -123,7 +126,7 @@ fn look_of(material: u32) -> Look {
 
 @vertex
 fn vs_main(v: VertexIn) -> VertexOut {
-    let inst = instances[v.instance];
+    let inst = Instance(v.col0, v.col1, v.col2, v.color, v.tag);
     let a0 = inst.col0.xyz;
     let a1 = inst.col1.xyz;
     let a2 = inst.col2.xyz;

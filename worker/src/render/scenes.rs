@@ -1,6 +1,8 @@
-//! Scenes uploaded to the GPU, kept in slots and named by generation-checked handles.
+//! Uploaded scenes, kept in slots and named by generation-checked handles. A scene stays on
+//! the CPU as instances grouped by mesh: each chunk copies the ones its views can see into
+//! its instance buffer.
 
-use super::instances::Group;
+use super::instances::Grouped;
 
 /// A scene uploaded with `Renderer::upload_scene`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -9,17 +11,9 @@ pub struct SceneHandle {
     generation: u32,
 }
 
-/// A scene's instances on the GPU, with what culling needs on the CPU.
-pub(super) struct GpuScene {
-    /// None for a scene without parts.
-    pub bind_group: Option<wgpu::BindGroup>,
-    pub bounds: Vec<[f32; 4]>,
-    pub groups: Vec<Group>,
-}
-
 struct SceneSlot {
     generation: u32,
-    scene: Option<GpuScene>,
+    scene: Option<Grouped>,
 }
 
 /// The uploaded scenes. A released slot is reused by the next upload under a new generation,
@@ -30,7 +24,7 @@ pub(super) struct Scenes {
 }
 
 impl Scenes {
-    pub(super) fn insert(&mut self, scene: GpuScene) -> SceneHandle {
+    pub(super) fn insert(&mut self, scene: Grouped) -> SceneHandle {
         let slot = match self.slots.iter().position(|s| s.scene.is_none()) {
             Some(i) => i,
             None => {
@@ -44,7 +38,7 @@ impl Scenes {
         SceneHandle { slot: slot as u32, generation: s.generation }
     }
 
-    /// Frees a scene's GPU buffers; the handle becomes invalid.
+    /// Frees a scene; the handle becomes invalid.
     pub(super) fn release(&mut self, h: SceneHandle) {
         if let Some(s) = self.slots.get_mut(h.slot as usize)
             && s.generation == h.generation
@@ -53,7 +47,7 @@ impl Scenes {
         }
     }
 
-    pub(super) fn get(&self, h: SceneHandle) -> Option<&GpuScene> {
+    pub(super) fn get(&self, h: SceneHandle) -> Option<&Grouped> {
         self.slots.get(h.slot as usize).filter(|s| s.generation == h.generation).and_then(|s| s.scene.as_ref())
     }
 }

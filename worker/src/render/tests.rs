@@ -165,6 +165,48 @@ fn a_batch_equals_the_same_views_one_by_one_and_repeats_exactly() {
 }
 
 #[test]
+fn culling_never_changes_a_pixel_of_small_images() {
+    // at 32×32 many parts fall between pixel centres and are skipped
+    let Some(mut r) = renderer(&cfg(32, 32, 8)) else { return };
+    let parts = benchmark_room().parts();
+    let scene = r.upload_scene(&parts);
+    let figure = figure_parts(Point3::new(0.3, 0.0, 0.2), 30.0, true);
+    let views: Vec<View> = room_views(&parts, 8)
+        .iter()
+        .enumerate()
+        .map(|(i, &camera)| View { scene, camera, dynamic: if i % 2 == 0 { &figure } else { &[] } })
+        .collect();
+    let culled = render(&mut r, &views);
+    r.set_frustum_culling(false);
+    assert!(render(&mut r, &views) == culled, "culling changed the image");
+}
+
+#[test]
+fn lanes_split_a_chunk_without_changing_a_byte() {
+    let Some(mut one) = renderer(&cfg(64, 64, 8)) else { return };
+    let parts = benchmark_room().parts();
+    let figure = figure_parts(Point3::new(0.3, 0.0, 0.2), 30.0, true);
+    let cams = room_views(&parts, 11);
+    let frames = |r: &mut Renderer| {
+        let scene = r.upload_scene(&parts);
+        let views: Vec<View> = cams
+            .iter()
+            .enumerate()
+            .map(|(i, &camera)| View { scene, camera, dynamic: if i % 3 == 0 { &figure } else { &[] } })
+            .collect();
+        render(r, &views)
+    };
+    let expected = frames(&mut one);
+    for lanes in [2, 3] {
+        let mut r = Renderer::with_lanes(&cfg(64, 64, 8), lanes).unwrap();
+        assert_eq!(r.lanes(), lanes);
+        assert!(frames(&mut r) == expected, "{lanes} lanes");
+    }
+    assert_eq!(Renderer::with_lanes(&cfg(64, 64, 2), 4).unwrap().lanes(), 2);
+    assert!(matches!(Renderer::with_lanes(&cfg(64, 64, 2), 0), Err(RenderError::BadLanes(_))));
+}
+
+#[test]
 fn a_dynamic_part_appears_and_disappears_between_frames() {
     let Some(mut r) = renderer(&cfg(128, 128, 4)) else { return };
     let parts = benchmark_room().parts();
