@@ -9,10 +9,12 @@ use std::time::Duration;
 use gesthor_tests::{Run, bin, dataset, serial};
 use serde_json::Value;
 
-fn pretrain(out: &Path, seed: u64) -> Value {
+/// `orchestrator encoder pretrain` of 64 frames and one epoch, with `threads` renderers.
+fn pretrain(out: &Path, seed: u64, threads: usize) -> Value {
     let o = Command::new(bin("orchestrator"))
         .args(["encoder", "pretrain", "--frames", "64", "--epochs", "1", "--keep-frames", "--seed"])
         .arg(seed.to_string())
+        .args(["--threads", &threads.to_string()])
         .arg("--dataset")
         .arg(dataset())
         .arg("--out")
@@ -30,14 +32,15 @@ fn pretrain(out: &Path, seed: u64) -> Value {
     serde_json::from_str(&std::fs::read_to_string(&json).unwrap_or_else(|e| panic!("{}: {e}", json.display()))).unwrap()
 }
 
+/// Same seed (rendered with one thread, then two) → the same frame set and weights.
 #[test]
 fn the_same_seed_gives_the_same_encoder() {
     let _one_at_a_time = serial();
     let dir = tempfile::tempdir().unwrap();
     let (a, b, c) = (dir.path().join("a"), dir.path().join("b"), dir.path().join("c"));
-    let (ja, jb, jc) = (pretrain(&a, 5), pretrain(&b, 5), pretrain(&c, 6));
+    let (ja, jb, jc) = (pretrain(&a, 5, 1), pretrain(&b, 5, 2), pretrain(&c, 6, 2));
     let frames = |p: &Path| std::fs::read(p.with_extension("frames")).unwrap();
-    assert!(frames(&a) == frames(&b), "the frame sets differ");
+    assert!(frames(&a) == frames(&b), "the frame sets differ (1 and 2 render threads)");
     assert_eq!(ja["sha256"], jb["sha256"]);
     assert_ne!(ja["sha256"], jc["sha256"]);
     let weights = std::fs::read(a.with_extension("safetensors")).unwrap();
@@ -57,7 +60,7 @@ fn a_short_run_trains_on_the_frozen_encoder() {
     let _one_at_a_time = serial();
     let dir = tempfile::tempdir().unwrap();
     let enc = dir.path().join("enc");
-    pretrain(&enc, 5);
+    pretrain(&enc, 5, 2);
     let cfg = dir.path().join("frozen.toml");
     let text = format!(
         "[run]\nmethod = \"both\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 64\nheight = 64\n\n\

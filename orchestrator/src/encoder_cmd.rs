@@ -41,9 +41,9 @@ pub struct PretrainArgs {
     /// Passes over the training frames.
     #[arg(long, default_value_t = 12)]
     pub epochs: usize,
-    /// Renderer threads (the frames do not depend on it).
-    #[arg(long, default_value_t = 1)]
-    pub threads: usize,
+    /// Renderer threads (default: one per core; the frames do not depend on it).
+    #[arg(long)]
+    pub threads: Option<usize>,
     /// Take the rooms from this dataset; without one there, they are generated from --room-seed.
     #[arg(long, default_value = "data/gond")]
     pub dataset: PathBuf,
@@ -88,7 +88,8 @@ fn scene_source(a: &PretrainArgs) -> anyhow::Result<Box<dyn Fn(SceneId) -> anyho
 fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
     let learner = crate::binaries::sibling_in(a.bin_dir.as_deref(), "learner")?;
     let scene_of = scene_source(&a)?;
-    let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: a.threads.max(1) };
+    let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: threads.max(1) };
 
     let bar = std::io::stderr().is_terminal().then(|| {
         ProgressBar::new(a.frames as u64).with_style(
