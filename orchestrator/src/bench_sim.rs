@@ -15,7 +15,7 @@ use clap::Args;
 use rand::Rng;
 
 use farm::config::RunConfig;
-use farm::stepper::PayloadBuf;
+use farm::stepper::{PayloadBuf, Stepper};
 use worker::dataset::build::{BuildOptions, build, default_interventions, default_synth};
 use worker::dataset::{Dataset, Verify};
 use worker::env::{Env, EnvPool, PoolSpec, ProgramSource, Rooms};
@@ -114,6 +114,7 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     for _ in 0..3 {
         pool.step(&actions, buf.bytes_mut())?; // warm-up: first uploads of rooms
     }
+    let render_ns0 = pool.render_ns();
     let t = Instant::now();
     let mut frames = 0u64;
     while t.elapsed().as_secs_f64() < a.seconds {
@@ -123,8 +124,10 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
         pool.step(&actions, buf.bytes_mut())?;
         frames += a.envs as u64;
     }
-    let v = frames as f64 / t.elapsed().as_secs_f64();
-    eprintln!("env loop with rendering: {v:.0} frames/s");
+    let elapsed = t.elapsed().as_secs_f64();
+    let v = frames as f64 / elapsed;
+    let render_share = (pool.render_ns() - render_ns0) as f64 * 1e-9 / elapsed;
+    eprintln!("env loop with rendering: {v:.0} frames/s ({:.0}% of the time rendering)", 100.0 * render_share);
     rows.push((format!("env loop with rendering, {} envs, {}×{} RGB-D", a.envs, a.size, a.size), v, "frames/s"));
 
     let mut md = format!(
@@ -134,6 +137,7 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     for (name, v, unit) in &rows {
         md += &format!("| {name} | {v:.0} | {unit} | {:.3} |\n", 1000.0 / v);
     }
+    md += &format!("\nThe env loop spent {:.0}% of its time rendering.\n", 100.0 * render_share);
     println!("{md}");
     if let Some(out) = a.out {
         farm::files::write_atomic(&out, md.as_bytes())?;

@@ -23,7 +23,10 @@ pub struct Renderer {
     /// Skip parts outside each view's frustum (on by default; off only to measure it).
     culling: bool,
     scenes: Scenes,
-    scratch: Scratch,
+    /// One per lane.
+    scratch: Vec<Scratch>,
+    /// With several lanes, one thread per lane that culls, submits and reads back its share.
+    threads: Option<rayon::ThreadPool>,
 }
 
 /// A lane's share of a chunk as the CPU prepares it.
@@ -55,13 +58,23 @@ impl Renderer {
         let meshes = mesh::all_unit_meshes();
         let lanes = (0..lanes).map(|_| Lane::open(cfg, share, &meshes)).collect::<Result<Vec<_>, _>>()?;
         let capacity = lanes.iter().map(|l| l.capacity).sum::<usize>().min(cfg.max_views_per_submit);
+        let threads = (lanes.len() > 1)
+            .then(|| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(lanes.len())
+                    .thread_name(|i| format!("render-lane-{i}"))
+                    .build()
+                    .map_err(|e| RenderError::Device { adapter: describe(&lanes[0].info), message: e.to_string() })
+            })
+            .transpose()?;
         Ok(Renderer {
+            threads,
             cfg: cfg.clone(),
             capacity,
+            scratch: lanes.iter().map(|_| Scratch::default()).collect(),
             lanes,
             culling: true,
             scenes: Scenes::default(),
-            scratch: Scratch::default(),
         })
     }
 
@@ -136,29 +149,48 @@ impl Renderer {
         Ok(())
     }
 
-    /// Splits the chunk between the lanes: prepares and submits each lane's share in turn
-    /// (the CPU culls the next share while the previous lanes render), then reads them back.
+    /// Splits the chunk between the lanes. One lane works on this thread; several each have a
+    /// thread that culls its share, submits it, waits for it and unpacks it.
     fn render_chunk(&mut self, views: &[View<'_>], out: &mut [ViewOut<'_>]) -> Result<(), RenderError> {
         debug_assert!(views.len() <= self.capacity);
         let share = views.len().div_ceil(self.lanes.len());
-        for (lane, vs) in self.lanes.iter_mut().zip(views.chunks(share)) {
-            let s = &mut self.scratch;
-            s.prepare(vs, &self.scenes, &self.cfg, self.culling);
-            lane.submit(&LaneWork {
-                uniforms: &s.uniforms,
-                instances: &s.instances,
-                draws: &s.draws,
-                view_draws: &s.view_draws,
-            });
+        let (scenes, cfg, culling, one) = (&self.scenes, &self.cfg, self.culling, self.lanes.len() == 1);
+        let shares =
+            self.lanes.iter_mut().zip(self.scratch.iter_mut()).zip(views.chunks(share).zip(out.chunks_mut(share)));
+        if one {
+            for ((lane, s), (vs, os)) in shares {
+                s.prepare(vs, scenes, cfg, culling);
+                lane.submit(&s.work());
+                lane.read(os)?;
+            }
+            return Ok(());
         }
-        for (lane, os) in self.lanes.iter().zip(out.chunks_mut(share)) {
-            lane.read(os)?;
-        }
-        Ok(())
+        let threads = self.threads.as_ref().expect("several lanes have threads");
+        let mut results: Vec<Result<(), RenderError>> = Vec::new();
+        results.resize_with(views.len().div_ceil(share), || Ok(()));
+        threads.scope(|scope| {
+            for (((lane, s), (vs, os)), result) in shares.zip(results.iter_mut()) {
+                scope.spawn(move |_| {
+                    s.prepare(vs, scenes, cfg, culling);
+                    lane.submit(&s.work());
+                    *result = lane.read(os);
+                });
+            }
+        });
+        results.into_iter().collect()
     }
 }
 
 impl Scratch {
+    fn work(&self) -> LaneWork<'_> {
+        LaneWork {
+            uniforms: &self.uniforms,
+            instances: &self.instances,
+            draws: &self.draws,
+            view_draws: &self.view_draws,
+        }
+    }
+
     /// Every view's camera uniforms and the instances that survive culling (the person's,
     /// then the scene's), with the draws.
     fn prepare(&mut self, views: &[View<'_>], scenes: &Scenes, cfg: &RenderConfig, culling: bool) {
