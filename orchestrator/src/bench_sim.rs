@@ -1,11 +1,16 @@
 //! `orchestrator bench sim`: the simulator's speed on this machine, in one process.
 //!
-//! 1. the renderer alone: 224×224 views per second at 1, 8 and 16 views per submit (RGB, depth
-//!    and ids read back), on a generated living room with the person in it;
+//! 1. the renderer alone: views per second at `--size` (224 by default) and 1, 8 and 16 views
+//!    per submit (RGB, depth and ids read back), on a generated living room with the person
+//!    in it;
 //! 2. physics + task without rendering: env steps per second with random actions (visibility
 //!    for Stop judged geometrically, as an env without a renderer does);
-//! 3. a single-process env loop with rendering: an `EnvPool` of 16 envs stepping random
-//!    actions, each step rendering all views in one submit into an observation buffer.
+//! 3. a single-process env loop with rendering: an `EnvPool` of `--envs` envs (16) stepping
+//!    random actions, each step rendering all views in one submit into an observation buffer,
+//!    and the share of its time spent rendering.
+//!
+//! On a CPU (lavapipe) one renderer keeps about one core busy; `GESTHOR_RENDER_LANES=2
+//! LP_NUM_THREADS=0` lets this one process use two (see worker::render, "Lanes").
 
 use std::path::PathBuf;
 use std::sync::Arc;
