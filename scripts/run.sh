@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The README's main command: installs what is missing (idempotent), builds, makes the default
-# dataset if there is none and the pretrained RGB-D encoder (configs/tiny-frozen) if it is
+# dataset if there is none and the pretrained RGB-D encoder (configs/tiny/*) if it is
 # missing, then trains the embedded default configuration (tiny CPU +Both)
 # on the farm and evaluates its last checkpoint on the validation split.
 # Extra arguments go to `orchestrator up` (e.g. --workers 4, --seconds 600).

@@ -19,12 +19,29 @@ pub struct LearnerTime {
     pub send_s: f64,
     /// PPO updates (the workers wait meanwhile unless collection overlaps learning).
     pub update_s: f64,
+    /// Processor seconds of the learner process (all its threads) in updates and in acting:
+    /// over the wall seconds above, the cores each phase keeps busy — what collection running
+    /// beside learning would have to share. A round that ends a rollout is split between the two
+    /// in proportion to their wall time.
+    pub update_cpu_s: f64,
+    pub infer_cpu_s: f64,
+    /// Processor seconds of the learner process so far, whatever it did (torch's threads spinning
+    /// while the learner waits included).
+    pub cpu_s: f64,
 }
 
 impl LearnerTime {
+    /// Wall seconds accounted for.
     pub fn total(&self) -> f64 {
         self.wait_s + self.receive_s + self.infer_s + self.send_s + self.update_s
     }
+}
+
+/// Processor seconds used by this process so far, all threads together.
+pub fn process_cpu_seconds() -> f64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_PROCESS_CPUTIME_ID)
+        .map(|t| t.tv_sec() as f64 + t.tv_nsec() as f64 * 1e-9)
+        .unwrap_or(0.0)
 }
 
 /// Cumulative seconds of the workers' loops, summed over the workers' current processes.
@@ -78,5 +95,11 @@ mod tests {
         let p: Profile = serde_json::from_str(r#"{"learner": {"update_s": 2.5}}"#).unwrap();
         assert_eq!(p.learner.update_s, 2.5);
         assert_eq!(p.workers, WorkerTime::default());
+        let spent = process_cpu_seconds();
+        let mut x = 0u64;
+        for i in 0..20_000_000u64 {
+            x = std::hint::black_box(x.wrapping_mul(31).wrapping_add(i));
+        }
+        assert!(process_cpu_seconds() > spent, "{x}");
     }
 }

@@ -11,6 +11,7 @@ use tch::nn;
 use tch::{Device, Kind, Tensor};
 
 use crate::encoder::{EncoderFileError, load_weights as load_encoder};
+use crate::gesture_memo::GestureMemo;
 use crate::inputs::{Inputs, Prepared};
 use crate::network::PolicyNet;
 use crate::obs::{EnvBatch, ObsError};
@@ -68,6 +69,8 @@ pub struct Agent {
     force_reset: Vec<bool>,
     /// Action sampling; part of the checkpoint.
     pub(crate) rng: ChaCha8Rng,
+    /// Each env's gesture features, recomputed only when its gesture or the layer changes.
+    gestures: GestureMemo,
     notes: Vec<String>,
 }
 
@@ -92,10 +95,10 @@ impl Agent {
             return Err(AgentError::Config("a policy needs at least one env".into()));
         }
         crate::device::flush_denormals();
-        tch::manual_seed(farm::seed::mix(cfg.run.seed, &[0x6E65_7477]) as i64);
         let vs = nn::VarStore::new(device);
         let bf16 = crate::device::use_bf16(device, cfg.ppo.mixed_precision);
-        let net = PolicyNet::new(&vs, &spec, bf16);
+        let seed = farm::seed::mix(cfg.run.seed, &[0x6E65_7477]) as i64;
+        let net = crate::device::seeded(seed, || PolicyNet::new(&vs, &spec, bf16));
         let mut notes = vec![spec.describe()];
         if spec.random() {
             notes.push("Random: uniform actions; the network is neither used nor trained".into());
@@ -124,6 +127,7 @@ impl Agent {
             n_envs,
             hidden,
             force_reset: vec![false; n_envs],
+            gestures: GestureMemo::default(),
             notes,
         })
     }
@@ -189,7 +193,7 @@ impl Agent {
     }
 
     /// The network on one step, from the current memory (reset where `starts`).
-    pub(crate) fn forward(&self, x: &Inputs, starts: Vec<bool>) -> Forward {
+    pub(crate) fn forward(&mut self, x: &Inputs, starts: Vec<bool>) -> Forward {
         let n = self.n_envs;
         if self.spec.random() {
             return Forward {
@@ -200,7 +204,11 @@ impl Agent {
             };
         }
         tch::no_grad(|| {
-            let feats = self.net.encode(x).unsqueeze(0);
+            let gesture = match (self.net.gesture_layer(), &x.gesture, &x.gesture_index) {
+                (Some(l), Some(g), None) => Some(self.gestures.features(l, g)),
+                _ => None,
+            };
+            let feats = self.net.encode_with(x, gesture).unsqueeze(0);
             let keep: Vec<f32> = starts.iter().map(|s| if *s { 0.0 } else { 1.0 }).collect();
             let keep = Tensor::from_slice(&keep).to_device(self.device).view([1, -1]);
             let (out, hidden) = self.net.recurrent(&feats, &self.hidden, &keep, &[true]);
@@ -320,8 +328,13 @@ mod tests {
         let starts = [[true, true], [false, false], [false, true], [false, false], [true, false]];
         let mut stored = Vec::new();
         let mut acted = Vec::new();
+        let first = random_obs(2, 16, 10);
         for (t, s) in starts.iter().enumerate() {
             let mut o = random_obs(2, 16, 10 + t as u64);
+            // env 0 shows one gesture all along (acting reuses its features), env 1 a new one
+            // at every step
+            let g = o.gesture.len() / 2;
+            o.gesture[..g].copy_from_slice(&first.gesture[..g]);
             o.envs[0].episode_start = s[0];
             o.envs[1].episode_start = s[1];
             let (x, st) = p.prepare(&o.batch()).unwrap();

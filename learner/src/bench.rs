@@ -16,7 +16,7 @@ use crate::agent::{Actions, Agent, AgentError};
 use crate::obs::{EnvStep, GestureKind, OwnedObs};
 use crate::ppo::Trainer;
 
-/// The tiny CPU network of `configs/tiny/both.toml`: 64×64, small CNN, hidden 256, 1-layer GRU.
+/// The tiny CPU network of `configs/tiny-e2e/both.toml`: 64×64, small CNN, hidden 256, 1-layer GRU.
 pub fn tiny_config() -> RunConfig {
     RunConfig::from_toml(
         "[run]\nmethod = \"both\"\n[env]\nwidth = 64\nheight = 64\n\
@@ -26,7 +26,7 @@ pub fn tiny_config() -> RunConfig {
     .expect("valid")
 }
 
-/// The tiny network on the frozen pretrained RGB-D encoder (`configs/tiny-frozen/both.toml`),
+/// The tiny network on the frozen pretrained RGB-D encoder (`configs/tiny/both.toml`),
 /// with the given weights file.
 pub fn tiny_frozen_config(weights: &Path) -> RunConfig {
     let mut c = tiny_config();
@@ -35,7 +35,7 @@ pub fn tiny_frozen_config(weights: &Path) -> RunConfig {
     c
 }
 
-/// The PPO settings of `configs/tiny/*.toml` (2 epochs × 2 minibatches over 128 steps).
+/// The PPO settings of `configs/tiny-e2e/both.toml` (2 epochs × 2 minibatches over 128 steps).
 pub fn with_tiny_ppo(mut c: RunConfig) -> RunConfig {
     c.ppo.rollout = 128;
     c.ppo.epochs = 2;

@@ -8,7 +8,7 @@
 
 use std::ffi::CString;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 
 use farm::config::Device as DeviceChoice;
 use tch::Device;
@@ -23,6 +23,19 @@ pub enum CudaBackend {
 }
 
 static BACKEND: OnceLock<CudaBackend> = OnceLock::new();
+
+/// Held while torch's one global generator is seeded and drawn from.
+static SEEDED: Mutex<()> = Mutex::new(());
+
+/// Runs `init` (building variables) right after `tch::manual_seed(seed)`, with no other thread
+/// of the process seeding or initialising through this function in between: torch has one
+/// global generator, and without this, networks built at once by two threads (the test
+/// harness) would get each other's draws.
+pub fn seeded<R>(seed: i64, init: impl FnOnce() -> R) -> R {
+    let _held = SEEDED.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    tch::manual_seed(seed);
+    init()
+}
 
 /// Loads `libtorch_cuda.so` (RTLD_GLOBAL) from beside the loaded `libtorch_cpu.so`, once per
 /// process. Safe to call many times and on machines without CUDA.
@@ -137,6 +150,21 @@ pub fn flush_denormals() {
         std::arch::asm!("stmxcsr [{}]", in(reg) &mut csr, options(nostack));
         csr |= (1 << 15) | (1 << 6);
         std::arch::asm!("ldmxcsr [{}]", in(reg) &csr, options(nostack));
+    }
+}
+
+/// Keeps freed memory in the process instead of handing it back to the kernel at once. Acting
+/// and PPO allocate and free the same megabyte-sized tensors at every step; glibc serves blocks
+/// over 128 KiB with their own mapping and unmaps them when freed (its threshold adapts only up
+/// to the largest block freed so far), so steps page-fault and zero them in again. Raising the
+/// mapping threshold to glibc's maximum (32 MiB) and the trim threshold keeps them in the heap;
+/// the learner's resident memory then stays near its peak. (BENCHMARKS.md, "Training speed".)
+pub fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets allocator parameters; called at start, before other threads.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 256 << 20);
     }
 }
 

@@ -293,7 +293,7 @@ mod tests {
             }
         });
         f.refresh(&vs);
-        let x = Tensor::rand([2, 3, 32, 32], (Kind::Float, Device::Cpu));
+        let x = crate::device::seeded(6, || Tensor::rand([2, 3, 32, 32], (Kind::Float, Device::Cpu)));
         let (full, half) =
             tch::no_grad(|| (f.trunk.forward(&resnet::imagenet_normalize(&x)), f.features(&x).to_kind(Kind::Float)));
         assert_eq!(f.feature_kind(), Kind::BFloat16);

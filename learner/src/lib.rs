@@ -28,6 +28,7 @@ pub mod bench;
 pub mod checkpoint;
 pub mod device;
 pub mod encoder;
+pub(crate) mod gesture_memo;
 pub mod gesture_table;
 pub mod inputs;
 pub mod integrity;

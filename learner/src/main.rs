@@ -216,6 +216,7 @@ fn main() {
     // Before anything asks torch about CUDA, and before torch starts its CPU threads.
     device::load_cuda_backend();
     device::flush_denormals();
+    device::keep_freed_memory();
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
         .with_writer(std::io::stderr)

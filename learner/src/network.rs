@@ -29,6 +29,7 @@ use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
 use tch::nn::{self, RNN};
 use tch::{Device, Kind, Tensor};
 
+use crate::gesture_memo;
 use crate::inputs::{self, Inputs, depth_unit, rgb_unit};
 use crate::layers::{ConvHead, FrozenTrunk, Mlp, Pretrained, SmallCnn, Visual};
 use crate::obs::EnvBatch;
@@ -153,6 +154,12 @@ impl PolicyNet {
 
     /// Stored inputs `[B, ..]` → concatenated features `[B, D]`.
     pub(crate) fn encode(&self, x: &Inputs) -> Tensor {
+        self.encode_with(x, None)
+    }
+
+    /// [`PolicyNet::encode`], with the gesture layer's output for `x`'s rows given when it was
+    /// computed beforehand (acting's `GestureMemo`).
+    pub(crate) fn encode_with(&self, x: &Inputs, gesture: Option<Tensor>) -> Tensor {
         let mut parts = Vec::new();
         if let (Some(p), Some(t)) = (&self.pretrained, &x.visual) {
             parts.push(p.forward(t));
@@ -164,11 +171,11 @@ impl PolicyNet {
             parts.push(enc.forward(t, true));
         }
         if let (Some(l), Some(t)) = (&self.gesture, &x.gesture) {
-            let g = t.to_kind(Kind::Float).flatten(1, -1).apply(l).relu();
-            // distinct gestures are encoded once, then gathered for every row that shows them
-            parts.push(match &x.gesture_index {
-                Some(i) => g.index_select(0, i),
-                None => g,
+            parts.push(match (gesture, &x.gesture_index) {
+                (Some(g), _) => g,
+                // distinct gestures are encoded once, then gathered for every row that shows them
+                (None, Some(i)) => gesture_memo::encode(l, t).index_select(0, i),
+                (None, None) => gesture_memo::encode(l, t),
             });
         }
         if let (Some(e), Some(t)) = (&self.target, &x.target) {
@@ -211,6 +218,11 @@ impl PolicyNet {
         let feats = self.encode(&x.map(|v| v.flatten(0, 1))).view([t, b, -1]);
         let (out, _) = self.recurrent(&feats, h0, keep, any_start);
         self.heads(&out)
+    }
+
+    /// The gesture layer, when the method shows gestures.
+    pub(crate) fn gesture_layer(&self) -> Option<&nn::Linear> {
+        self.gesture.as_ref()
     }
 
     /// The pretrained RGB-D encoder, when the network has one.

@@ -214,8 +214,10 @@ mod tests {
         assert_eq!(conv5_side(224), 7);
         assert_eq!(conv5_side(64), 2);
         let vs = nn::VarStore::new(Device::Cpu);
-        let net = Resnet18::new(&vs.root());
-        let y = tch::no_grad(|| net.forward(&Tensor::randn([1, 3, 64, 64], (Kind::Float, Device::Cpu))));
+        let (net, x) = crate::device::seeded(4, || {
+            (Resnet18::new(&vs.root()), Tensor::randn([1, 3, 64, 64], (Kind::Float, Device::Cpu)))
+        });
+        let y = tch::no_grad(|| net.forward(&x));
         assert_eq!(y.size(), vec![1, 512, 2, 2]);
         // 11.2M parameters in the trunk (torchvision's 11.69M minus the 513k of fc)
         let params: i64 = vs.trainable_variables().iter().map(|t| t.numel() as i64).sum();
@@ -226,9 +228,8 @@ mod tests {
     /// torchvision has them), loads it into a fresh trunk, and compares conv5 outputs.
     #[test]
     fn torchvision_checkpoint_loads_into_a_fresh_trunk() {
-        tch::manual_seed(3);
         let a = nn::VarStore::new(Device::Cpu);
-        let net_a = Resnet18::new(&a.root());
+        let net_a = crate::device::seeded(3, || Resnet18::new(&a.root()));
         let mut named: Vec<(String, Tensor)> = Vec::new();
         tch::no_grad(|| {
             for (k, v) in a.variables() {
@@ -256,7 +257,7 @@ mod tests {
         let refs: Vec<(&str, Tensor)> = named.iter().map(|(k, v)| (k.as_str(), v.shallow_clone())).collect();
         crate::pth::tests::write_torch_save(&pth, &refs);
 
-        let x = Tensor::rand([2, 3, 64, 64], (Kind::Float, Device::Cpu));
+        let x = crate::device::seeded(5, || Tensor::rand([2, 3, 64, 64], (Kind::Float, Device::Cpu)));
         let ya = tch::no_grad(|| net_a.forward(&x));
         assert!(ya.abs().sum(Kind::Float).double_value(&[]) > 0.0);
         for f in [&file, &pth] {

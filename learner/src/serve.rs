@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use farm::process;
-use farm::profile::{LearnerTime, Profile, WorkerTime};
+use farm::profile::{LearnerTime, Profile, WorkerTime, process_cpu_seconds};
 use farm::transport::TransportError;
 use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, ObsShape, WorkerTiming, action, command};
 
@@ -372,13 +372,18 @@ impl Server<'_> {
         let t = Instant::now();
         self.time.receive_s += t.duration_since(began).as_secs_f64();
         let learning_before = self.policy.learning_seconds();
+        let cpu_before = process_cpu_seconds();
         let actions =
             self.policy.act(&batch).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
         let acted = t.elapsed().as_secs_f64();
+        let cpu = process_cpu_seconds() - cpu_before;
         let learning = (self.policy.learning_seconds() - learning_before).clamp(0.0, acted);
         self.totals.policy_sum_s += acted;
         self.time.update_s += learning;
         self.time.infer_s += acted - learning;
+        let learning_share = if acted > 0.0 { learning / acted } else { 0.0 };
+        self.time.update_cpu_s += cpu * learning_share;
+        self.time.infer_cpu_s += cpu * (1.0 - learning_share);
         let answering = Instant::now();
         if actions.len() != batch.num_envs() || actions.iter().any(|&a| a as usize >= action::COUNT) {
             return Err(ServeError::Policy {
@@ -480,7 +485,7 @@ impl Server<'_> {
             totals: self.totals.clone(),
             stop_reason: stop.map(Stop::describe),
             profile: Profile {
-                learner: self.time,
+                learner: LearnerTime { cpu_s: process_cpu_seconds(), ..self.time },
                 workers: self.slots.iter().fold(WorkerTime::default(), |mut w, s| {
                     w.add(&s.timing);
                     w

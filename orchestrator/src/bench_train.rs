@@ -106,7 +106,16 @@ pub fn report(b: &TrainBench, cfg: &RunConfig, command: &str) -> String {
     ] {
         let _ = writeln!(md, "| {name} | {v:.1} | {} |", share(v, l.total()));
     }
-    let _ = writeln!(md);
+    let cores = |cpu: f64, wall: f64| if wall > 0.0 { format!("{:.2}", cpu / wall) } else { "-".into() };
+    let _ = writeln!(
+        md,
+        "\nCores the learner process keeps busy (processor seconds of all its threads over wall \
+         seconds): in updates {}, in inference {}, over the whole run {} ({:.1} processor seconds).\n",
+        cores(l.update_cpu_s, l.update_s),
+        cores(l.infer_cpu_s, l.infer_s),
+        cores(l.cpu_s, l.total()),
+        l.cpu_s,
+    );
     let _ = writeln!(md, "The workers' wall time, summed over {} workers ({:.1} s):\n", b.workers, w.total());
     let _ = writeln!(md, "| workers | seconds | share |\n|---|---:|---:|");
     for (name, v) in [
@@ -155,6 +164,7 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     let mut cfg = up::load_config(a.config.as_deref())?;
     cfg.checkpoint.every_updates = u64::MAX;
     launch::resolve_dataset(&mut cfg, false)?;
+    launch::resolve_encoder(&mut cfg)?;
     launch::sweep_dead_runs();
     let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-train"));
     let (p, wall) = train(&a, &cfg, &out)?;

@@ -1,12 +1,13 @@
 //! What every command that starts a crew does first (`up`, `eval`, `bench farm`): make the
-//! dataset path absolute and check it, create and lock the run directory with its config copy,
-//! and sweep the shared memory of runs whose orchestrator was killed.
+//! dataset path (and a trained network's encoder weights) absolute and check them, create and
+//! lock the run directory with its config copy, and sweep the shared memory of runs whose
+//! orchestrator was killed.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::Context;
-use farm::config::RunConfig;
+use farm::config::{Encoder, RunConfig};
 
 use crate::crew::PolicyArg;
 use crate::run_dir::RunDir;
@@ -23,6 +24,27 @@ pub fn resolve_dataset(cfg: &mut RunConfig, synthetic: bool) -> anyhow::Result<(
             cfg.run.dataset.display(),
             manifest.display(),
             cfg.run.dataset.display()
+        );
+    }
+    Ok(())
+}
+
+/// For a network on the frozen pretrained encoder: makes the weights path absolute and checks the
+/// file is there, before anything starts (the learner would find out only after the workers).
+pub fn resolve_encoder(cfg: &mut RunConfig) -> anyhow::Result<()> {
+    let Some(path) = cfg.model.encoder_weights.as_mut().filter(|_| cfg.model.encoder == Encoder::Pretrained) else {
+        return Ok(());
+    };
+    if path.is_relative() {
+        *path = std::env::current_dir()?.join(&*path);
+    }
+    if !path.is_file() {
+        let out = path.with_extension("");
+        anyhow::bail!(
+            "no pretrained encoder at {} (model.encoder_weights); make it with `orchestrator encoder pretrain --out {}` \
+             (scripts/run.sh does), or choose model.encoder = \"small_cnn\"",
+            path.display(),
+            out.display()
         );
     }
     Ok(())

@@ -10,7 +10,7 @@ use farm::config::RunConfig;
 use farm::process;
 
 use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
-use crate::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
+use crate::launch::{prepare_run, resolve_dataset, resolve_encoder, sweep_dead_runs};
 use crate::run_dir;
 
 /// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.
@@ -81,6 +81,9 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         );
     }
     resolve_dataset(&mut cfg, a.synthetic)?;
+    if !resume && a.policy == PolicyArg::Ppo {
+        resolve_encoder(&mut cfg)?;
+    }
     let (dir, config_path) = prepare_run(&run_path, &cfg, resume, a.workers, a.policy)?;
     sweep_dead_runs();
     let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, a.policy);
@@ -214,6 +217,18 @@ mod tests {
     fn the_embedded_default_config_is_valid() {
         let c = load_config(None).unwrap();
         assert_eq!(c.run.method, farm::config::Method::Both);
+    }
+
+    #[test]
+    fn a_missing_encoder_names_the_path_and_the_command() {
+        let mut c = load_config(None).unwrap();
+        c.model.encoder_weights = Some(PathBuf::from("no/such/rgbd64.safetensors"));
+        let e = resolve_encoder(&mut c).unwrap_err().to_string();
+        assert!(e.contains("no/such/rgbd64.safetensors") && e.contains("orchestrator encoder pretrain"), "{e}");
+        assert!(c.model.encoder_weights.unwrap().is_absolute(), "children may run elsewhere");
+        let mut c = load_config(None).unwrap();
+        c.model.encoder = farm::config::Encoder::SmallCnn;
+        assert!(resolve_encoder(&mut c).is_ok(), "only the pretrained encoder needs the file");
     }
 
     #[test]

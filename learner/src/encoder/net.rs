@@ -250,9 +250,8 @@ mod tests {
 
     #[test]
     fn weights_round_trip_and_mismatches_name_the_file() {
-        tch::manual_seed(1);
         let vs = nn::VarStore::new(Device::Cpu);
-        let enc = RgbdEncoder::new(&(vs.root() / "trunk"));
+        let enc = crate::device::seeded(1, || RgbdEncoder::new(&(vs.root() / "trunk")));
         let info = EncoderInfo::new(64, 64);
         let bytes = weights_bytes(&vs, "trunk", &info).unwrap();
         assert_eq!(bytes, weights_bytes(&vs, "trunk", &info).unwrap(), "same variables, same bytes");
@@ -260,11 +259,10 @@ mod tests {
         let path = dir.path().join("enc.safetensors");
         std::fs::write(&path, &bytes).unwrap();
 
-        tch::manual_seed(2);
         let other = nn::VarStore::new(Device::Cpu);
-        let enc2 = RgbdEncoder::new(&(other.root() / "policy" / "encoder"));
+        let enc2 = crate::device::seeded(2, || RgbdEncoder::new(&(other.root() / "policy" / "encoder")));
         assert_eq!(load_weights(&path, &other, "policy.encoder", (64, 64)).unwrap(), info);
-        let x = Tensor::rand([1, 4, 64, 64], (Kind::Float, Device::Cpu));
+        let x = crate::device::seeded(3, || Tensor::rand([1, 4, 64, 64], (Kind::Float, Device::Cpu)));
         assert!(enc.forward(&x).allclose(&enc2.forward(&x), 0.0, 0.0, false));
 
         let e = load_weights(&path, &other, "policy.encoder", (128, 128)).unwrap_err().to_string();

@@ -254,15 +254,14 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
         return Err(unusable("no frames outside the held-out rooms to train on".into()));
     }
     tch::set_num_threads(o.threads);
-    tch::manual_seed(farm::seed::mix(o.seed, &[KEY_INIT]) as i64);
     let vs = nn::VarStore::new(dev);
     let root = vs.root();
-    let model = Model {
+    let model = crate::device::seeded(farm::seed::mix(o.seed, &[KEY_INIT]) as i64, || Model {
         trunk: RgbdEncoder::new(&(&root / "trunk")),
         class_head: nn::conv2d(&root / "class_head", FEATURE_CHANNELS, CLASSES as i64, 1, Default::default()),
         depth_head: nn::conv2d(&root / "depth_head", FEATURE_CHANNELS, 1, 1, Default::default()),
         grid: h.grid as i64,
-    };
+    });
     let mut opt = nn::Adam::default().build(&vs, o.lr).expect("adam");
     let mut class_weights = vec![1f32; CLASSES as usize];
     class_weights[CLASS_OTHER as usize] = o.other_weight as f32;

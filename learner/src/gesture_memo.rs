@@ -1,0 +1,113 @@
+//! Acting's gesture features, kept per env from one step to the next.
+//!
+//! An env shows the same 100 × 95 gesture from an episode's start until intervention switches
+//! on or off, yet acting would run the 9,500-wide gesture layer over all N envs at every step —
+//! at 64×64 on a CPU, a third of a step's forward. The memo keeps each env's features and the
+//! gesture they came from, and recomputes only the envs whose gesture changed (compared element
+//! by element) or all of them when the layer's weights changed: PPO's Adam and checkpoint
+//! loading write the variables in place, which bumps torch's version counters of the weight and
+//! bias (libtorch's own optimizers write through `.data()` and would not: the tests use ours).
+
+use tch::{Kind, Tensor, nn};
+
+#[derive(Debug, Default)]
+pub(crate) struct GestureMemo {
+    /// `[N, 100, 95]`: what each env showed when its features were computed.
+    shown: Option<Tensor>,
+    /// `[N, hidden]`.
+    features: Option<Tensor>,
+    /// The layer's (weight, bias) version counters the features were computed with.
+    versions: (i64, i64),
+}
+
+impl GestureMemo {
+    /// The layer's features of `g` `[N, 100, 95]`, `[N, hidden]`, reusing every row whose gesture
+    /// and layer are unchanged since the previous call. Without gradients (acting only).
+    pub(crate) fn features(&mut self, layer: &nn::Linear, g: &Tensor) -> Tensor {
+        tch::no_grad(|| {
+            let versions = (layer.ws.internal_version(), layer.bs.as_ref().map_or(0, |b| b.internal_version()));
+            let reusable = match (&self.shown, &self.features) {
+                (Some(s), Some(_)) => versions == self.versions && s.size() == g.size() && s.kind() == g.kind(),
+                _ => false,
+            };
+            if !reusable {
+                let f = encode(layer, g);
+                self.shown = Some(g.copy());
+                self.features = Some(f.copy());
+                self.versions = versions;
+                return f;
+            }
+            let (shown, features) = (self.shown.as_mut().unwrap(), self.features.as_mut().unwrap());
+            let same = g.eq_tensor(shown).flatten(1, -1).all_dim(1, false);
+            let changed = same.logical_not().nonzero().squeeze_dim(1);
+            if changed.size()[0] > 0 {
+                let fresh = g.index_select(0, &changed);
+                let _ = features.index_copy_(0, &changed, &encode(layer, &fresh));
+                let _ = shown.index_copy_(0, &changed, &fresh);
+            }
+            // the memo's own storage is updated in place next step: hand out a copy
+            features.copy()
+        })
+    }
+}
+
+/// The gesture layer on gestures `[B, 100, 95]` → `[B, hidden]` (flatten, FC, ReLU).
+pub(crate) fn encode(layer: &nn::Linear, g: &Tensor) -> Tensor {
+    g.to_kind(Kind::Float).flatten(1, -1).apply(layer).relu()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::Device;
+
+    fn layer(vs: &nn::VarStore) -> nn::Linear {
+        nn::linear(vs.root() / "g", 20, 8, Default::default())
+    }
+
+    /// Features from the memo equal the layer run on every row: when some envs change gesture,
+    /// when none does, and after the weights change in place.
+    #[test]
+    fn memo_equals_recomputing_every_row() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let draw = |seed, n| {
+            crate::device::seeded(seed, || Tensor::randn([n, 4, 5], (Kind::Float, Device::Cpu)).to_kind(Kind::Half))
+        };
+        let l = crate::device::seeded(3, || layer(&vs));
+        let mut memo = GestureMemo::default();
+        let mut g = draw(4, 4);
+        let check = |memo: &mut GestureMemo, g: &Tensor| {
+            let got = memo.features(&l, g);
+            let want = tch::no_grad(|| encode(&l, g));
+            assert!(got.allclose(&want, 1e-5, 1e-6, false), "{got} vs {want}");
+        };
+        check(&mut memo, &g);
+        check(&mut memo, &g);
+        // envs 1 and 3 start new episodes with other gestures
+        let fresh = draw(5, 2);
+        let _ = g.index_copy_(0, &Tensor::from_slice(&[1i64, 3]), &fresh);
+        check(&mut memo, &g);
+        // PPO's optimizer step changes the layer in place
+        let mut opt = crate::optim::Adam::new(&vs, 0.5, 1e-5);
+        encode(&l, &g).sum(Kind::Float).backward();
+        opt.step();
+        check(&mut memo, &g);
+        // so does a checkpoint load (a copy into the variables without gradients)
+        let other = crate::device::seeded(6, || l.ws.randn_like());
+        tch::no_grad(|| l.ws.shallow_clone().copy_(&other));
+        check(&mut memo, &g);
+    }
+
+    /// A handed-out tensor is not changed by later calls.
+    #[test]
+    fn handed_out_features_stay_as_they_were() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let l = crate::device::seeded(7, || layer(&vs));
+        let mut memo = GestureMemo::default();
+        let a = Tensor::zeros([2, 4, 5], (Kind::Half, Device::Cpu));
+        let first = memo.features(&l, &a);
+        let kept = first.copy();
+        let _ = memo.features(&l, &a.ones_like());
+        assert!(first.equal(&kept));
+    }
+}
