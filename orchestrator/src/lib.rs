@@ -22,6 +22,8 @@ pub mod plot;
 pub mod program_cmd;
 pub mod render_cmd;
 pub mod run_dir;
+pub mod study;
+pub mod study_report;
 pub mod tables;
 pub mod trajectory;
 pub mod up;

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench, dataset_cmd, encoder_cmd, eval, program_cmd, render_cmd, up};
+use orchestrator::{bench, dataset_cmd, encoder_cmd, eval, program_cmd, render_cmd, study, up};
 
 #[derive(Parser)]
 #[command(
@@ -40,6 +40,9 @@ enum Command {
     /// Throughput benchmarks.
     #[command(subcommand)]
     Bench(bench::BenchCmd),
+    /// The dissertation's comparison (T4.2): every method trained with N seeds, checkpoints
+    /// selected on val, tested; resumable (the same command continues a killed study).
+    Study(study::StudyArgs),
 }
 
 fn main() -> ExitCode {
@@ -53,6 +56,7 @@ fn main() -> ExitCode {
         Command::Eval(a) => eval::run(a).map(|_| 0),
         Command::Encoder(c) => encoder_cmd::run(c).map(|_| 0),
         Command::Bench(c) => bench::run(c).map(|_| 0),
+        Command::Study(a) => study::run(a).map(|_| 0),
     };
     match result {
         Ok(code) => ExitCode::from(code.clamp(0, 255) as u8),

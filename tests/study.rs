@@ -1,0 +1,111 @@
+//! `orchestrator study` end to end on a tiny study (a few hundred frames per run): it writes
+//! T4.2 with every method, and a study killed mid-run continues under the same command without
+//! training again what was finished or starting a resumable run over.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant, SystemTime};
+
+use gesthor_tests::{bin, dataset, processes_mentioning, serial};
+use serde_json::Value;
+
+const DEADLINE: Duration = Duration::from_secs(300);
+
+/// both, vis_sem and random configs: 32×32, small CNN, 2 envs, 16-step rollouts (64 frames an
+/// update with 2 workers).
+fn configs(dir: &Path) -> PathBuf {
+    let d = dir.join("configs");
+    std::fs::create_dir_all(&d).unwrap();
+    for method in ["both", "vis_sem", "random"] {
+        let text = format!(
+            "[run]\nmethod = \"{method}\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 32\nheight = 32\n\n\
+             [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\n",
+            dataset().display()
+        );
+        std::fs::write(d.join(format!("{method}.toml")), text).unwrap();
+    }
+    d
+}
+
+fn study(configs: &Path, out: &Path, methods: &str) -> Command {
+    let mut c = Command::new(bin("orchestrator"));
+    c.args(["study", "--seeds", "1", "--frames", "256", "--workers", "2", "--checkpoints", "2"])
+        .args(["--val-programs", "8", "--test-programs", "8", "--methods", methods, "--configs"])
+        .arg(configs)
+        .arg("--out")
+        .arg(out);
+    c
+}
+
+fn mtimes(dir: &Path) -> Vec<(PathBuf, SystemTime)> {
+    let mut v: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .map(|e| (e.path(), e.metadata().unwrap().modified().unwrap()))
+        .filter(|(p, _)| p.extension().is_some_and(|e| e == "safetensors"))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn a_killed_study_continues_without_retraining() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = configs(tmp.path());
+    let out = tmp.path().join("study");
+
+    // +Both alone, to the end
+    let o = study(&cfg, &out, "both").output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let both = out.join("runs/both-seed1/checkpoints");
+    let finished = mtimes(&both);
+    assert_eq!(finished.len(), 2, "256 frames = 4 updates, a checkpoint every 2: {finished:?}");
+
+    // the whole study, killed once VisSem has a checkpoint
+    let mut child =
+        study(&cfg, &out, "both,vis_sem,random").stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+    let vis_sem = out.join("runs/vis_sem-seed1/checkpoints");
+    let started = Instant::now();
+    while mtimes_or_empty(&vis_sem).is_empty() {
+        assert!(started.elapsed() < DEADLINE, "VisSem never wrote a checkpoint");
+        assert!(child.try_wait().unwrap().is_none(), "the study ended before VisSem's first checkpoint");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    // its `up` stops with it (SIGTERM from the kernel when its parent dies)
+    while !processes_mentioning(&out.display().to_string()).is_empty() {
+        assert!(started.elapsed() < DEADLINE, "the killed study's steps did not stop");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let first_vis_sem = mtimes(&vis_sem)[0].clone();
+
+    // the same command continues
+    let o = study(&cfg, &out, "both,vis_sem,random").output().unwrap();
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{log}");
+    assert_eq!(mtimes(&both), finished, "the finished run was trained again:\n{log}");
+    assert_eq!(mtimes(&vis_sem)[0], first_vis_sem, "VisSem started over instead of resuming:\n{log}");
+    // (a checkpoint more where the kill stopped it between two)
+    let kept = mtimes(&vis_sem);
+    assert!(kept.last().unwrap().0.ends_with("ckpt-00000004.safetensors"), "{kept:?}");
+    let table = std::fs::read_to_string(out.join("T4.2.md")).unwrap();
+    for row in ["| Random | 1 |", "| VisSem | 1 |", "| +Both | 1 |", "49.2 / 28.7 / 1.976", "| +Both > VisSem |"] {
+        assert!(table.contains(row), "no `{row}` in\n{table}");
+    }
+    let results: Value = serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
+    assert_eq!(results.as_array().unwrap().len(), 3);
+    // every checkpoint of a run was evaluated on val
+    let selected: Vec<PathBuf> = std::fs::read_dir(out.join("runs/vis_sem-seed1/select"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.join("tables.csv").is_file())
+        .collect();
+    assert_eq!(selected.len(), kept.len(), "{selected:?} for {kept:?}\n{log}");
+}
+
+fn mtimes_or_empty(dir: &Path) -> Vec<(PathBuf, SystemTime)> {
+    if dir.is_dir() { mtimes(dir) } else { vec![] }
+}
