@@ -94,6 +94,9 @@ fn a_killed_study_continues_without_retraining() {
     for row in ["| Random | 1 |", "| VisSem | 1 |", "| +Both | 1 |", "49.2 / 28.7 / 1.976", "| +Both > VisSem |"] {
         assert!(table.contains(row), "no `{row}` in\n{table}");
     }
+    for png in ["sr_spl.png", "learning_curves.png"] {
+        assert!(out.join(png).is_file(), "no {png}");
+    }
     let results: Value = serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
     assert_eq!(results.as_array().unwrap().len(), 3);
     // every checkpoint of a run was evaluated on val

@@ -7,8 +7,15 @@ use plotters::prelude::*;
 const W: u32 = 1000;
 const H: u32 = 560;
 const BLUE: RGBColor = RGBColor(52, 101, 164);
-const PALETTE: [RGBColor; 4] =
-    [RGBColor(52, 101, 164), RGBColor(204, 85, 0), RGBColor(78, 154, 6), RGBColor(117, 80, 123)];
+const PALETTE: [RGBColor; 7] = [
+    RGBColor(52, 101, 164),
+    RGBColor(204, 85, 0),
+    RGBColor(78, 154, 6),
+    RGBColor(117, 80, 123),
+    RGBColor(193, 125, 17),
+    RGBColor(164, 0, 0),
+    RGBColor(85, 87, 83),
+];
 
 fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
     anyhow::anyhow!("drawing chart: {e}")
@@ -242,6 +249,81 @@ pub fn lines(
             .map_err(err)?
             .label(name.clone())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 15))
+        .draw()
+        .map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
+}
+
+/// Groups of bars with error bars: one group per `groups` entry (a label and, per bucket, a mean
+/// and a half-width drawn as a whisker), one bar colour per bucket.
+pub fn error_bars(
+    path: &Path,
+    title: &str,
+    y_label: &str,
+    buckets: &[&str],
+    groups: &[(String, Vec<(f64, f64)>)],
+) -> anyhow::Result<()> {
+    crate::fonts::ensure();
+    let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let max = groups.iter().flat_map(|g| g.1.iter().map(|(m, e)| m + e)).fold(1.0, f64::max) * 1.15;
+    let nb = buckets.len();
+    let slots = groups.len() * (nb + 1);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 26))
+        .margin(20)
+        .x_label_area_size(50)
+        .y_label_area_size(70)
+        .build_cartesian_2d(0.0..slots as f64, 0.0..max)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .y_desc(y_label)
+        .x_labels(0)
+        .label_style(("sans-serif", 16))
+        .draw()
+        .map_err(err)?;
+    for (gi, (name, vals)) in groups.iter().enumerate() {
+        let x0 = (gi * (nb + 1)) as f64;
+        for (bi, &(m, e)) in vals.iter().enumerate() {
+            let x = x0 + bi as f64;
+            let c = PALETTE[bi % PALETTE.len()];
+            chart
+                .draw_series(std::iter::once(Rectangle::new([(x + 0.1, 0.0), (x + 0.9, m)], c.filled())))
+                .map_err(err)?;
+            let whisker = [
+                PathElement::new(vec![(x + 0.5, (m - e).max(0.0)), (x + 0.5, m + e)], BLACK.stroke_width(2)),
+                PathElement::new(vec![(x + 0.35, m + e), (x + 0.65, m + e)], BLACK.stroke_width(2)),
+                PathElement::new(
+                    vec![(x + 0.35, (m - e).max(0.0)), (x + 0.65, (m - e).max(0.0))],
+                    BLACK.stroke_width(2),
+                ),
+            ];
+            chart.draw_series(whisker).map_err(err)?;
+        }
+        chart
+            .draw_series(std::iter::once(Text::new(
+                name.clone(),
+                (x0 + 0.1, -max * 0.06),
+                ("sans-serif", 16).into_font(),
+            )))
+            .map_err(err)?;
+    }
+    for (bi, b) in buckets.iter().enumerate() {
+        let c = PALETTE[bi % PALETTE.len()];
+        chart
+            .draw_series(std::iter::once(Rectangle::new([(0.0, 0.0), (0.0, 0.0)], c.filled())))
+            .map_err(err)?
+            .label(b.to_string())
+            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], c.filled()));
     }
     chart
         .configure_series_labels()

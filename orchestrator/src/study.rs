@@ -344,7 +344,8 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             results.push(RunResult::read(Method::Random, k, Path::new("-"), f64::NAN, &dir.join("tables.csv"))?);
         }
     }
-    study_report::write(&a.out, &results)?;
+    let curves: Vec<(Method, PathBuf)> = runs.iter().map(|r| (r.method, r.dir.clone())).collect();
+    study_report::write(&a.out, &results, &curves)?;
     eprintln!("[study] tables in {}", a.out.join("T4.2.md").display());
     Ok(())
 }

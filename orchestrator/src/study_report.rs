@@ -2,7 +2,7 @@
 //! beside the dissertation's figures, and which of T4.2's orderings hold on our test split.
 
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use farm::config::Method;
@@ -118,8 +118,62 @@ fn of(results: &[RunResult], m: Method, f: impl Fn(&RunResult) -> f64) -> Vec<f6
     results.iter().filter(|r| r.method == m).map(f).collect()
 }
 
-/// Writes `T4.2.md`, `T4.2.csv` and `study.json` into `out`.
-pub fn write(out: &Path, results: &[RunResult]) -> anyhow::Result<()> {
+/// Success on training episodes against frames, per method: the mean over the seeds' runs
+/// (update by update; every seed makes the same updates) of a 10-update moving mean, in %.
+pub fn learning_curves(runs: &[(Method, PathBuf)]) -> anyhow::Result<Vec<(String, Vec<(f64, f64)>)>> {
+    #[derive(serde::Deserialize)]
+    struct Row {
+        frames: f64,
+        success_rate: Option<f64>,
+    }
+    let mut out = Vec::new();
+    for (_, m) in METHODS {
+        let mut seeds: Vec<Vec<(f64, f64)>> = Vec::new();
+        for (_, dir) in runs.iter().filter(|(x, _)| *x == m) {
+            let rows: Vec<Row> = farm::files::read_jsonl(&dir.join("metrics.jsonl"))?;
+            let smooth: Vec<(f64, f64)> = (0..rows.len())
+                .map(|i| {
+                    let w: Vec<f64> = rows[i.saturating_sub(9)..=i].iter().filter_map(|r| r.success_rate).collect();
+                    (rows[i].frames, if w.is_empty() { 0.0 } else { 100.0 * w.iter().sum::<f64>() / w.len() as f64 })
+                })
+                .collect();
+            seeds.push(smooth);
+        }
+        let Some(n) = seeds.iter().map(Vec::len).min() else { continue };
+        let mean = (0..n).map(|i| (seeds[0][i].0, seeds.iter().map(|s| s[i].1).sum::<f64>() / seeds.len() as f64));
+        out.push((m.label().to_string(), mean.collect()));
+    }
+    Ok(out)
+}
+
+/// Writes `T4.2.md`, `T4.2.csv`, `study.json` and two figures into `out`: SR and SPL at the
+/// first stop with the seeds' spread (`sr_spl.png`), and every method's training success
+/// against frames (`learning_curves.png`, from the runs in `runs`).
+pub fn write(out: &Path, results: &[RunResult], runs: &[(Method, PathBuf)]) -> anyhow::Result<()> {
+    let mut groups = Vec::new();
+    for (_, m) in METHODS {
+        let sr = of(results, m, |r| r.test_first.sr);
+        if !sr.is_empty() {
+            groups.push((m.label().to_string(), vec![mean_std(&sr), mean_std(&of(results, m, |r| r.test_first.spl))]));
+        }
+    }
+    crate::plot::error_bars(
+        &out.join("sr_spl.png"),
+        "Test, first stop: mean ± std over seeds",
+        "%",
+        &["SR", "SPL"],
+        &groups,
+    )?;
+    let curves = learning_curves(runs)?;
+    if !curves.is_empty() {
+        crate::plot::lines(
+            &out.join("learning_curves.png"),
+            "Success on training episodes (10-update mean, mean over seeds)",
+            "frames",
+            "success (%)",
+            &curves,
+        )?;
+    }
     let mut md = String::new();
     let mut csv = String::from(
         "method,seeds,sr_mean,sr_std,spl_mean,spl_std,dts_mean,dts_std,sr_inf_mean,dissertation_sr,dissertation_spl,dissertation_dts\n",
@@ -191,6 +245,7 @@ pub fn write(out: &Path, results: &[RunResult]) -> anyhow::Result<()> {
         let _ =
             writeln!(md, "| {} | {} | {} | {val} | {:.1} |", r.method.label(), r.seed, r.checkpoint, r.test_first.sr);
     }
+    let _ = writeln!(md, "\n![SR and SPL](sr_spl.png)\n\n![learning curves](learning_curves.png)");
     farm::files::write_atomic(&out.join("T4.2.md"), md.as_bytes())?;
     farm::files::write_atomic(&out.join("T4.2.csv"), csv.as_bytes())?;
     farm::files::write_atomic(&out.join("study.json"), serde_json::to_string_pretty(results)?.as_bytes())?;
@@ -240,7 +295,8 @@ mod tests {
         };
         let results =
             [r(Method::Both, 1, 10.0), r(Method::Both, 2, 12.0), r(Method::VisSem, 1, 4.0), r(Method::VisSem, 2, 5.0)];
-        write(dir.path(), &results).unwrap();
+        write(dir.path(), &results, &[]).unwrap();
+        assert!(dir.path().join("sr_spl.png").is_file());
         let md = std::fs::read_to_string(dir.path().join("T4.2.md")).unwrap();
         assert!(md.contains("| +Both | 2 | 11.0 ± 1.4 |") && md.contains("49.2 / 28.7 / 1.976"), "{md}");
         assert!(md.contains("| +Both > VisSem | 11.0 ± 1.4 vs 4.5 ± 0.7 | yes |"), "{md}");
