@@ -11,18 +11,23 @@ use serde_json::Value;
 
 const DEADLINE: Duration = Duration::from_secs(300);
 
-/// both, vis_sem and random configs: 32×32, small CNN, 2 envs, 16-step rollouts (64 frames an
-/// update with 2 workers).
+/// both, vis_sem, random and T4.7's rgb_sem_both configs: 32×32, small CNN, 2 envs, 16-step
+/// rollouts (64 frames an update with 2 workers).
 fn configs(dir: &Path) -> PathBuf {
     let d = dir.join("configs");
     std::fs::create_dir_all(&d).unwrap();
-    for method in ["both", "vis_sem", "random"] {
+    for (stem, method, inputs) in [
+        ("both", "both", ""),
+        ("vis_sem", "vis_sem", ""),
+        ("random", "random", ""),
+        ("rgb_sem_both", "both", "depth = false\n"),
+    ] {
         let text = format!(
             "[run]\nmethod = \"{method}\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 32\nheight = 32\n\n\
-             [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\n",
+             [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n{inputs}\n[ppo]\nrollout = 16\n",
             dataset().display()
         );
-        std::fs::write(d.join(format!("{method}.toml")), text).unwrap();
+        std::fs::write(d.join(format!("{stem}.toml")), text).unwrap();
     }
     d
 }
@@ -81,8 +86,8 @@ fn a_killed_study_continues_without_retraining() {
     }
     let first_vis_sem = mtimes(&vis_sem)[0].clone();
 
-    // the same command continues
-    let o = study(&cfg, &out, "both,vis_sem,random").output().unwrap();
+    // the same command continues, with T4.7's variant added
+    let o = study(&cfg, &out, "both,vis_sem,random,rgb_sem_both").output().unwrap();
     let log = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{log}");
     assert_eq!(mtimes(&both), finished, "the finished run was trained again:\n{log}");
@@ -97,8 +102,19 @@ fn a_killed_study_continues_without_retraining() {
     for png in ["sr_spl.png", "learning_curves.png"] {
         assert!(out.join(png).is_file(), "no {png}");
     }
+    // the ablation tables: breakdowns of test (T4.4, T4.5), train/val/test (T4.3), the blind
+    // pass (T4.6) and the separately trained variant (T4.7)
+    let read = |t: &str| std::fs::read_to_string(out.join(format!("{t}.md"))).unwrap_or_else(|e| panic!("{t}.md: {e}"));
+    assert!(read("T4.3").contains("| Kitchen | VisSem | all types, broken down |"), "{}", read("T4.3"));
+    assert!(read("T4.4").contains("(49.3) |"), "{}", read("T4.4"));
+    assert!(read("T4.5").contains("| +Both |"), "{}", read("T4.5"));
+    assert!(read("T4.6").contains("| Random |") && read("T4.6").contains("| +Both |"), "{}", read("T4.6"));
+    let t47 = read("T4.7");
+    assert!(t47.contains("| RGB+Semantic+Both |") && t47.contains("| RGBD+Semantic+Both |"), "{t47}");
+    let test = std::fs::read_to_string(out.join("runs/both-seed1/test/tables.csv")).unwrap();
+    assert!(test.lines().any(|l| l.contains(",test,blind,all,all,1,")), "{test}");
     let results: Value = serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
-    assert_eq!(results.as_array().unwrap().len(), 3);
+    assert_eq!(results.as_array().unwrap().len(), 4);
     // every checkpoint of a run was evaluated on val
     let selected: Vec<PathBuf> = std::fs::read_dir(out.join("runs/vis_sem-seed1/select"))
         .unwrap()

@@ -185,8 +185,8 @@ pub fn write_stats(by_split: &BTreeMap<Split, Vec<Program>>, out: &Path) -> anyh
     )?;
 
     // Fig. 3.11: instances of the target category, per split.
-    let buckets = ["1", "2", "3", "4+"];
-    let mut groups: Vec<(String, Vec<f64>)> = Vec::new();
+    let buckets = ["1 instance", "2 instances", "3 instances", "4+ instances"];
+    let mut groups: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
     let mut shares = Vec::new();
     for (s, progs) in by_split {
         let mut c = [0f64; 4];
@@ -195,7 +195,7 @@ pub fn write_stats(by_split: &BTreeMap<Split, Vec<Program>>, out: &Path) -> anyh
         }
         let multi = progs.iter().filter(|p| p.instances > 1).count() as f64 / progs.len().max(1) as f64;
         shares.push((s.name(), multi));
-        groups.push((format!("{} ({:.0}% multi)", s.name(), 100.0 * multi), c.to_vec()));
+        groups.push((format!("{} ({:.0}% multi)", s.name(), 100.0 * multi), c.map(|n| (n, 0.0)).to_vec()));
     }
     plot::grouped_bars(
         &out.join("fig3_11_instances.png"),

@@ -24,6 +24,7 @@ pub mod render_cmd;
 pub mod run_dir;
 pub mod study;
 pub mod study_report;
+pub mod study_tables;
 pub mod tables;
 pub mod trajectory;
 pub mod up;

@@ -104,73 +104,6 @@ pub fn hbars(path: &Path, title: &str, x_label: &str, data: &[(String, f64)]) ->
     Ok(())
 }
 
-/// Groups of bars: one group per `groups` entry, one bar per bucket.
-pub fn grouped_bars(
-    path: &Path,
-    title: &str,
-    y_label: &str,
-    buckets: &[&str],
-    groups: &[(String, Vec<f64>)],
-) -> anyhow::Result<()> {
-    crate::fonts::ensure();
-    let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
-    let max = groups.iter().flat_map(|g| g.1.iter().copied()).fold(1.0, f64::max) * 1.15;
-    let nb = buckets.len();
-    let slots = groups.len() * (nb + 1);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 26))
-        .margin(20)
-        .x_label_area_size(50)
-        .y_label_area_size(70)
-        .build_cartesian_2d(0.0..slots as f64, 0.0..max)
-        .map_err(err)?;
-    chart
-        .configure_mesh()
-        .disable_x_mesh()
-        .y_desc(y_label)
-        .x_labels(0)
-        .label_style(("sans-serif", 16))
-        .draw()
-        .map_err(err)?;
-    for (gi, (name, vals)) in groups.iter().enumerate() {
-        let x0 = (gi * (nb + 1)) as f64;
-        for (bi, v) in vals.iter().enumerate() {
-            let x = x0 + bi as f64;
-            chart
-                .draw_series(std::iter::once(Rectangle::new(
-                    [(x + 0.1, 0.0), (x + 0.9, *v)],
-                    PALETTE[bi % PALETTE.len()].filled(),
-                )))
-                .map_err(err)?;
-        }
-        chart
-            .draw_series(std::iter::once(Text::new(
-                name.clone(),
-                (x0 + 0.1, -max * 0.06),
-                ("sans-serif", 16).into_font(),
-            )))
-            .map_err(err)?;
-    }
-    for (bi, b) in buckets.iter().enumerate() {
-        let c = PALETTE[bi % PALETTE.len()];
-        chart
-            .draw_series(std::iter::once(Rectangle::new([(0.0, 0.0), (0.0, 0.0)], c.filled())))
-            .map_err(err)?
-            .label(format!("{b} instance(s)"))
-            .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], c.filled()));
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 15))
-        .draw()
-        .map_err(err)?;
-    root.present().map_err(err)?;
-    Ok(())
-}
-
 /// Histogram with a fixed bin width and the mean marked.
 pub fn histogram(path: &Path, title: &str, x_label: &str, values: &[f64], bin: f64) -> anyhow::Result<()> {
     crate::fonts::ensure();
@@ -211,13 +144,16 @@ pub fn histogram(path: &Path, title: &str, x_label: &str, values: &[f64], bin: f
     Ok(())
 }
 
+/// A named series of (x, y) points.
+pub type Series = (String, Vec<(f64, f64)>);
+
 /// Line chart of several series over a shared x axis.
 pub fn lines(
     path: &Path,
     title: &str,
     x_label: &str,
     y_label: &str,
-    series: &[(String, Vec<(f64, f64)>)],
+    series: &[Series],
 ) -> anyhow::Result<()> {
     crate::fonts::ensure();
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
@@ -261,9 +197,9 @@ pub fn lines(
     Ok(())
 }
 
-/// Groups of bars with error bars: one group per `groups` entry (a label and, per bucket, a mean
-/// and a half-width drawn as a whisker), one bar colour per bucket.
-pub fn error_bars(
+/// Groups of bars: one group per `groups` entry (a label and, per bucket, a value and a
+/// half-width drawn as a whisker where it is above 0), one bar colour per bucket, named in the legend.
+pub fn grouped_bars(
     path: &Path,
     title: &str,
     y_label: &str,
@@ -299,6 +235,9 @@ pub fn error_bars(
             chart
                 .draw_series(std::iter::once(Rectangle::new([(x + 0.1, 0.0), (x + 0.9, m)], c.filled())))
                 .map_err(err)?;
+            if e <= 0.0 {
+                continue;
+            }
             let whisker = [
                 PathElement::new(vec![(x + 0.5, (m - e).max(0.0)), (x + 0.5, m + e)], BLACK.stroke_width(2)),
                 PathElement::new(vec![(x + 0.35, m + e), (x + 0.65, m + e)], BLACK.stroke_width(2)),

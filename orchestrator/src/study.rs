@@ -1,22 +1,25 @@
-//! The study (§4.4.1, T4.2): every method of a config folder that learns, trained with N seeds
-//! for F frames each; each run's checkpoints evaluated on val and the best by SR at the first
-//! stop evaluated on test; Random evaluated on test with the same seeds. One table puts the
-//! dissertation's figures beside ours (mean ± std over the seeds, `crate::study_report`).
+//! The study (§4.4.1, T4.2–T4.7): every method of a config folder that learns, trained with N
+//! seeds for F frames each; each run's checkpoints evaluated on val and the best by SR at the
+//! first stop evaluated on test (normally and blind) and on train; Random evaluated on test with
+//! the same seeds. `crate::study_report` and `crate::study_tables` put the dissertation's
+//! figures beside ours (mean ± std over the seeds).
 //!
 //! Every step is a child `orchestrator up` or `orchestrator eval` writing into the study folder,
 //! and a step whose output is complete is never run again: killed at any point, the same
 //! command continues — finished runs are kept, a run with checkpoints resumes from its newest,
-//! an evaluation without its tables runs again.
+//! an evaluation without its tables (or without one of its passes) runs again.
 //!
 //! ```text
-//! OUT/configs/<method>-seed<k>.toml   the run's config (seed, frames, checkpoints)
-//! OUT/runs/<method>-seed<k>/          the training run (`up`), with
-//!     select/ckpt-N/tables.csv        each checkpoint on val
-//!     test/tables.csv                 the selected checkpoint on test
-//! OUT/random/seed<k>/tables.csv       Random on test
-//! OUT/T4.2.md, OUT/T4.2.csv, OUT/study.json
+//! OUT/configs/<name>.toml     the run's config (seed, frames, checkpoints, rooms)
+//! OUT/runs/<name>/            the training run (`up`), name = <method>[-<scene type>]-seed<k>, with
+//!     select/ckpt-N/tables.csv    each checkpoint on val
+//!     test/tables.csv             the selected checkpoint on test (normal and blind passes)
+//!     train/tables.csv            the selected checkpoint on train (T4.3)
+//! OUT/random/seed<k>/tables.csv   Random on test
+//! OUT/T4.2.md … T4.7.md, .csv, study.json, sr_spl.png, learning_curves.png
 //! ```
 
+use std::io::IsTerminal;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -25,13 +28,14 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::Args;
 use farm::config::{Method, RunConfig};
+use farm::rooms::{SceneId, SceneType, Split};
 
-use crate::study_report::{self, METHODS, RunResult};
+use crate::study_report::{self, METHODS, RunResult, StudyMethod};
 
 #[derive(Args, Debug, Clone)]
 pub struct StudyArgs {
     /// Folder of run configs named after the methods (vision_only, vis_sem, referencing,
-    /// intervention, both, random), e.g. configs/tiny.
+    /// intervention, both, random; T4.7's rgb_sem_both and depth_sem_both), e.g. configs/tiny.
     #[arg(long)]
     pub configs: PathBuf,
     /// Seeds per method (1..=N, each the config's seed plus k − 1).
@@ -46,12 +50,17 @@ pub struct StudyArgs {
     /// Only these methods (config file stems), comma-separated; default: every one present.
     #[arg(long, value_delimiter = ',')]
     pub methods: Vec<String>,
+    /// Also train VisSem, +Referencing and +Intervention once per scene type, in that type's
+    /// rooms only, as the dissertation does for T4.3/T4.4 (12 more runs per seed).
+    #[arg(long)]
+    pub per_scene_type: bool,
     #[arg(long, default_value_t = 4)]
     pub workers: usize,
     /// Checkpoints per run to choose from on val (evenly spaced; the last one always).
     #[arg(long, default_value_t = 5)]
     pub checkpoints: u64,
-    /// Val programs per checkpoint evaluation (spread over the val rooms).
+    /// Val programs per checkpoint evaluation (spread over the val rooms); as many train
+    /// programs evaluate the selected checkpoint on train (T4.3).
     #[arg(long, default_value_t = 500)]
     pub val_programs: usize,
     /// Test programs per evaluation (spread over the test rooms).
@@ -62,8 +71,9 @@ pub struct StudyArgs {
 /// One training run of the study.
 #[derive(Clone, Debug)]
 pub struct Run {
-    pub stem: String,
-    pub method: Method,
+    pub method: StudyMethod,
+    /// Trained, selected and tested in this type's rooms only (`--per-scene-type`).
+    pub scene_type: Option<SceneType>,
     pub seed_index: u64,
     pub cfg: RunConfig,
     pub dir: PathBuf,
@@ -93,10 +103,23 @@ impl Run {
         self.dir.join("select").join(ckpt.file_stem().unwrap_or_default())
     }
 
-    fn test_dir(&self) -> PathBuf {
-        self.dir.join("test")
+    /// The rooms of `split` this run is evaluated in (`--scenes`; empty: all of them).
+    fn rooms(&self, split: Split) -> Vec<String> {
+        self.scene_type.map_or_else(Vec::new, |t| rooms_of(t, split))
+    }
+
+    fn name(&self) -> String {
+        let rooms = self.scene_type.map(|t| format!(" in {} rooms", t.name())).unwrap_or_default();
+        format!("{}{rooms} seed {}", self.method.label, self.seed_index)
     }
 }
+
+fn rooms_of(t: SceneType, split: Split) -> Vec<String> {
+    SceneId::of_split(split).filter(|s| s.scene_type == t).map(SceneId::name).collect()
+}
+
+/// The methods T4.3/T4.4 train once per scene type.
+const PER_SCENE_TYPE: [&str; 3] = ["vis_sem", "referencing", "intervention"];
 
 /// What the study will do, from the config folder: its learning runs and Random's seeds.
 pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
@@ -105,14 +128,15 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
     anyhow::ensure!(a.checkpoints > 0, "--checkpoints: at least one");
     for m in &a.methods {
         anyhow::ensure!(
-            METHODS.iter().any(|(s, _)| s == m),
+            study_report::method(m).is_some(),
             "--methods: `{m}` is not one of {}",
-            METHODS.map(|(s, _)| s).join(", ")
+            METHODS.map(|m| m.stem).join(", ")
         );
     }
     let mut runs = Vec::new();
     let mut random = None;
-    for (stem, method) in METHODS {
+    for sm in METHODS {
+        let stem = sm.stem;
         let path = a.configs.join(format!("{stem}.toml"));
         if !a.methods.is_empty() && !a.methods.iter().any(|m| m == stem) {
             continue;
@@ -123,65 +147,149 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
         }
         let cfg = RunConfig::load(&path)?;
         anyhow::ensure!(
-            cfg.run.method == method,
+            cfg.run.method == sm.method,
             "{}: run.method is {:?}, the file name says {stem}",
             path.display(),
             cfg.run.method
         );
-        if method == Method::Random {
+        if sm.method == Method::Random {
             random = Some(cfg);
             continue;
         }
-        for k in 1..=a.seeds {
-            let mut c = cfg.clone();
-            c.run.seed = cfg.run.seed + k - 1;
-            c.run.total_frames = a.frames;
-            // every training room, as §4.4.1 (the tiny configs pick 8 for short single runs)
-            c.run.scenes.clear();
-            let name = format!("{stem}-seed{k}");
-            let mut run = Run {
-                stem: stem.into(),
-                method,
-                seed_index: k,
-                cfg: c,
-                dir: a.out.join("runs").join(&name),
-                config_path: a.out.join("configs").join(format!("{name}.toml")),
-            };
-            // keep every checkpoint, `checkpoints` of them evenly spaced (the final one is
-            // written at the end of the run whatever the spacing)
-            run.cfg.checkpoint.keep = 0;
-            run.cfg.checkpoint.every_updates = (run.updates_needed(a.workers) / a.checkpoints).max(1);
-            runs.push(run);
+        anyhow::ensure!(
+            (cfg.model.rgb, cfg.model.depth) == (sm.rgb, sm.depth),
+            "{}: model.rgb = {}, model.depth = {}; {stem} needs {} and {}",
+            path.display(),
+            cfg.model.rgb,
+            cfg.model.depth,
+            sm.rgb,
+            sm.depth
+        );
+        let types: Vec<Option<SceneType>> = std::iter::once(None)
+            .chain(SceneType::ALL.into_iter().map(Some).filter(|_| a.per_scene_type && PER_SCENE_TYPE.contains(&stem)))
+            .collect();
+        for t in types {
+            for k in 1..=a.seeds {
+                let mut c = cfg.clone();
+                c.run.seed = cfg.run.seed + k - 1;
+                c.run.total_frames = a.frames;
+                // every training room (of the type), as §4.4.1 (the tiny configs pick 8 for
+                // short single runs)
+                c.run.scenes = t.map_or_else(Vec::new, |t| rooms_of(t, Split::Train));
+                let name = match t {
+                    Some(t) => format!("{stem}-{}-seed{k}", t.name().to_ascii_lowercase()),
+                    None => format!("{stem}-seed{k}"),
+                };
+                let mut run = Run {
+                    method: sm,
+                    scene_type: t,
+                    seed_index: k,
+                    cfg: c,
+                    dir: a.out.join("runs").join(&name),
+                    config_path: a.out.join("configs").join(format!("{name}.toml")),
+                };
+                // keep every checkpoint, `checkpoints` of them evenly spaced (the final one is
+                // written at the end of the run whatever the spacing)
+                run.cfg.checkpoint.keep = 0;
+                run.cfg.checkpoint.every_updates = (run.updates_needed(a.workers) / a.checkpoints).max(1);
+                runs.push(run);
+            }
         }
     }
     anyhow::ensure!(
         !runs.is_empty() || random.is_some(),
-        "{}: no config named after a method of T4.2 ({}.toml)",
+        "{}: no config named after a method of T4.2 or T4.7 ({}.toml)",
         a.configs.display(),
-        METHODS.map(|(s, _)| s).join(".toml, ")
+        METHODS.map(|m| m.stem).join(".toml, ")
     );
     Ok((runs, random))
 }
 
-/// Counts the study's steps and says, with an ETA from the steps done in this invocation, where
-/// it is (one line per step: studies run for hours, mostly unattended).
+/// Kinds of step, which go at different rates.
+#[derive(Clone, Copy)]
+enum Kind {
+    /// Work: frames.
+    Train = 0,
+    /// Work: programs × passes.
+    Eval = 1,
+}
+
+/// Seconds per unit of work of a kind not yet run in this invocation (training at 1,000
+/// frames/s, evaluation at 15 episodes/s: this machine's order of magnitude).
+const PRIOR_SECONDS: [f64; 2] = [1.0 / 1000.0, 1.0 / 15.0];
+
+/// Where the study is, with an ETA summed per kind of step from each kind's rate in this
+/// invocation: a bar on a terminal, one line per step otherwise (studies run for hours, mostly
+/// unattended, into logs).
 struct Progress {
-    total: usize,
     done: usize,
-    started: Instant,
-    done_here: usize,
+    steps: usize,
+    left: [f64; 2],
+    spent: [(f64, f64); 2],
+    bar: Option<indicatif::ProgressBar>,
 }
 
 impl Progress {
-    fn step(&mut self, what: &str, skipped: bool) {
-        self.done += 1;
-        if skipped {
-            return;
+    fn new(plan: &[(Kind, f64)]) -> Progress {
+        let mut left = [0.0; 2];
+        for (k, w) in plan {
+            left[*k as usize] += w;
         }
-        self.done_here += 1;
-        let per = self.started.elapsed().as_secs_f64() / self.done_here as f64;
-        let left = per * (self.total - self.done) as f64;
-        eprintln!("[study] {}/{} done: {what}; about {} left", self.done, self.total, humantime(left));
+        let bar = std::io::stderr().is_terminal().then(|| {
+            let b = indicatif::ProgressBar::new(plan.len() as u64);
+            b.set_style(
+                indicatif::ProgressStyle::with_template("study [{bar:30}] {pos}/{len} steps  {msg}")
+                    .expect("a valid template")
+                    .progress_chars("=> "),
+            );
+            b.enable_steady_tick(std::time::Duration::from_secs(1));
+            b
+        });
+        Progress { done: 0, steps: plan.len(), left, spent: [(0.0, 0.0); 2], bar }
+    }
+
+    fn eta(&self) -> f64 {
+        (0..2)
+            .map(|k| {
+                let (s, w) = self.spent[k];
+                self.left[k] * if w > 0.0 { s / w } else { PRIOR_SECONDS[k] }
+            })
+            .sum()
+    }
+
+    /// Shows what runs now.
+    fn doing(&self, what: &str) {
+        if let Some(b) = &self.bar {
+            b.set_message(format!("{what}; about {} left", humantime(self.eta())));
+        }
+    }
+
+    /// A step of `work` units is over: run here in `seconds`, or found done (None).
+    fn step(&mut self, kind: Kind, work: f64, seconds: Option<f64>, what: &str) {
+        self.done += 1;
+        self.left[kind as usize] = (self.left[kind as usize] - work).max(0.0);
+        let Some(s) = seconds else {
+            if let Some(b) = &self.bar {
+                b.inc(1);
+            }
+            return;
+        };
+        let spent = &mut self.spent[kind as usize];
+        (spent.0, spent.1) = (spent.0 + s, spent.1 + work);
+        let line = format!("{}/{} done: {what}; about {} left", self.done, self.steps, humantime(self.eta()));
+        match &self.bar {
+            Some(b) => {
+                b.inc(1);
+                b.println(format!("[study] {line}"));
+            }
+            None => eprintln!("[study] {line}"),
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
     }
 }
 
@@ -253,31 +361,72 @@ fn train(a: &StudyArgs, run: &Run) -> anyhow::Result<()> {
     }
 }
 
-/// `orchestrator eval` into `out` unless its tables are there.
-fn eval(a: &StudyArgs, what: &[String], split: &str, programs: usize, out: &Path) -> anyhow::Result<bool> {
-    if out.join("tables.csv").is_file() {
-        return Ok(false);
-    }
-    let mut args: Vec<String> = vec!["eval".into()];
-    args.extend(what.iter().cloned());
-    args.extend(
-        [
-            "--split",
-            split,
-            "--max-programs",
-            &programs.to_string(),
-            "--modes",
-            "normal",
-            "--workers",
-            &a.workers.to_string(),
-            "--out",
-            &s(out),
-        ]
-        .map(String::from),
-    );
-    orchestrator(&args, &out.with_extension("log"))?;
-    Ok(true)
+/// One `orchestrator eval` of the study.
+struct Eval<'a> {
+    /// `--checkpoint FILE` or `--config FILE`.
+    what: [String; 2],
+    split: Split,
+    programs: usize,
+    modes: &'a [&'a str],
+    /// Only these rooms (empty: the split's all).
+    rooms: Vec<String>,
+    out: PathBuf,
 }
+
+impl Eval<'_> {
+    fn work(&self) -> f64 {
+        (self.programs * self.modes.len()) as f64
+    }
+
+    /// Its tables are there, with a row of every pass.
+    fn complete(&self) -> bool {
+        crate::tables::read_rows(&self.out.join("tables.csv"))
+            .is_ok_and(|rows| self.modes.iter().all(|m| rows.iter().any(|r| r.mode == *m)))
+    }
+
+    /// Runs it unless complete (a partial one is redone); whether it ran.
+    fn run(&self, workers: usize) -> anyhow::Result<bool> {
+        if self.complete() {
+            return Ok(false);
+        }
+        if self.out.exists() {
+            std::fs::remove_dir_all(&self.out).with_context(|| format!("clearing {}", self.out.display()))?;
+        }
+        let mut args: Vec<String> = vec!["eval".into()];
+        args.extend(self.what.iter().cloned());
+        args.extend(
+            [
+                "--split",
+                self.split.name(),
+                "--max-programs",
+                &self.programs.to_string(),
+                "--modes",
+                &self.modes.join(","),
+                "--workers",
+                &workers.to_string(),
+                "--out",
+                &s(&self.out),
+            ]
+            .map(String::from),
+        );
+        if !self.rooms.is_empty() {
+            args.extend(["--scenes".into(), self.rooms.join(",")]);
+        }
+        orchestrator(&args, &self.out.with_extension("log"))?;
+        Ok(true)
+    }
+}
+
+/// Runs `e` and counts it as a step.
+fn evaluate(a: &StudyArgs, e: &Eval, progress: &mut Progress, what: &str) -> anyhow::Result<bool> {
+    progress.doing(what);
+    let t = Instant::now();
+    let ran = e.run(a.workers)?;
+    progress.step(Kind::Eval, e.work(), ran.then(|| t.elapsed().as_secs_f64()), what);
+    Ok(ran)
+}
+
+const TEST_MODES: [&str; 2] = ["normal", "blind"];
 
 pub fn run(a: StudyArgs) -> anyhow::Result<()> {
     farm::process::install_termination_handler()?;
@@ -289,63 +438,125 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
                 .with_context(|| format!("writing {}", r.config_path.display()))?;
         }
     }
-    let random_seeds = if random.is_some() { a.seeds as usize } else { 0 };
-    // train, select (one step for all of a run's checkpoints), test; Random's evaluations
-    let mut progress =
-        Progress { total: runs.len() * 3 + random_seeds, done: 0, started: Instant::now(), done_here: 0 };
+    let random_seeds = if random.is_some() { a.seeds } else { 0 };
+    // per run: train, select (one step for all of its checkpoints), test, train split; then
+    // Random's evaluations
+    let mut steps = Vec::new();
+    for r in &runs {
+        let left = r.updates_needed(a.workers).saturating_sub(r.latest_update()) * r.frames_per_update(a.workers);
+        steps.push((Kind::Train, left as f64));
+        steps.push((Kind::Eval, ((a.checkpoints + 1) as usize * a.val_programs) as f64));
+        steps.push((Kind::Eval, (a.test_programs * TEST_MODES.len()) as f64));
+        steps.push((Kind::Eval, a.val_programs as f64));
+    }
+    steps.extend((0..random_seeds).map(|_| (Kind::Eval, a.test_programs as f64)));
+    let mut progress = Progress::new(&steps);
     eprintln!(
-        "[study] {} runs ({} frames each, {} workers) and Random × {} seeds in {}",
+        "[study] {} runs ({} frames each, {} workers) and Random × {random_seeds} seeds in {}",
         runs.len(),
         a.frames,
         a.workers,
-        random_seeds,
         a.out.display()
     );
     let mut results = Vec::new();
-    for run in &runs {
-        let name = format!("{} seed {}", run.method.label(), run.seed_index);
+    for (run, planned) in runs.iter().zip(steps.chunks(4)) {
+        let name = run.name();
         let trained = run.trained(a.workers);
+        let t = Instant::now();
         if !trained {
+            progress.doing(&format!("training {name}"));
             train(&a, run)?;
             anyhow::ensure!(run.trained(a.workers), "{}: the run ended before its last update", run.dir.display());
         }
-        progress.step(&format!("trained {name}"), trained);
-        let mut ran = false;
+        progress.step(
+            Kind::Train,
+            planned[0].1,
+            (!trained).then(|| t.elapsed().as_secs_f64()),
+            &format!("trained {name}"),
+        );
+
+        let (mut ran, mut work) = (false, 0.0);
         let mut best: Option<(f64, PathBuf)> = None;
+        let t = Instant::now();
+        progress.doing(&format!("selecting {name} on val"));
         for (_, ckpt) in farm::checkpoints::list(&farm::checkpoints::dir_of(&run.dir)) {
-            let out = run.select_dir(&ckpt);
-            ran |= eval(&a, &["--checkpoint".into(), s(&ckpt)], "val", a.val_programs, &out)?;
-            let sr1 = study_report::first_stop(&out.join("tables.csv"))?.sr;
+            let e = Eval {
+                what: ["--checkpoint".into(), s(&ckpt)],
+                split: Split::Val,
+                programs: a.val_programs,
+                modes: &["normal"],
+                rooms: run.rooms(Split::Val),
+                out: run.select_dir(&ckpt),
+            };
+            ran |= e.run(a.workers)?;
+            work += e.work();
+            let sr1 = study_report::first_stop(&e.out.join("tables.csv"))?.sr;
             if best.as_ref().is_none_or(|(b, _)| sr1 >= *b) {
                 best = Some((sr1, ckpt));
             }
         }
         let (val_sr1, chosen) = best.with_context(|| format!("{}: no checkpoint", run.dir.display()))?;
-        progress.step(&format!("selected {name} on val"), !ran);
-        let test = run.test_dir();
-        let stale = std::fs::read_to_string(test.join("checkpoint")).ok().is_some_and(|c| c.trim() != s(&chosen));
-        if stale {
-            std::fs::remove_dir_all(&test)?;
+        progress.step(Kind::Eval, work, ran.then(|| t.elapsed().as_secs_f64()), &format!("selected {name} on val"));
+
+        // the test and train evaluations are of the selected checkpoint: redone when val chose another
+        let on = |split: Split, programs: usize, modes: &'static [&'static str], dir: &str| Eval {
+            what: ["--checkpoint".into(), s(&chosen)],
+            split,
+            programs,
+            modes,
+            rooms: run.rooms(split),
+            out: run.dir.join(dir),
+        };
+        let (test, fit) = (
+            on(Split::Test, a.test_programs, &TEST_MODES, "test"),
+            on(Split::Train, a.val_programs, &["normal"], "train"),
+        );
+        for e in [&test, &fit] {
+            let stale = std::fs::read_to_string(e.out.join("checkpoint")).ok().is_some_and(|c| c.trim() != s(&chosen));
+            if stale {
+                std::fs::remove_dir_all(&e.out)?;
+            }
         }
-        let ran = eval(&a, &["--checkpoint".into(), s(&chosen)], "test", a.test_programs, &test)?;
-        farm::files::write_atomic(&test.join("checkpoint"), s(&chosen).as_bytes())?;
-        progress.step(&format!("tested {name}"), !ran);
-        results.push(RunResult::read(run.method, run.seed_index, &chosen, val_sr1, &test.join("tables.csv"))?);
+        evaluate(&a, &test, &mut progress, &format!("tested {name}"))?;
+        farm::files::write_atomic(&test.out.join("checkpoint"), s(&chosen).as_bytes())?;
+        evaluate(&a, &fit, &mut progress, &format!("evaluated {name} on train"))?;
+        farm::files::write_atomic(&fit.out.join("checkpoint"), s(&chosen).as_bytes())?;
+
+        let mut r = RunResult::read(
+            run.method.stem,
+            run.scene_type,
+            run.seed_index,
+            &chosen,
+            val_sr1,
+            &test.out.join("tables.csv"),
+        )?;
+        r.val_tables = Some(run.select_dir(&chosen).join("tables.csv"));
+        r.train_tables = Some(fit.out.join("tables.csv"));
+        results.push(r);
     }
     if let Some(cfg) = &random {
         for k in 1..=a.seeds {
-            let dir = a.out.join("random").join(format!("seed{k}"));
             let mut c = cfg.clone();
             c.run.seed = cfg.run.seed + k - 1;
             let path = a.out.join("configs").join(format!("random-seed{k}.toml"));
             farm::files::write_atomic(&path, c.to_toml().as_bytes())?;
-            let ran = eval(&a, &["--config".into(), s(&path)], "test", a.test_programs, &dir)?;
-            progress.step(&format!("Random seed {k} on test"), !ran);
-            results.push(RunResult::read(Method::Random, k, Path::new("-"), f64::NAN, &dir.join("tables.csv"))?);
+            let e = Eval {
+                what: ["--config".into(), s(&path)],
+                split: Split::Test,
+                programs: a.test_programs,
+                modes: &["normal"],
+                rooms: vec![],
+                out: a.out.join("random").join(format!("seed{k}")),
+            };
+            evaluate(&a, &e, &mut progress, &format!("Random seed {k} on test"))?;
+            results.push(RunResult::read("random", None, k, Path::new("-"), f64::NAN, &e.out.join("tables.csv"))?);
         }
     }
-    let curves: Vec<(Method, PathBuf)> = runs.iter().map(|r| (r.method, r.dir.clone())).collect();
+    progress.finish();
+    let curves: Vec<(String, PathBuf)> =
+        runs.iter().filter(|r| r.scene_type.is_none()).map(|r| (r.method.stem.to_string(), r.dir.clone())).collect();
     study_report::write(&a.out, &results, &curves)?;
+    crate::study_tables::write(&a.out, &results)?;
     eprintln!("[study] tables in {}", a.out.join("T4.2.md").display());
     Ok(())
 }
@@ -361,6 +572,7 @@ mod tests {
             frames: 40_960,
             out: dir.to_path_buf(),
             methods: vec![],
+            per_scene_type: false,
             workers: 4,
             checkpoints: 5,
             val_programs: 100,
@@ -372,9 +584,9 @@ mod tests {
     fn the_plan_has_every_learning_method_per_seed_and_random_apart() {
         let dir = tempfile::tempdir().unwrap();
         let (runs, random) = plan(&args(dir.path())).unwrap();
-        assert_eq!(runs.len(), 5 * 2);
+        assert_eq!(runs.len(), 7 * 2, "T4.2's five learning methods and T4.7's two variants");
         assert!(random.is_some());
-        let both2 = runs.iter().find(|r| r.stem == "both" && r.seed_index == 2).unwrap();
+        let both2 = runs.iter().find(|r| r.method.stem == "both" && r.seed_index == 2).unwrap();
         assert_eq!(both2.cfg.run.seed, 2, "seeds 1 and 2 from the config's seed 1");
         assert_eq!(both2.cfg.run.total_frames, 40_960);
         // 4 workers × 8 envs × 128 steps = 4,096 frames an update: 10 updates, one checkpoint in 2
@@ -384,6 +596,36 @@ mod tests {
         );
         assert!(both2.dir.ends_with("runs/both-seed2"));
         assert!(both2.cfg.run.scenes.is_empty(), "the study trains in all 80 training rooms");
+    }
+
+    #[test]
+    fn t47_variants_and_per_scene_type_runs_are_planned_apart() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut a = args(dir.path());
+        a.seeds = 1;
+        a.per_scene_type = true;
+        let (runs, _) = plan(&a).unwrap();
+        // 7 models in every room (T4.2's five, T4.7's two), 3 methods × 4 scene types
+        assert_eq!(runs.len(), 7 + 12, "{:?}", runs.iter().map(|r| r.dir.clone()).collect::<Vec<_>>());
+        let rgb = runs.iter().find(|r| r.method.stem == "rgb_sem_both").unwrap();
+        assert!(rgb.cfg.model.rgb && !rgb.cfg.model.depth && rgb.cfg.run.method == Method::Both);
+        let bath =
+            runs.iter().find(|r| r.method.stem == "intervention" && r.scene_type == Some(SceneType::Bathroom)).unwrap();
+        assert!(bath.dir.ends_with("runs/intervention-bathroom-seed1"));
+        assert_eq!(bath.cfg.run.scenes.len(), 20);
+        assert!(bath.cfg.run.scenes.iter().all(|s| SceneId::parse(s).unwrap().scene_type == SceneType::Bathroom));
+        assert_eq!(
+            bath.rooms(Split::Test),
+            ["FloorPlan426", "FloorPlan427", "FloorPlan428", "FloorPlan429", "FloorPlan430"]
+        );
+        assert!(runs.iter().all(|r| r.scene_type.is_none() || PER_SCENE_TYPE.contains(&r.method.stem)));
+        // a variant whose inputs contradict its name
+        std::fs::create_dir_all(dir.path().join("c")).unwrap();
+        let both = std::fs::read_to_string(a.configs.join("both.toml")).unwrap();
+        std::fs::write(dir.path().join("c/depth_sem_both.toml"), both).unwrap();
+        a.configs = dir.path().join("c");
+        let e = plan(&a).unwrap_err().to_string();
+        assert!(e.contains("depth_sem_both.toml") && e.contains("model.rgb = true"), "{e}");
     }
 
     #[test]

@@ -1,22 +1,48 @@
-//! The study's tables: T4.2 (SR, SPL, DTS at the first stop on test, mean ± std over seeds)
-//! beside the dissertation's figures, and which of T4.2's orderings hold on our test split.
+//! The study's main table: T4.2 (SR, SPL, DTS at the first stop on test, mean ± std over seeds)
+//! beside the dissertation's figures, which of T4.2's orderings hold on our test split, and the
+//! figures beside it; the ablation tables T4.3–T4.7 are `crate::study_tables`.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use farm::config::Method;
+use farm::rooms::SceneType;
 use serde::Serialize;
 
-/// T4.2's methods in the dissertation's order, by config file stem.
-pub const METHODS: [(&str, Method); 6] = [
-    ("random", Method::Random),
-    ("vision_only", Method::VisionOnly),
-    ("vis_sem", Method::VisSem),
-    ("referencing", Method::Referencing),
-    ("intervention", Method::Intervention),
-    ("both", Method::Both),
+use crate::tables::{TableRow, find, read_rows};
+
+/// A model the study trains or evaluates, by config file stem: T4.2's methods, then T4.7's
+/// variants of +Both that see one visual input (+Both itself is T4.7's RGB-D row).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StudyMethod {
+    pub stem: &'static str,
+    pub method: Method,
+    pub label: &'static str,
+    /// The visual inputs its config must switch on (`model.rgb`, `model.depth`).
+    pub rgb: bool,
+    pub depth: bool,
+}
+
+const fn m(stem: &'static str, method: Method, label: &'static str, rgb: bool, depth: bool) -> StudyMethod {
+    StudyMethod { stem, method, label, rgb, depth }
+}
+
+/// T4.2's methods in the dissertation's order, then T4.7's variants.
+pub const METHODS: [StudyMethod; 8] = [
+    m("random", Method::Random, "Random", true, true),
+    m("vision_only", Method::VisionOnly, "Vision Only", true, true),
+    m("vis_sem", Method::VisSem, "VisSem", true, true),
+    m("referencing", Method::Referencing, "+Referencing", true, true),
+    m("intervention", Method::Intervention, "+Intervention", true, true),
+    m("both", Method::Both, "+Both", true, true),
+    m("rgb_sem_both", Method::Both, "RGB+Semantic+Both", true, false),
+    m("depth_sem_both", Method::Both, "Depth+Semantic+Both", false, true),
 ];
+
+/// The study method of a config stem.
+pub fn method(stem: &str) -> Option<StudyMethod> {
+    METHODS.into_iter().find(|m| m.stem == stem)
+}
 
 /// SR (%), SPL (%), DTS (m) at one number of stops.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
@@ -26,32 +52,42 @@ pub struct Metrics {
     pub dts: f64,
 }
 
-/// T4.2 as the dissertation prints it (test split, first stop).
-pub fn dissertation(m: Method) -> Metrics {
-    let (sr, spl, dts) = match m {
-        Method::Random => (8.7, 7.1, 2.908),
-        Method::VisionOnly => (0.36, 0.098, 2.719),
-        Method::VisSem => (15.2, 9.1, 2.419),
-        Method::Referencing => (19.2, 11.5, 2.313),
-        Method::Intervention => (41.0, 24.8, 2.004),
-        Method::Both => (49.2, 28.7, 1.976),
-    };
-    Metrics { sr, spl, dts }
+impl From<&TableRow> for Metrics {
+    fn from(r: &TableRow) -> Metrics {
+        Metrics { sr: r.sr, spl: r.spl, dts: r.dts }
+    }
 }
 
-/// T4.2's pairwise orderings (better, worse), as its text and table state them.
-pub const ORDERINGS: [(Method, Method); 5] = [
-    (Method::Both, Method::Intervention),
-    (Method::Intervention, Method::Referencing),
-    (Method::Referencing, Method::VisSem),
-    (Method::VisSem, Method::VisionOnly),
-    (Method::Both, Method::VisSem),
+/// T4.2 as the dissertation prints it (test split, first stop), by stem.
+pub fn dissertation(stem: &str) -> Option<Metrics> {
+    let (sr, spl, dts) = match stem {
+        "random" => (8.7, 7.1, 2.908),
+        "vision_only" => (0.36, 0.098, 2.719),
+        "vis_sem" => (15.2, 9.1, 2.419),
+        "referencing" => (19.2, 11.5, 2.313),
+        "intervention" => (41.0, 24.8, 2.004),
+        "both" => (49.2, 28.7, 1.976),
+        _ => return None,
+    };
+    Some(Metrics { sr, spl, dts })
+}
+
+/// T4.2's pairwise orderings (better, worse) by stem, as its text and table state them.
+pub const ORDERINGS: [(&str, &str); 5] = [
+    ("both", "intervention"),
+    ("intervention", "referencing"),
+    ("referencing", "vis_sem"),
+    ("vis_sem", "vision_only"),
+    ("both", "vis_sem"),
 ];
 
-/// One evaluated model of the study (a training run's selected checkpoint, or a Random seed).
+/// One evaluated model of the study (a training run's selected checkpoint, or a Random seed),
+/// with the evaluations the ablation tables read.
 #[derive(Clone, Debug, Serialize)]
 pub struct RunResult {
-    pub method: Method,
+    pub stem: String,
+    /// Trained in the rooms of this type only (`--per-scene-type`), else in every training room.
+    pub scene_type: Option<SceneType>,
     pub seed: u64,
     pub checkpoint: String,
     /// SR at the first stop on val of the selected checkpoint (NaN for Random).
@@ -59,24 +95,38 @@ pub struct RunResult {
     /// On test, at 1 stop and at unlimited stops.
     pub test_first: Metrics,
     pub test_unlimited: Metrics,
+    /// `tables.csv` of the selected checkpoint on test, on val, and on train (T4.3).
+    pub test_tables: PathBuf,
+    pub val_tables: Option<PathBuf>,
+    pub train_tables: Option<PathBuf>,
 }
 
 impl RunResult {
+    /// Reads the test results of one model from its `tables.csv`.
     pub fn read(
-        method: Method,
+        stem: &str,
+        scene_type: Option<SceneType>,
         seed: u64,
         checkpoint: &Path,
         val_sr1: f64,
-        test_csv: &Path,
+        test_tables: &Path,
     ) -> anyhow::Result<RunResult> {
         Ok(RunResult {
-            method,
+            stem: stem.into(),
+            scene_type,
             seed,
             checkpoint: checkpoint.display().to_string(),
             val_sr1,
-            test_first: first_stop(test_csv)?,
-            test_unlimited: row(test_csv, "inf")?,
+            test_first: first_stop(test_tables)?,
+            test_unlimited: row(test_tables, "inf")?,
+            test_tables: test_tables.into(),
+            val_tables: None,
+            train_tables: None,
         })
+    }
+
+    pub fn label(&self) -> &'static str {
+        method(&self.stem).map_or("?", |m| m.label)
     }
 }
 
@@ -86,24 +136,10 @@ pub fn first_stop(csv: &Path) -> anyhow::Result<Metrics> {
 }
 
 fn row(csv: &Path, stops: &str) -> anyhow::Result<Metrics> {
-    let text = std::fs::read_to_string(csv).with_context(|| format!("reading {}", csv.display()))?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let col = |name: &str| {
-        header.iter().position(|h| *h == name).with_context(|| format!("{}: no column `{name}`", csv.display()))
-    };
-    let (mode, scene, inst, st) = (col("mode")?, col("scene_type")?, col("instances")?, col("stops")?);
-    let (sr, spl, dts) = (col("sr")?, col("spl")?, col("dts")?);
-    for line in lines {
-        let f: Vec<&str> = line.split(',').collect();
-        if f.len() == header.len() && f[mode] == "normal" && f[scene] == "all" && f[inst] == "all" && f[st] == stops {
-            let num = |i: usize| {
-                f[i].parse::<f64>().with_context(|| format!("{}: `{}` is not a number", csv.display(), f[i]))
-            };
-            return Ok(Metrics { sr: num(sr)?, spl: num(spl)?, dts: num(dts)? });
-        }
-    }
-    anyhow::bail!("{}: no row for the normal pass, all rooms, {stops} stop(s)", csv.display())
+    let rows = read_rows(csv)?;
+    let r = find(&rows, "normal", "all", "all", stops)
+        .ok_or_else(|| anyhow::anyhow!("{}: no row for the normal pass, all rooms, {stops} stop(s)", csv.display()))?;
+    Ok(r.into())
 }
 
 /// Mean and sample standard deviation (0 for one value).
@@ -114,22 +150,44 @@ pub fn mean_std(v: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
-fn of(results: &[RunResult], m: Method, f: impl Fn(&RunResult) -> f64) -> Vec<f64> {
-    results.iter().filter(|r| r.method == m).map(f).collect()
+/// The models of T4.2: trained in every training room.
+fn of(results: &[RunResult], stem: &str, f: impl Fn(&RunResult) -> f64) -> Vec<f64> {
+    results.iter().filter(|r| r.stem == stem && r.scene_type.is_none()).map(f).collect()
+}
+
+/// One method's test results over its seeds: (mean, std) of each metric.
+struct Summary {
+    seeds: usize,
+    sr: (f64, f64),
+    spl: (f64, f64),
+    dts: (f64, f64),
+    sr_inf: (f64, f64),
+}
+
+fn summary(results: &[RunResult], stem: &str) -> Option<Summary> {
+    let sr = of(results, stem, |r| r.test_first.sr);
+    (!sr.is_empty()).then(|| Summary {
+        seeds: sr.len(),
+        sr: mean_std(&sr),
+        spl: mean_std(&of(results, stem, |r| r.test_first.spl)),
+        dts: mean_std(&of(results, stem, |r| r.test_first.dts)),
+        sr_inf: mean_std(&of(results, stem, |r| r.test_unlimited.sr)),
+    })
 }
 
 /// Success on training episodes against frames, per method: the mean over the seeds' runs
 /// (update by update; every seed makes the same updates) of a 10-update moving mean, in %.
-pub fn learning_curves(runs: &[(Method, PathBuf)]) -> anyhow::Result<Vec<(String, Vec<(f64, f64)>)>> {
+/// `runs` are (stem, run directory) of the runs trained in every training room.
+pub fn learning_curves(runs: &[(String, PathBuf)]) -> anyhow::Result<Vec<crate::plot::Series>> {
     #[derive(serde::Deserialize)]
     struct Row {
         frames: f64,
         success_rate: Option<f64>,
     }
     let mut out = Vec::new();
-    for (_, m) in METHODS {
+    for m in METHODS {
         let mut seeds: Vec<Vec<(f64, f64)>> = Vec::new();
-        for (_, dir) in runs.iter().filter(|(x, _)| *x == m) {
+        for (_, dir) in runs.iter().filter(|(x, _)| x == m.stem) {
             let rows: Vec<Row> = farm::files::read_jsonl(&dir.join("metrics.jsonl"))?;
             let smooth: Vec<(f64, f64)> = (0..rows.len())
                 .map(|i| {
@@ -141,23 +199,20 @@ pub fn learning_curves(runs: &[(Method, PathBuf)]) -> anyhow::Result<Vec<(String
         }
         let Some(n) = seeds.iter().map(Vec::len).min() else { continue };
         let mean = (0..n).map(|i| (seeds[0][i].0, seeds.iter().map(|s| s[i].1).sum::<f64>() / seeds.len() as f64));
-        out.push((m.label().to_string(), mean.collect()));
+        out.push((m.label.to_string(), mean.collect()));
     }
     Ok(out)
 }
 
 /// Writes `T4.2.md`, `T4.2.csv`, `study.json` and two figures into `out`: SR and SPL at the
 /// first stop with the seeds' spread (`sr_spl.png`), and every method's training success
-/// against frames (`learning_curves.png`, from the runs in `runs`).
-pub fn write(out: &Path, results: &[RunResult], runs: &[(Method, PathBuf)]) -> anyhow::Result<()> {
-    let mut groups = Vec::new();
-    for (_, m) in METHODS {
-        let sr = of(results, m, |r| r.test_first.sr);
-        if !sr.is_empty() {
-            groups.push((m.label().to_string(), vec![mean_std(&sr), mean_std(&of(results, m, |r| r.test_first.spl))]));
-        }
-    }
-    crate::plot::error_bars(
+/// against frames (`learning_curves.png`, from `runs` as in [`learning_curves`]).
+pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)]) -> anyhow::Result<()> {
+    let summaries: Vec<(StudyMethod, Summary)> =
+        METHODS.into_iter().filter_map(|m| summary(results, m.stem).map(|s| (m, s))).collect();
+    let groups: Vec<(String, Vec<(f64, f64)>)> =
+        summaries.iter().map(|(m, s)| (m.label.to_string(), vec![s.sr, s.spl])).collect();
+    crate::plot::grouped_bars(
         &out.join("sr_spl.png"),
         "Test, first stop: mean ± std over seeds",
         "%",
@@ -181,39 +236,25 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(Method, PathBuf)]) -> a
     let _ = writeln!(
         md,
         "# T4.2: navigation on test at the first stop\n\nOurs: mean ± std over seeds, each the checkpoint with the best SR at the first stop \
-         on val; separately trained models per method. Dissertation: its Table 4.2.\n"
+         on val; separately trained models per method, each in every training room. Dissertation: its Table 4.2 (T4.7's \
+         variants of +Both are in T4.7.md).\n"
     );
     let _ = writeln!(
         md,
         "| method | seeds | SR (%) | SPL (%) | DTS (m) | SR ∞ (%) | dissertation SR / SPL / DTS |\n|---|---:|---:|---:|---:|---:|---:|"
     );
-    for (_, m) in METHODS {
-        let sr = of(results, m, |r| r.test_first.sr);
-        if sr.is_empty() {
-            continue;
-        }
-        let (srm, srs) = mean_std(&sr);
-        let (splm, spls) = mean_std(&of(results, m, |r| r.test_first.spl));
-        let (dtsm, dtss) = mean_std(&of(results, m, |r| r.test_first.dts));
-        let (infm, infs) = mean_std(&of(results, m, |r| r.test_unlimited.sr));
-        let d = dissertation(m);
+    for (m, s) in &summaries {
+        let Some(d) = dissertation(m.stem) else { continue };
+        let (((srm, srs), (splm, spls)), ((dtsm, dtss), (infm, infs))) = ((s.sr, s.spl), (s.dts, s.sr_inf));
         let _ = writeln!(
             md,
             "| {} | {} | {srm:.1} ± {srs:.1} | {splm:.1} ± {spls:.1} | {dtsm:.2} ± {dtss:.2} | {infm:.1} ± {infs:.1} | {} / {} / {} |",
-            m.label(),
-            sr.len(),
-            d.sr,
-            d.spl,
-            d.dts
+            m.label, s.seeds, d.sr, d.spl, d.dts
         );
         let _ = writeln!(
             csv,
             "{},{},{srm:.3},{srs:.3},{splm:.3},{spls:.3},{dtsm:.4},{dtss:.4},{infm:.3},{},{},{}",
-            m.label(),
-            sr.len(),
-            d.sr,
-            d.spl,
-            d.dts
+            m.label, s.seeds, d.sr, d.spl, d.dts
         );
     }
     let _ = writeln!(
@@ -222,11 +263,12 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(Method, PathBuf)]) -> a
          methods' standard deviations over seeds.\n\n| ordering | ours (SR %) | holds |\n|---|---:|:---:|"
     );
     for (a, b) in ORDERINGS {
-        let (xa, xb) = (of(results, a, |r| r.test_first.sr), of(results, b, |r| r.test_first.sr));
-        if xa.is_empty() || xb.is_empty() {
+        let (Some(x), Some(y)) =
+            (summaries.iter().find(|(m, _)| m.stem == a), summaries.iter().find(|(m, _)| m.stem == b))
+        else {
             continue;
-        }
-        let ((ma, sa), (mb, sb)) = (mean_std(&xa), mean_std(&xb));
+        };
+        let ((ma, sa), (mb, sb)) = (x.1.sr, y.1.sr);
         let verdict = if ma - mb > sa.max(sb) {
             "yes"
         } else if ma > mb {
@@ -234,16 +276,23 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(Method, PathBuf)]) -> a
         } else {
             "no"
         };
-        let _ = writeln!(md, "| {} > {} | {ma:.1} ± {sa:.1} vs {mb:.1} ± {sb:.1} | {verdict} |", a.label(), b.label());
+        let _ = writeln!(md, "| {} > {} | {ma:.1} ± {sa:.1} vs {mb:.1} ± {sb:.1} | {verdict} |", x.0.label, y.0.label);
     }
     let _ = writeln!(
         md,
-        "\n## Runs\n\n| method | seed | selected checkpoint | val SR 1 stop (%) | test SR 1 stop (%) |\n|---|---:|---|---:|---:|"
+        "\n## Runs\n\n| method | rooms | seed | selected checkpoint | val SR 1 stop (%) | test SR 1 stop (%) |\n|---|---|---:|---|---:|---:|"
     );
     for r in results {
         let val = if r.val_sr1.is_nan() { "-".into() } else { format!("{:.1}", r.val_sr1) };
-        let _ =
-            writeln!(md, "| {} | {} | {} | {val} | {:.1} |", r.method.label(), r.seed, r.checkpoint, r.test_first.sr);
+        let rooms = r.scene_type.map_or("all", |t| t.name());
+        let _ = writeln!(
+            md,
+            "| {} | {rooms} | {} | {} | {val} | {:.1} |",
+            r.label(),
+            r.seed,
+            r.checkpoint,
+            r.test_first.sr
+        );
     }
     let _ = writeln!(md, "\n![SR and SPL](sr_spl.png)\n\n![learning curves](learning_curves.png)");
     farm::files::write_atomic(&out.join("T4.2.md"), md.as_bytes())?;
@@ -253,7 +302,7 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(Method, PathBuf)]) -> a
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     #[test]
@@ -282,25 +331,42 @@ mod tests {
         assert!(e.contains("tables.csv") && e.contains("2 stop"), "{e}");
     }
 
+    /// A model's result whose every table row has SR `sr` (SPL sr / 2) and 50 at ∞.
+    pub(crate) fn result(dir: &Path, stem: &str, seed: u64, sr: f64) -> RunResult {
+        let mut csv = String::from("label,split,mode,scene_type,instances,stops,episodes,sr,spl,dts\n");
+        for mode in ["normal", "blind"] {
+            for t in ["all", "Kitchen", "LivingRoom", "Bedroom", "Bathroom"] {
+                for i in ["all", "1", "2", "3+"] {
+                    for k in ["1", "2", "3", "inf"] {
+                        let (x, y) = if k == "inf" { (50.0, 30.0) } else { (sr, sr / 2.0) };
+                        let _ = writeln!(csv, "x,test,{mode},{t},{i},{k},10,{x},{y},1.0");
+                    }
+                }
+            }
+        }
+        let p = dir.join(format!("{stem}-{seed}.csv"));
+        std::fs::write(&p, csv).unwrap();
+        let mut r = RunResult::read(stem, None, seed, Path::new("c"), 1.0, &p).unwrap();
+        (r.val_tables, r.train_tables) = (Some(p.clone()), Some(p));
+        r
+    }
+
     #[test]
     fn the_table_puts_the_dissertation_beside_ours_and_judges_orderings() {
         let dir = tempfile::tempdir().unwrap();
-        let r = |m, seed, sr| RunResult {
-            method: m,
-            seed,
-            checkpoint: "c".into(),
-            val_sr1: 1.0,
-            test_first: Metrics { sr, spl: sr / 2.0, dts: 1.0 },
-            test_unlimited: Metrics { sr: 50.0, spl: 30.0, dts: 0.3 },
-        };
-        let results =
-            [r(Method::Both, 1, 10.0), r(Method::Both, 2, 12.0), r(Method::VisSem, 1, 4.0), r(Method::VisSem, 2, 5.0)];
-        write(dir.path(), &results, &[]).unwrap();
-        assert!(dir.path().join("sr_spl.png").is_file());
-        let md = std::fs::read_to_string(dir.path().join("T4.2.md")).unwrap();
+        let d = dir.path();
+        let results = [
+            result(d, "both", 1, 10.0),
+            result(d, "both", 2, 12.0),
+            result(d, "vis_sem", 1, 4.0),
+            result(d, "vis_sem", 2, 5.0),
+        ];
+        write(d, &results, &[]).unwrap();
+        assert!(d.join("sr_spl.png").is_file());
+        let md = std::fs::read_to_string(d.join("T4.2.md")).unwrap();
         assert!(md.contains("| +Both | 2 | 11.0 ± 1.4 |") && md.contains("49.2 / 28.7 / 1.976"), "{md}");
         assert!(md.contains("| +Both > VisSem | 11.0 ± 1.4 vs 4.5 ± 0.7 | yes |"), "{md}");
-        let csv = std::fs::read_to_string(dir.path().join("T4.2.csv")).unwrap();
+        let csv = std::fs::read_to_string(d.join("T4.2.csv")).unwrap();
         assert_eq!(csv.lines().count(), 3);
     }
 }

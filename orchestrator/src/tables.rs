@@ -197,6 +197,72 @@ impl Evaluation<'_> {
     }
 }
 
+/// One row of `tables.csv` as [`Evaluation::csv`] writes it (scene type, instances and stops
+/// as written: "all", "3+", "inf").
+#[derive(Clone, Debug, PartialEq)]
+pub struct TableRow {
+    pub mode: String,
+    pub scene_type: String,
+    pub instances: String,
+    pub stops: String,
+    pub episodes: u64,
+    pub sr: f64,
+    pub spl: f64,
+    pub dts: f64,
+}
+
+/// The rows of an evaluation's `tables.csv`; a malformed file is one error naming it and the field.
+pub fn read_rows(csv: &std::path::Path) -> anyhow::Result<Vec<TableRow>> {
+    use anyhow::Context;
+    let text = std::fs::read_to_string(csv).with_context(|| format!("reading {}", csv.display()))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let col = |name: &str| {
+        header.iter().position(|h| *h == name).with_context(|| format!("{}: no column `{name}`", csv.display()))
+    };
+    let cols = ["mode", "scene_type", "instances", "stops", "episodes", "sr", "spl", "dts"].map(col);
+    let [mode, scene, inst, stops, episodes, sr, spl, dts] = cols;
+    let (mode, scene, inst, stops, episodes, sr, spl, dts) = (mode?, scene?, inst?, stops?, episodes?, sr?, spl?, dts?);
+    let mut rows = Vec::new();
+    for (n, line) in lines.enumerate() {
+        let f: Vec<&str> = line.split(',').collect();
+        anyhow::ensure!(
+            f.len() == header.len(),
+            "{}: line {} has {} fields, not {}",
+            csv.display(),
+            n + 2,
+            f.len(),
+            header.len()
+        );
+        let num = |i: usize| {
+            f[i].parse::<f64>()
+                .with_context(|| format!("{}: line {}: {} `{}` is not a number", csv.display(), n + 2, header[i], f[i]))
+        };
+        rows.push(TableRow {
+            mode: f[mode].into(),
+            scene_type: f[scene].into(),
+            instances: f[inst].into(),
+            stops: f[stops].into(),
+            episodes: num(episodes)? as u64,
+            sr: num(sr)?,
+            spl: num(spl)?,
+            dts: num(dts)?,
+        });
+    }
+    Ok(rows)
+}
+
+/// The row of `mode`, scene type, instance bucket and stops among `rows`.
+pub fn find<'r>(
+    rows: &'r [TableRow],
+    mode: &str,
+    scene_type: &str,
+    instances: &str,
+    stops: &str,
+) -> Option<&'r TableRow> {
+    rows.iter().find(|r| r.mode == mode && r.scene_type == scene_type && r.instances == instances && r.stops == stops)
+}
+
 /// Several evaluations side by side, as T4.2 (first stop) with ∞ columns added.
 pub fn compare(rows: &[(String, Scores, Scores)]) -> String {
     let mut md = String::from(
@@ -283,5 +349,17 @@ mod tests {
         );
         let csv = e.csv();
         assert!(csv.lines().any(|l| l.starts_with("x,test,blind,all,all,1,3,0.000")), "{csv}");
+        // what the study reads back is what was written
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("tables.csv");
+        std::fs::write(&path, &csv).unwrap();
+        let rows = read_rows(&path).unwrap();
+        assert_eq!(rows.len(), csv.lines().count() - 1);
+        let kitchen = find(&rows, "normal", "Kitchen", "all", "1").unwrap();
+        assert_eq!((kitchen.episodes, kitchen.sr), (1, 100.0));
+        assert!(find(&rows, "blind", "all", "3+", "inf").is_some());
+        std::fs::write(&path, csv.replacen(",3,0.000", ",3,zero", 1)).unwrap();
+        let e = read_rows(&path).unwrap_err().to_string();
+        assert!(e.contains("tables.csv") && e.contains("sr `zero`"), "{e}");
     }
 }
