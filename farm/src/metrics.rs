@@ -23,8 +23,10 @@ pub struct EpisodeResult {
     pub collisions: u32,
     pub num_stops: u32,
     pub path_length: f32,
-    /// l_i: geodesic distance from the start to the success region.
-    pub start_geodesic: f32,
+    /// l_i: a lower bound of any successful path's length from the start (older files call it
+    /// `start_geodesic`, the 8-connected grid distance of earlier versions).
+    #[serde(alias = "start_geodesic")]
+    pub shortest_path: f32,
     pub final_distance: f32,
     pub total_reward: f32,
     pub intervention_steps: u32,
@@ -111,7 +113,7 @@ impl EpisodeResult {
             collisions: s.collisions,
             num_stops: s.num_stops,
             path_length: s.path_length,
-            start_geodesic: s.start_geodesic,
+            shortest_path: s.shortest_path,
             final_distance: s.final_distance,
             total_reward: s.total_reward,
             intervention_steps: s.intervention_steps,
@@ -131,7 +133,7 @@ impl EpisodeResult {
 
     /// (success, SPL, distance at the end) when at most `k` stops are allowed (None = ∞).
     pub fn at_stops(&self, k: Option<usize>) -> (bool, f64, f64) {
-        let l = self.start_geodesic as f64;
+        let l = self.shortest_path as f64;
         let spl = |p: f64| spl(l, p);
         match k {
             None => {
@@ -193,7 +195,7 @@ mod tests {
             collisions: 0,
             num_stops: stops.len() as u32,
             path_length: p,
-            start_geodesic: l,
+            shortest_path: l,
             final_distance,
             total_reward: 0.0,
             intervention_steps: 0,

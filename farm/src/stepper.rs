@@ -160,7 +160,7 @@ impl SyntheticStepper {
                 collisions: 0,
                 num_stops: 1,
                 path_length: 0.25 * r.episode_step as f32,
-                start_geodesic: 3.5,
+                shortest_path: 3.5,
                 final_distance: r.distance,
                 total_reward: if success { 1.0 } else { 0.0 } - 0.001 * r.episode_step as f32,
                 intervention_steps: 0,

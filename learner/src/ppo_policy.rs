@@ -140,7 +140,7 @@ fn env_step(r: &EnvRecord) -> EnvStep {
     let done = r.terminated != 0 || r.truncated != 0;
     let s = &r.summary;
     let spl = if done && s.success != 0 {
-        farm::metrics::spl(s.start_geodesic as f64, s.path_length as f64) as f32
+        farm::metrics::spl(s.shortest_path as f64, s.path_length as f64) as f32
     } else {
         0.0
     };

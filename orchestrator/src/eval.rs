@@ -302,6 +302,12 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         crate::trajectory::draw(&cfg, &ds, split, &evaluation, checkpoint.as_deref(), &out, a.trajectories)?;
     }
     println!("{md}");
+    let (short, successes) = evaluation.shorter_than_l();
+    if short > 0 {
+        eprintln!(
+            "[eval] warning: {short} of {successes} successful episodes were shorter than their l_i (a bug in SPL's lower bound)"
+        );
+    }
     eprintln!("[eval] tables in {}", out.display());
     Ok(())
 }

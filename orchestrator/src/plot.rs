@@ -148,13 +148,7 @@ pub fn histogram(path: &Path, title: &str, x_label: &str, values: &[f64], bin: f
 pub type Series = (String, Vec<(f64, f64)>);
 
 /// Line chart of several series over a shared x axis.
-pub fn lines(
-    path: &Path,
-    title: &str,
-    x_label: &str,
-    y_label: &str,
-    series: &[Series],
-) -> anyhow::Result<()> {
+pub fn lines(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series]) -> anyhow::Result<()> {
     crate::fonts::ensure();
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;

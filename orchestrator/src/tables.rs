@@ -83,6 +83,14 @@ impl Evaluation<'_> {
         Some(scores(eps.iter().filter(|e| filter(e)), k, self.dts_threshold))
     }
 
+    /// (successful episodes of every pass whose path is shorter than their l_i, successful
+    /// episodes): the first should be 0, as l_i is a lower bound.
+    pub fn shorter_than_l(&self) -> (usize, usize) {
+        let wins: Vec<&EpisodeResult> = self.passes.values().flatten().filter(|e| e.success).collect();
+        // 1 mm of slack for f32 sums of 0.25 m steps
+        (wins.iter().filter(|e| e.path_length < e.shortest_path - 1e-3).count(), wins.len())
+    }
+
     /// Markdown with every table this evaluation supports.
     pub fn markdown(&self) -> String {
         let mut md = String::new();
@@ -93,6 +101,13 @@ impl Evaluation<'_> {
             md,
             "DTS threshold {:.2} m; success needs Stop within 1 m of the target with the target in view.\n",
             self.dts_threshold
+        )
+        .unwrap();
+        let (short, successes) = self.shorter_than_l();
+        writeln!(
+            md,
+            "SPL's l_i is a lower bound of any successful path (`worker::shortest_path`): {short} of {successes} \
+             successful episodes were shorter than their l_i.\n"
         )
         .unwrap();
 
@@ -319,7 +334,7 @@ mod tests {
             collisions: 0,
             num_stops: 1,
             path_length: 2.0,
-            start_geodesic: 2.0,
+            shortest_path: 2.0,
             final_distance: if success { 0.5 } else { 3.0 },
             total_reward: 0.0,
             intervention_steps: 0,

@@ -139,8 +139,9 @@ pub struct EpisodeSummary {
     pub collisions: u32,
     pub num_stops: u32,
     pub path_length: f32,
-    /// Geodesic distance from the start to the success region (l_i of SPL).
-    pub start_geodesic: f32,
+    /// l_i of SPL: a lower bound of any successful path's length from the start
+    /// (`worker::shortest_path`).
+    pub shortest_path: f32,
     /// 2D distance to the target centre at the end.
     pub final_distance: f32,
     pub total_reward: f32,

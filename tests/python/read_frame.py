@@ -109,7 +109,7 @@ class EpisodeSummary(ctypes.Structure):
         ("collisions", ctypes.c_uint32),
         ("num_stops", ctypes.c_uint32),
         ("path_length", ctypes.c_float),
-        ("start_geodesic", ctypes.c_float),
+        ("shortest_path", ctypes.c_float),
         ("final_distance", ctypes.c_float),
         ("total_reward", ctypes.c_float),
         ("intervention_steps", ctypes.c_uint32),

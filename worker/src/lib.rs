@@ -15,5 +15,6 @@ pub mod program;
 pub mod render;
 pub mod robot;
 pub mod scene;
+pub mod shortest_path;
 pub mod task;
 pub mod visibility;

@@ -54,6 +54,13 @@ impl NavGrid {
         g
     }
 
+    /// An `nx`×`nz` grid of `step` from the origin whose point (col, row) is free where `free`
+    /// says (grids drawn by hand, for tests).
+    pub fn from_mask(step: f32, nx: usize, nz: usize, free: impl Fn(usize, usize) -> bool) -> NavGrid {
+        let free = (0..nx * nz).map(|c| free(c % nx, c / nx)).collect();
+        NavGrid { step, i0: 0, k0: 0, nx, nz, free }
+    }
+
     pub fn len(&self) -> usize {
         self.nx * self.nz
     }
@@ -82,6 +89,20 @@ impl NavGrid {
         let row = (p.y / self.step).round() as i32 - self.k0;
         (col >= 0 && row >= 0 && (col as usize) < self.nx && (row as usize) < self.nz)
             .then(|| row as usize * self.nx + col as usize)
+    }
+
+    /// Whether the grid square holding `p` (between four grid points) has a free corner.
+    pub fn square_has_free_corner(&self, p: Point2<f32>) -> bool {
+        let col = (p.x / self.step).floor() as i32 - self.i0;
+        let row = (p.y / self.step).floor() as i32 - self.k0;
+        [(0, 0), (1, 0), (0, 1), (1, 1)].iter().any(|&(dc, dr)| {
+            let (c, r) = (col + dc, row + dr);
+            c >= 0
+                && r >= 0
+                && (c as usize) < self.nx
+                && (r as usize) < self.nz
+                && self.free[r as usize * self.nx + c as usize]
+        })
     }
 
     /// Marks cells within `radius` of `center` as blocked (the person standing there).

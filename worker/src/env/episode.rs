@@ -10,7 +10,7 @@ use shm_schema::{EnvRecord, EpisodeSummary, SUMMARY_STOPS, StopSummary, action, 
 use super::schedule;
 use crate::camera::{Camera, Intrinsics};
 use crate::dataset::build::RoomContext;
-use crate::geometry::{Part, angle_diff_deg};
+use crate::geometry::{Part, angle_diff_deg, xz};
 use crate::gesture::{self, Motion};
 use crate::humanoid::Humanoid;
 use crate::nav::{Goal, NavGrid, expert_action};
@@ -41,7 +41,7 @@ pub struct Env {
     referencing: Motion,
     intervention: (u8, Arc<Motion>),
     frame: usize,
-    start_geodesic: f32,
+    shortest_path: f32,
     /// Pixels of the target in the frame last shown to the robot.
     visible_pixels: u32,
     intervention_steps: u32,
@@ -74,7 +74,8 @@ impl Env {
         let goal =
             Goal { center: t.center, id: object_id(program.target_object), points: t.points.clone(), cells, field };
         let pose = program.robot_start();
-        let start_geodesic = goal.geodesic(&grid, pose.xz());
+        let shortest_path =
+            crate::shortest_path::lower_bound(&grid, pose.xz(), xz(&t.center).into(), cfg.task.success_distance);
         let mut task = Task::new(cfg.task.clone());
         task.reset(goal.distance_2d(pose.xz()));
         let k = Intrinsics::reference(cfg.env.fov_deg);
@@ -93,7 +94,7 @@ impl Env {
             referencing: motion,
             intervention,
             frame: 0,
-            start_geodesic,
+            shortest_path,
             visible_pixels: 0,
             intervention_steps: 0,
             last: StepResult::default(),
@@ -122,8 +123,8 @@ impl Env {
         &self.physics
     }
 
-    pub fn start_geodesic(&self) -> f32 {
-        self.start_geodesic
+    pub fn shortest_path(&self) -> f32 {
+        self.shortest_path
     }
 
     pub fn is_done(&self) -> bool {
@@ -257,7 +258,7 @@ impl Env {
             collisions: s.collisions,
             num_stops: s.stops.len() as u32,
             path_length: s.path_length,
-            start_geodesic: self.start_geodesic,
+            shortest_path: self.shortest_path,
             final_distance: s.final_distance,
             total_reward: s.total_reward,
             intervention_steps: self.intervention_steps,

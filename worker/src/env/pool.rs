@@ -455,10 +455,17 @@ mod tests {
             assert!(*success == 1, "expert failed program {p}: {s:?}");
             assert_eq!(s.num_stops, 1, "program {p}: the expert stops once");
             assert!(
-                s.path_length <= 1.3 * s.start_geodesic + 0.5,
-                "program {p}: expert path {} for geodesic {}",
+                s.path_length <= 1.3 * s.shortest_path + 0.5,
+                "program {p}: expert path {} for l_i {}",
                 s.path_length,
-                s.start_geodesic
+                s.shortest_path
+            );
+            // l_i is a lower bound of every successful path: of the expert's, the shortest ones
+            assert!(
+                s.path_length >= s.shortest_path - 1e-3,
+                "program {p}: the expert's path {} is shorter than l_i {}",
+                s.path_length,
+                s.shortest_path
             );
         }
     }
