@@ -359,7 +359,7 @@ fn no_child_outlives_a_killed_orchestrator() {
 }
 
 /// `orchestrator eval` of the shortest-path expert over a whole split: every program once, SR
-/// 100% and SPL close to 1 at unlimited stops, trajectory pictures drawn; and the Random
+/// 100% and SPL above 70% with no path shorter than its l_i, trajectory pictures drawn; and the Random
 /// baseline on the same programs far below it.
 #[test]
 fn eval_of_the_expert_scores_full_success_and_random_does_not() {
@@ -390,7 +390,11 @@ fn eval_of_the_expert_scores_full_success_and_random_does_not() {
     let (n, sr, spl) = eval(&["--expert", "--trajectories", "2"], &expert_dir);
     assert_eq!(n, programs, "every program of the split once");
     assert_eq!(sr, 100.0, "expert SR");
-    assert!(spl > 95.0, "expert SPL {spl}");
+    // l_i is a lower bound below any path of 0.25 m steps at 15° headings: the expert scores
+    // less than 100, and none of its paths is shorter than its l_i
+    assert!(spl > 70.0 && spl <= 100.0, "expert SPL {spl}");
+    let md = std::fs::read_to_string(expert_dir.join("tables.md")).unwrap();
+    assert!(md.contains(&format!(" 0 of {n} successful episodes were shorter than their l_i")), "{md}");
     let pictures: Vec<_> = std::fs::read_dir(expert_dir.join("trajectories"))
         .unwrap()
         .flatten()
