@@ -73,12 +73,13 @@ pub fn dissertation(stem: &str) -> Option<Metrics> {
 }
 
 /// T4.2's pairwise orderings (better, worse) by stem, as its text and table state them.
-pub const ORDERINGS: [(&str, &str); 5] = [
+pub const ORDERINGS: [(&str, &str); 6] = [
     ("both", "intervention"),
     ("intervention", "referencing"),
     ("referencing", "vis_sem"),
     ("vis_sem", "vision_only"),
     ("both", "vis_sem"),
+    ("intervention", "vis_sem"),
 ];
 
 /// One evaluated model of the study (a training run's selected checkpoint, or a Random seed),
@@ -248,12 +249,12 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)]) -> a
         let (((srm, srs), (splm, spls)), ((dtsm, dtss), (infm, infs))) = ((s.sr, s.spl), (s.dts, s.sr_inf));
         let _ = writeln!(
             md,
-            "| {} | {} | {srm:.1} ± {srs:.1} | {splm:.1} ± {spls:.1} | {dtsm:.2} ± {dtss:.2} | {infm:.1} ± {infs:.1} | {} / {} / {} |",
+            "| {} | {} | {srm:.1} ± {srs:.1} | {splm:.1} ± {spls:.1} | {dtsm:.2} ± {dtss:.2} | {infm:.1} ± {infs:.1} | {:?} / {:?} / {:?} |",
             m.label, s.seeds, d.sr, d.spl, d.dts
         );
         let _ = writeln!(
             csv,
-            "{},{},{srm:.3},{srs:.3},{splm:.3},{spls:.3},{dtsm:.4},{dtss:.4},{infm:.3},{},{},{}",
+            "{},{},{srm:.3},{srs:.3},{splm:.3},{spls:.3},{dtsm:.4},{dtss:.4},{infm:.3},{:?},{:?},{:?}",
             m.label, s.seeds, d.sr, d.spl, d.dts
         );
     }
