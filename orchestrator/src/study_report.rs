@@ -112,14 +112,15 @@ impl RunResult {
         val_sr1: f64,
         test_tables: &Path,
     ) -> anyhow::Result<RunResult> {
+        let rows = read_rows(test_tables)?;
         Ok(RunResult {
             stem: stem.into(),
             scene_type,
             seed,
             checkpoint: checkpoint.display().to_string(),
             val_sr1,
-            test_first: first_stop(test_tables)?,
-            test_unlimited: row(test_tables, "inf")?,
+            test_first: row(&rows, test_tables, "1")?,
+            test_unlimited: row(&rows, test_tables, "inf")?,
             test_tables: test_tables.into(),
             val_tables: None,
             train_tables: None,
@@ -133,12 +134,12 @@ impl RunResult {
 
 /// The first-stop row (normal pass, all scene types and instance counts) of `eval`'s tables.csv.
 pub fn first_stop(csv: &Path) -> anyhow::Result<Metrics> {
-    row(csv, "1")
+    row(&read_rows(csv)?, csv, "1")
 }
 
-fn row(csv: &Path, stops: &str) -> anyhow::Result<Metrics> {
-    let rows = read_rows(csv)?;
-    let r = find(&rows, "normal", "all", "all", stops)
+/// The row at `stops` (normal pass, all scene types and instance counts) of `rows`, read from `csv`.
+fn row(rows: &[TableRow], csv: &Path, stops: &str) -> anyhow::Result<Metrics> {
+    let r = find(rows, "normal", "all", "all", stops)
         .ok_or_else(|| anyhow::anyhow!("{}: no row for the normal pass, all rooms, {stops} stop(s)", csv.display()))?;
     Ok(r.into())
 }
@@ -327,8 +328,9 @@ pub(crate) mod tests {
         )
         .unwrap();
         assert_eq!(first_stop(&p).unwrap(), Metrics { sr: 3.7, spl: 3.138, dts: 1.175 });
-        assert_eq!(row(&p, "inf").unwrap().sr, 52.3);
-        let e = row(&p, "2").unwrap_err().to_string();
+        let rows = read_rows(&p).unwrap();
+        assert_eq!(row(&rows, &p, "inf").unwrap().sr, 52.3);
+        let e = row(&rows, &p, "2").unwrap_err().to_string();
         assert!(e.contains("tables.csv") && e.contains("2 stop"), "{e}");
     }
 

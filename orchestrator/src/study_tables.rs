@@ -122,24 +122,27 @@ impl<'a> Loaded<'a> {
         let of = |t: Option<SceneType>| -> Vec<&'a RunResult> {
             self.results.iter().filter(|r| r.stem == line.stem && r.scene_type == t).collect()
         };
-        match line.scene_type {
-            Some(t) if !of(Some(t)).is_empty() => (of(Some(t)), "one per type"),
-            Some(_) => (of(None), "all types, broken down"),
-            None => (of(None), "all types"),
-        }
+        let Some(t) = line.scene_type else { return (of(None), "all types") };
+        let own = of(Some(t));
+        if own.is_empty() { (of(None), "all types, broken down") } else { (own, "one per type") }
     }
 
-    /// The column's value for each of the line's models (seeds) that has it. Random sees nothing
-    /// to zero, so its blind pass is its normal one.
-    fn values(&self, line: &Line, c: &Column) -> Vec<f64> {
+    /// The column's value for each of `models` (the line's seeds) that has it.
+    fn values(&self, line: &Line, models: &[&RunResult], c: &Column) -> Vec<f64> {
         let scene = line.scene_type.map_or("all", |t| t.name());
-        let mode = if line.stem == "random" { "normal" } else { c.mode };
-        self.models(line)
-            .0
-            .into_iter()
+        models
+            .iter()
             .filter_map(|r| c.fold.tables(r).and_then(|p| self.rows.get(p)))
-            .filter_map(|rows| find(rows, mode, scene, c.instances, c.stops).map(|row| c.metric.of(row)))
+            .filter_map(|rows| find(rows, line.mode(c), scene, c.instances, c.stops).map(|row| c.metric.of(row)))
             .collect()
+    }
+}
+
+impl Line {
+    /// The pass a column reads for this line: Random sees nothing to zero, so its blind pass is
+    /// its normal one.
+    fn mode(&self, c: &Column) -> &'static str {
+        if self.stem == "random" { "normal" } else { c.mode }
     }
 }
 
@@ -160,8 +163,8 @@ fn table(name: &str, caption: &str, lines: &[Line], columns: &[Column], data: &L
         String::from("table,scene_type,method,models,split,mode,instances,stops,metric,seeds,mean,std,dissertation\n");
     let mut any = false;
     for line in lines {
-        let models = data.models(line).1;
-        let cells: Vec<Vec<f64>> = columns.iter().map(|c| data.values(line, c)).collect();
+        let (runs, models) = data.models(line);
+        let cells: Vec<Vec<f64>> = columns.iter().map(|c| data.values(line, &runs, c)).collect();
         if cells.iter().all(Vec::is_empty) {
             continue;
         }
@@ -188,7 +191,7 @@ fn table(name: &str, caption: &str, lines: &[Line], columns: &[Column], data: &L
                 "{name},{},{label},{models},{},{},{},{},{},{},{mean:.4},{std:.4},{d:?}",
                 line.scene_type.map_or("all", |t| t.name()),
                 c.fold.name(),
-                if line.stem == "random" { "normal" } else { c.mode },
+                line.mode(c),
                 c.instances,
                 c.stops,
                 c.metric.name(),

@@ -175,8 +175,9 @@ pub struct DistanceField {
     pub dist: Vec<f32>,
 }
 
+/// A cell and its distance in a Dijkstra queue: `BinaryHeap` pops the nearest first (ties by cell).
 #[derive(PartialEq)]
-struct Entry(f32, Cell);
+pub(crate) struct Entry(pub f32, pub Cell);
 impl Eq for Entry {}
 impl Ord for Entry {
     fn cmp(&self, o: &Self) -> Ordering {

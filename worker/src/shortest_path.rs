@@ -14,12 +14,11 @@
 //! disc, so a successful path could be shorter than it; `orchestrator eval` counts any
 //! successful episode shorter than its l_i (there should be none).
 
-use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
 use nalgebra::Point2;
 
-use crate::nav::{Cell, NavGrid};
+use crate::nav::{Cell, Entry, NavGrid};
 
 /// Samples per grid step along a segment checked for line of sight.
 const LOS_SAMPLES_PER_STEP: f32 = 8.0;
@@ -32,20 +31,6 @@ const LOS_SAMPLES_PER_STEP: f32 = 8.0;
 pub fn line_of_sight(grid: &NavGrid, a: Point2<f32>, b: Point2<f32>) -> bool {
     let n = ((b - a).norm() / grid.step * LOS_SAMPLES_PER_STEP).ceil().max(1.0) as usize;
     (0..=n).all(|i| grid.square_has_free_corner(a + (b - a) * (i as f32 / n as f32)))
-}
-
-#[derive(PartialEq)]
-struct Entry(f32, Cell);
-impl Eq for Entry {}
-impl Ord for Entry {
-    fn cmp(&self, o: &Self) -> Ordering {
-        o.0.partial_cmp(&self.0).unwrap_or(Ordering::Equal).then(o.1.cmp(&self.1))
-    }
-}
-impl PartialOrd for Entry {
-    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
-        Some(self.cmp(o))
-    }
 }
 
 /// Free grid points up to two steps away in line of sight, with the distance to them: two, so
