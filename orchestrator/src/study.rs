@@ -54,7 +54,7 @@ pub struct StudyArgs {
     /// rooms only, as the dissertation does for T4.3/T4.4 (12 more runs per seed).
     #[arg(long)]
     pub per_scene_type: bool,
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
     pub workers: usize,
     /// Checkpoints per run to choose from on val (evenly spaced; the last one always).
     #[arg(long, default_value_t = 5)]
@@ -66,6 +66,10 @@ pub struct StudyArgs {
     /// Test programs per evaluation (spread over the test rooms).
     #[arg(long, default_value_t = 1000)]
     pub test_programs: usize,
+    /// Train and evaluate every method on this dataset instead of the configs' `run.dataset`
+    /// (e.g. one built with `dataset build --pointing realistic`).
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
 }
 
 /// One training run of the study.
@@ -145,7 +149,10 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
             anyhow::ensure!(a.methods.is_empty(), "--methods {stem}: no {}", path.display());
             continue;
         }
-        let cfg = RunConfig::load(&path)?;
+        let mut cfg = RunConfig::load(&path)?;
+        if let Some(d) = &a.dataset {
+            cfg.run.dataset = d.clone();
+        }
         anyhow::ensure!(
             cfg.run.method == sm.method,
             "{}: run.method is {:?}, the file name says {stem}",
@@ -577,6 +584,7 @@ mod tests {
             checkpoints: 5,
             val_programs: 100,
             test_programs: 100,
+            dataset: None,
         }
     }
 

@@ -20,6 +20,7 @@ use serde::{Deserialize, Serialize};
 use super::{BuildParams, GondWriter, Manifest, SplitEntry, write_gond};
 use crate::camera::{Camera, Intrinsics};
 use crate::geometry::{angle_diff_deg, wrap_deg, yaw_of};
+use crate::gesture::Pointing;
 use crate::nav::{Cell, DistanceField, GRID_STEP, NavGrid, visible_headings};
 use crate::physics::{HUMAN_RADIUS, Physics, RobotBody};
 use crate::program::{Hand, Program};
@@ -46,9 +47,15 @@ pub struct Synthesized {
 /// Makes the referencing motion of a program: (seed, person feet position, person yaw, target).
 pub type Synth<'a> = dyn Fn(u64, Point3<f32>, f32, Point3<f32>) -> Synthesized + Sync + 'a;
 
-/// The referencing synthesiser of `gesture`, as the builder calls it.
+/// The referencing synthesiser of `gesture` at the clean pointing level, as the builder calls it.
 pub fn default_synth(seed: u64, human: Point3<f32>, yaw: f32, target: Point3<f32>) -> Synthesized {
-    let (motion, style) = crate::gesture::referencing(seed, human, yaw, target);
+    synthesize(Pointing::Clean, seed, human, yaw, target)
+}
+
+/// The referencing synthesiser of `gesture` at a pointing level.
+pub fn synthesize(pointing: Pointing, seed: u64, human: Point3<f32>, yaw: f32, target: Point3<f32>) -> Synthesized {
+    let h = crate::humanoid::Humanoid::standard();
+    let (motion, style) = crate::gesture::referencing_with(h, pointing, seed, human, yaw, target);
     let accuracy = crate::gesture::accuracy(&motion, human, yaw, target, crate::gesture::DEFAULT_RADIUS);
     Synthesized {
         motion: motion.as_flat().to_vec(),
@@ -80,6 +87,9 @@ pub struct BuildOptions {
     pub success_distance: f32,
     pub human_distance: [f32; 2],
     pub start_geodesic: [f32; 2],
+    /// How cleanly the people point (recorded in the manifest; the synthesiser passed to
+    /// [`build`] must match it).
+    pub pointing: Pointing,
 }
 
 impl Default for BuildOptions {
@@ -93,6 +103,7 @@ impl Default for BuildOptions {
             success_distance: 1.0,
             human_distance: [1.0, 4.0],
             start_geodesic: [0.5, 8.0],
+            pointing: Pointing::Clean,
         }
     }
 }
@@ -445,6 +456,7 @@ pub fn build(
             fov_deg: env.fov_deg,
             human_distance: opts.human_distance,
             start_geodesic: opts.start_geodesic,
+            pointing: opts.pointing,
         },
         scenes: "scenes".into(),
         splits,

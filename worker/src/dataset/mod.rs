@@ -67,6 +67,9 @@ pub struct BuildParams {
     pub human_distance: [f32; 2],
     /// Robot starts this far (geodesic) from the success region.
     pub start_geodesic: [f32; 2],
+    /// How cleanly the people point (datasets from before this field: clean).
+    #[serde(default)]
+    pub pointing: crate::gesture::Pointing,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -93,8 +96,8 @@ pub enum DatasetError {
     Bad { path: String, message: String },
     #[error("{path}: field `{field}`: {message}")]
     Field { path: String, field: String, message: String },
-    #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    #[error("{path}: {reason}")]
+    Io { path: String, reason: std::io::Error },
 }
 
 fn bad(path: &Path, message: impl Into<String>) -> DatasetError {
@@ -120,11 +123,11 @@ pub struct GondFile {
 impl GondFile {
     fn open(path: &Path, expect_count: u64) -> Result<GondFile, DatasetError> {
         let f = std::fs::File::open(path)
-            .map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
+            .map_err(|reason| DatasetError::Io { path: path.display().to_string(), reason })?;
         // SAFETY: dataset files are written once (atomically renamed into place) and never
         // modified in place; readers only ever map complete files.
         let map =
-            unsafe { Mmap::map(&f) }.map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
+            unsafe { Mmap::map(&f) }.map_err(|reason| DatasetError::Io { path: path.display().to_string(), reason })?;
         if map.len() < HEADER_BYTES {
             return Err(bad(
                 path,
@@ -284,7 +287,7 @@ impl Dataset {
             return Err(DatasetError::Missing { path: mpath.display().to_string(), dir: dir.display().to_string() });
         }
         let text = std::fs::read_to_string(&mpath)
-            .map_err(|source| DatasetError::Io { path: mpath.display().to_string(), source })?;
+            .map_err(|reason| DatasetError::Io { path: mpath.display().to_string(), reason })?;
         let de = &mut serde_json::Deserializer::from_str(&text);
         let manifest: Manifest = serde_path_to_error::deserialize(de).map_err(|e| DatasetError::Field {
             path: mpath.display().to_string(),
@@ -382,7 +385,7 @@ fn verify_file(f: &GondFile, want: &str) -> Result<(), DatasetError> {
 
 fn read_index(path: &Path) -> Result<Vec<Program>, DatasetError> {
     let text = std::fs::read_to_string(path)
-        .map_err(|source| DatasetError::Io { path: path.display().to_string(), source })?;
+        .map_err(|reason| DatasetError::Io { path: path.display().to_string(), reason })?;
     let de = &mut serde_json::Deserializer::from_str(&text);
     serde_path_to_error::deserialize(de).map_err(|e| DatasetError::Field {
         path: path.display().to_string(),

@@ -7,11 +7,16 @@
 //! right axis, along the bone) against a unit-scale primitive sphere at the target: radius
 //! 0.5 m, which is our [`DEFAULT_RADIUS`]. A frame counts when any ray hits. (Its sphere also
 //! carried a unit box collider; the sphere is the documented target.)
+//!
+//! [`line_errors`] measures how a person aims rather than whether a ray hits: the angle between
+//! the target and the pointing arm's shoulder→wrist line, and its forearm's elbow→wrist line,
+//! over the frames the arm is held out. People aim with the arm (the GOND recording holds the
+//! wrist ≈2° off its shoulder→target line with the forearm ≈40° above it), so the two differ.
 
 use nalgebra::Point3;
 
 use super::{FRAMES, Motion};
-use crate::humanoid::{Bone, Humanoid, SkeletonPose};
+use crate::humanoid::{Bone, Humanoid, Side, SkeletonPose};
 
 /// Radius of the target sphere (m): the evaluator's unit-scale sphere.
 pub const DEFAULT_RADIUS: f32 = 0.5;
@@ -79,6 +84,59 @@ pub fn accuracy(motion: &Motion, human_pos: Point3<f32>, human_yaw: f32, target:
     accuracy_with(Humanoid::standard(), motion, human_pos, human_yaw, target, radius)
 }
 
+/// How far the pointing arm's lines pass from the target while it is held out (degrees,
+/// medians over the hold).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LineErrors {
+    /// The arm that moved most.
+    pub side: Side,
+    /// Shoulder (upper-arm joint) → wrist.
+    pub arm_deg: f32,
+    /// Elbow → wrist.
+    pub forearm_deg: f32,
+    /// Frames counted as the hold: the wrist at least 80% of its largest distance from where
+    /// it started.
+    pub hold_frames: usize,
+}
+
+/// [`LineErrors`] of `motion` performed by `h` at `human_pos` facing `human_yaw` towards `target`.
+pub fn line_errors(
+    h: &Humanoid,
+    motion: &Motion,
+    human_pos: Point3<f32>,
+    human_yaw: f32,
+    target: Point3<f32>,
+) -> LineErrors {
+    let poses: Vec<SkeletonPose> = (0..FRAMES).map(|t| h.pose(motion.frame(t), human_pos, human_yaw)).collect();
+    let travel = |side: Side| -> Vec<f32> {
+        let w0 = poses[0].position(Bone::hand(side));
+        poses.iter().map(|p| (p.position(Bone::hand(side)) - w0).norm()).collect()
+    };
+    let (right, left) = (travel(Side::Right), travel(Side::Left));
+    let top = |v: &[f32]| v.iter().cloned().fold(0.0f32, f32::max);
+    let (side, moved) = if top(&right) >= top(&left) { (Side::Right, right) } else { (Side::Left, left) };
+    let far = top(&moved);
+    let angle = |from: Point3<f32>, to: Point3<f32>| {
+        let (d, t) = ((to - from).normalize(), (target - from).normalize());
+        d.dot(&t).clamp(-1.0, 1.0).acos().to_degrees()
+    };
+    let (mut arm, mut forearm) = (Vec::new(), Vec::new());
+    for (p, &m) in poses.iter().zip(&moved) {
+        if m >= 0.8 * far {
+            let (shoulder, elbow, wrist) =
+                (p.position(Bone::upper_arm(side)), p.position(Bone::lower_arm(side)), p.position(Bone::hand(side)));
+            arm.push(angle(shoulder, wrist));
+            forearm.push(angle(elbow, wrist));
+        }
+    }
+    LineErrors { side, arm_deg: median(&mut arm), forearm_deg: median(&mut forearm), hold_frames: arm.len() }
+}
+
+fn median(v: &mut [f32]) -> f32 {
+    v.sort_by(f32::total_cmp);
+    v[v.len() / 2]
+}
+
 #[cfg(test)]
 mod tests {
     use std::path::Path;
@@ -122,6 +180,13 @@ mod tests {
         let other = accuracy(&motion, human, yaw, mirrored, DEFAULT_RADIUS);
         eprintln!("GOND sample accuracy: own target {own:.2}, mirrored target {other:.2}");
         assert!(own >= 0.8 && other <= 0.1, "own {own}, mirrored {other}");
+        // The person aims with the arm: the wrist on the shoulder→target line, the bent forearm
+        // well above it.
+        let e = line_errors(Humanoid::standard(), &motion, human, yaw, target);
+        eprintln!("GOND sample lines: {e:?}");
+        assert_eq!(e.side, Side::Right);
+        assert!(e.arm_deg < 5.0, "shoulder→wrist line {:.1}° off the target", e.arm_deg);
+        assert!((30.0..55.0).contains(&e.forearm_deg), "forearm line {:.1}° off the target", e.forearm_deg);
         // It replays: every frame poses to finite bones with the feet on the floor.
         let h = Humanoid::default();
         for t in 0..FRAMES {

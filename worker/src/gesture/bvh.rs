@@ -27,8 +27,8 @@ use crate::humanoid::{BONES, Bone, Finger, Humanoid, MUSCLES, Side, Skeleton, mu
 /// A BVH file that cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum BvhError {
-    #[error("{file}: cannot read: {source}")]
-    Io { file: String, source: std::io::Error },
+    #[error("{file}: cannot read: {reason}")]
+    Io { file: String, reason: std::io::Error },
     #[error("{file}: {line}{message}")]
     Parse { file: String, line: String, message: String },
     #[error("{file}: {message}")]
@@ -38,7 +38,7 @@ pub enum BvhError {
 /// Imports a BVH file as a gesture on the default body.
 pub fn import(path: &Path) -> Result<Motion, BvhError> {
     let file = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| BvhError::Io { file: file.clone(), source })?;
+    let bytes = std::fs::read(path).map_err(|reason| BvhError::Io { file: file.clone(), reason })?;
     import_bytes(&bytes, &file)
 }
 
@@ -509,9 +509,12 @@ fn decompose(d: &BoneDef, q: &UnitQuaternion<f32>, m: &mut [f32; MUSCLES]) {
     let twist = nalgebra::Quaternion::new(q.w, proj.x, proj.y, proj.z);
     let twist = if twist.norm() > 1e-9 { UnitQuaternion::from_quaternion(twist) } else { UnitQuaternion::identity() };
     let swing = q * twist.inverse();
-    let sv = swing.scaled_axis();
+    // The inverse of Unity's tan-half swing (BoneDef::local_rotation).
+    let w = swing.w.abs().max(1e-6);
+    let tan_half = swing.imag() * swing.w.signum() / w;
     for s in d.swing.iter().flatten() {
-        m[s.muscle] = muscle_value(s.muscle, sv.dot(&s.axis).to_degrees()).clamp(-1.0, 1.0);
+        let angle = 2.0 * tan_half.dot(&s.axis).atan();
+        m[s.muscle] = muscle_value(s.muscle, angle.to_degrees()).clamp(-1.0, 1.0);
     }
     if let Some(t) = d.twist {
         let angle = twist.scaled_axis().dot(&t.axis);

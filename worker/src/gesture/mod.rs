@@ -20,9 +20,9 @@ use std::fmt;
 
 use crate::humanoid::MUSCLES;
 
-pub use accuracy::{DEFAULT_RADIUS, accuracy, accuracy_with};
+pub use accuracy::{DEFAULT_RADIUS, LineErrors, accuracy, accuracy_with, line_errors};
 pub use intervention::{INTERVENTION_NAMES, INTERVENTIONS, intervention};
-pub use referencing::{HandShape, ReferencingStyle, referencing, referencing_with};
+pub use referencing::{HandShape, Pointing, ReferencingStyle, referencing, referencing_with};
 pub use synth::STANDING;
 
 /// Frames per gesture (§3.3.1: "exactly 100 time steps").

@@ -20,8 +20,9 @@ use crate::humanoid::{MUSCLE_NAMES, MUSCLES};
 /// A gesture file that cannot be used, naming the file and the place in it.
 #[derive(Debug, thiserror::Error)]
 pub enum MotionFileError {
-    #[error("{file}: cannot read: {source}")]
-    Io { file: String, source: std::io::Error },
+    // Not a `source`: the reason is in the message once (a chain would print it twice).
+    #[error("{file}: cannot read: {reason}")]
+    Io { file: String, reason: std::io::Error },
     #[error("{file}: line {line}: {message}")]
     Line { file: String, line: usize, message: String },
     #[error("{file}: line {line}, column {column} ({muscle}): {message}")]
@@ -33,7 +34,7 @@ pub enum MotionFileError {
 /// Reads a motion.csv.
 pub fn read_csv(path: &Path) -> Result<Motion, MotionFileError> {
     let file = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| MotionFileError::Io { file: file.clone(), source })?;
+    let bytes = std::fs::read(path).map_err(|reason| MotionFileError::Io { file: file.clone(), reason })?;
     parse_csv_bytes(&bytes, &file)
 }
 
@@ -318,7 +319,7 @@ impl Metadata {
     pub fn load(path: &Path) -> Result<Metadata, MotionFileError> {
         let file = path.display().to_string();
         let text =
-            std::fs::read_to_string(path).map_err(|source| MotionFileError::Io { file: file.clone(), source })?;
+            std::fs::read_to_string(path).map_err(|reason| MotionFileError::Io { file: file.clone(), reason })?;
         Metadata::from_json(&text, &file)
     }
 

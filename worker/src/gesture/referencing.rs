@@ -11,6 +11,16 @@
 //! Levenberg–Marquardt steps over shoulder, arm and hand muscles put the pointing ray (index
 //! finger's last segment, or the hand for an open palm) through the aimed point, and two more
 //! put the face on the target.
+//!
+//! How cleanly people point is a stated quantity, [`Pointing`]: `clean` (the level of the
+//! committed study) draws an aiming error of N(0, 2.5°) sideways and N(0, 2°) up, clamped to
+//! ±6°/±5°, and puts the finger (or forearm) ray through that aimed point. `realistic` follows
+//! what people do: they aim with the arm as often as with the finger (the GOND recording holds
+//! its wrist on the shoulder→target line with the elbow bent ≈80°); with a straight arm they put
+//! the fingertip on the line from the eye to the target (Herbort & Kunde 2016, 2018), so the
+//! arm–finger line an observer extrapolates passes above and beside the target; and the random
+//! part is N(0, 3°) per axis (the order of the ≈3° biases of Bangerter & Oppenheimer 2006),
+//! clamped to ±9°.
 
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 use rand::Rng;
@@ -51,6 +61,32 @@ impl HandShape {
     }
 }
 
+/// How cleanly the people of a dataset point (see the module documentation).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Pointing {
+    /// The finger or forearm ray through a point a few degrees off the target.
+    #[default]
+    Clean,
+    /// Arm-aimed and eye–fingertip-aligned pointing, with a larger random error.
+    Realistic,
+}
+
+impl Pointing {
+    pub const ALL: [Pointing; 2] = [Pointing::Clean, Pointing::Realistic];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Pointing::Clean => "clean",
+            Pointing::Realistic => "realistic",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Pointing> {
+        Pointing::ALL.into_iter().find(|p| p.name() == s)
+    }
+}
+
 /// What was drawn for one referencing gesture.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ReferencingStyle {
@@ -60,6 +96,11 @@ pub struct ReferencingStyle {
     pub bent_elbow: bool,
     /// Forearm Stretch during the hold (1 straight, 0 bent 80°).
     pub forearm_stretch: f32,
+    /// The wrist on the shoulder→aim line with the elbow bent (realistic level only).
+    pub arm_aimed: bool,
+    /// The fingertip on the eye→target line rather than the finger ray through the aim
+    /// (realistic level, straight arm only).
+    pub eye_aligned: bool,
     /// Frames of lead-in idle, rise, hold and return; the rest is trailing idle.
     pub lead: u32,
     pub rise: u32,
@@ -85,14 +126,16 @@ pub fn referencing(
     human_yaw: f32,
     target: Point3<f32>,
 ) -> (Motion, ReferencingStyle) {
-    referencing_with(Humanoid::standard(), seed, human_pos, human_yaw, target)
+    referencing_with(Humanoid::standard(), Pointing::Clean, seed, human_pos, human_yaw, target)
 }
 
-/// [`referencing`] for a given body (its proportions decide the exact arm angles).
+/// [`referencing`] for a given body (its proportions decide the exact arm angles) and pointing
+/// level.
 ///
 /// Panics if a position or the yaw is not finite (a caller's bug, not a data error).
 pub fn referencing_with(
     h: &Humanoid,
+    pointing: Pointing,
     seed: u64,
     human_pos: Point3<f32>,
     human_yaw: f32,
@@ -161,7 +204,22 @@ pub fn referencing_with(
         }
     }
     let normal = |sd: f32| Normal::new(0.0f32, sd).expect("positive deviation");
-    let aim_err = [normal(2.5).sample(&mut r).clamp(-6.0, 6.0), normal(2.0).sample(&mut r).clamp(-5.0, 5.0)];
+    let mut aim_err = [normal(2.5).sample(&mut r).clamp(-6.0, 6.0), normal(2.0).sample(&mut r).clamp(-5.0, 5.0)];
+    // The realistic level draws after everything the clean one draws, so a clean dataset's
+    // gestures do not depend on it.
+    let (mut arm_aimed, mut eye_aligned) = (false, false);
+    let mut stretch = stretch;
+    let mut bent = bent;
+    if pointing == Pointing::Realistic {
+        aim_err = [normal(3.0).sample(&mut r).clamp(-9.0, 9.0), normal(3.0).sample(&mut r).clamp(-9.0, 9.0)];
+        arm_aimed = r.random_bool(0.4);
+        let arm_bend = r.random_range(55.0..90.0f32);
+        if arm_aimed {
+            // Forearm Stretch 1 is straight, 0 bent 80°, linear in between and beyond.
+            (bent, stretch) = (false, 1.0 - arm_bend / 80.0);
+        }
+        eye_aligned = !arm_aimed && !bent;
+    }
 
     // The pointing pose.
     let mut pose = base;
@@ -176,12 +234,19 @@ pub fn referencing_with(
     let ua = Bone::upper_arm(side);
     let shoulder = sk.chain(&pose, ua).0;
     let to_target = t_local - shoulder;
-    // The aiming error is an angle seen from the pointing hand.
-    aim_bone(sk, &mut pose, ua, to_target);
-    let hand_at = sk.chain(&pose, shape.ray_bone(side)).0;
-    let from_hand = t_local - hand_at;
-    let aim = hand_at + perturb(from_hand.normalize(), aim_err) * from_hand.norm();
-    if bent {
+    // Where the pointing line should go before the aiming error: the target, or for an
+    // eye-aligned point the direction from the shoulder through a fingertip on the eye→target
+    // line.
+    let aimed_at = if eye_aligned { eye_aligned_point(sk, &pose, side, t_local) } else { t_local };
+    // The aiming error is an angle seen from the pointing hand (from the shoulder when the
+    // arm aims).
+    aim_bone(sk, &mut pose, ua, aimed_at - shoulder);
+    let from = if arm_aimed { shoulder } else { sk.chain(&pose, shape.ray_bone(side)).0 };
+    let along = aimed_at - from;
+    let aim = from + perturb(along.normalize(), aim_err) * along.norm();
+    if arm_aimed {
+        aim_with_arm(sk, &mut pose, side, aim, stretch);
+    } else if bent {
         // Upper arm lower than the aim by the elbow angle, then the twist that lifts the
         // forearm onto the aim.
         let aim_dir = (aim - shoulder).normalize();
@@ -202,15 +267,17 @@ pub fn referencing_with(
         a + idx::HAND_IN_OUT,
     ];
     let stay = [0.02, 0.02, 0.05, 0.12, 0.12];
-    solve_arm(
-        sk,
-        &mut pose,
-        side,
-        &ArmGoal { ray: Some((shape.ray_bone(side), aim)), ..Default::default() },
-        &params,
-        &stay,
-        12,
-    );
+    if !arm_aimed {
+        solve_arm(
+            sk,
+            &mut pose,
+            side,
+            &ArmGoal { ray: Some((shape.ray_bone(side), aim)), ..Default::default() },
+            &params,
+            &stay,
+            12,
+        );
+    }
 
     // Where the face goes: at the target, from the standing and from the pointing posture.
     let gaze_err = Vector3::new(normal(0.04).sample(&mut r), normal(0.03).sample(&mut r), 0.0) * to_target.norm();
@@ -288,6 +355,8 @@ pub fn referencing_with(
         shape,
         bent_elbow: bent,
         forearm_stretch: stretch,
+        arm_aimed,
+        eye_aligned,
         lead,
         rise,
         hold,
@@ -318,6 +387,48 @@ fn perturb(dir: Vector3<f32>, err: [f32; 2]) -> Vector3<f32> {
         UnitQuaternion::identity()
     };
     (yaw * pitch * dir).normalize()
+}
+
+/// For a straight arm whose fingertip sits on the line from the eye to `target` (hips frame):
+/// the point at the target's distance along the shoulder→fingertip line.
+fn eye_aligned_point(sk: &Skeleton, pose: &[f32; MUSCLES], side: Side, target: Point3<f32>) -> Point3<f32> {
+    let (head, q) = sk.chain(pose, Bone::Head);
+    let eye = head + q * Vector3::new(0.0, 0.075 * sk.height() / 1.7, 0.08 * sk.height() / 1.7);
+    let shoulder = sk.chain(pose, Bone::upper_arm(side)).0;
+    let reach = [Bone::upper_arm(side), Bone::lower_arm(side), Bone::hand(side)]
+        .iter()
+        .map(|&b| sk.bone_def(b).tip.norm())
+        .sum::<f32>()
+        + sk.bone_def(Bone::finger(side, Finger::Index, 0)).tip.norm() * 2.0;
+    // The fingertip where the eye ray leaves the sphere of the arm's reach about the shoulder.
+    let u = (target - eye).normalize();
+    let e = eye - shoulder;
+    let b = e.dot(&u);
+    let disc = b * b - (e.norm_squared() - reach * reach);
+    let tip = if disc > 0.0 { eye + u * (-b + disc.sqrt()) } else { shoulder + u * reach };
+    shoulder + (tip - shoulder).normalize() * (target - shoulder).norm()
+}
+
+/// Bends the elbow to `stretch` and puts the wrist on the line from the shoulder to `aim`, the
+/// elbow below it and the forearm rising to it, as the GOND recording's person points.
+fn aim_with_arm(sk: &Skeleton, pose: &mut [f32; MUSCLES], side: Side, aim: Point3<f32>, stretch: f32) {
+    let a = side.arm_muscles();
+    pose[a + idx::FOREARM_STRETCH] = stretch.clamp(-1.0, 1.0);
+    let ua = Bone::upper_arm(side);
+    let shoulder = sk.chain(pose, ua).0;
+    let (l1, l2) = (sk.bone_def(ua).tip.norm(), sk.bone_def(Bone::lower_arm(side)).tip.norm());
+    let bend = ((1.0 - stretch) * 80.0).to_radians();
+    let chord = (l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * bend.cos()).sqrt();
+    // The upper arm leaves the shoulder→wrist line by this much, below it.
+    let below = (l2 * bend.sin() / chord).clamp(-1.0, 1.0).asin();
+    let dir = (aim - shoulder).normalize();
+    let axis = Vector3::y().cross(&dir);
+    let axis = if axis.norm() > 1e-3 { axis.normalize() } else { Vector3::x() };
+    aim_bone(sk, pose, ua, UnitQuaternion::from_scaled_axis(axis * below) * dir);
+    best_twist(sk, pose, side, aim);
+    let params = [a + idx::ARM_DOWN_UP, a + idx::ARM_FRONT_BACK, a + idx::ARM_TWIST];
+    let goal = ArmGoal { wrist: Some(shoulder + dir * chord), ..Default::default() };
+    solve_arm(sk, pose, side, &goal, &params, &[0.01, 0.01, 0.02], 12);
 }
 
 /// Picks the arm twist that best lays the forearm along the line from the elbow to `aim`.
@@ -440,6 +551,48 @@ mod tests {
                 assert!(m.as_flat().iter().all(|v| v.is_finite() && v.abs() <= 1.0), "target {t:?}");
             }
         }
+    }
+
+    /// At the realistic level, arm-aimed gestures hold the wrist on the shoulder→target line
+    /// with the forearm well above it, as the GOND recording does; straight-arm ones put the
+    /// fingertip on the eye→target line, which clean pointing does not.
+    #[test]
+    fn realistic_pointing_aims_with_the_arm_and_the_eye() {
+        let h = Humanoid::default();
+        let (mut arm, mut eye_clean, mut eye_real) = (0, Vec::new(), Vec::new());
+        for seed in 0..80 {
+            let (p, y, t) = scenario(seed);
+            let (m, s) = referencing_with(&h, Pointing::Realistic, seed, p, y, t);
+            assert!(m.as_flat().iter().all(|v| v.is_finite() && v.abs() <= 1.0));
+            if s.arm_aimed {
+                arm += 1;
+                let e = crate::gesture::line_errors(&h, &m, p, y, t);
+                let allowed = s.aim_error_deg[0].hypot(s.aim_error_deg[1]) + 4.0;
+                assert!(e.arm_deg < allowed, "seed {seed}: shoulder→wrist {e:?}, aim error {:?}", s.aim_error_deg);
+                assert!(e.forearm_deg > 15.0, "seed {seed}: the forearm is the aiming line: {e:?}");
+            }
+            // Fingertip to the eye→target line at mid-hold (the drawn error moves it a little).
+            let gap = |m: &Motion, s: &ReferencingStyle| {
+                let pose = h.pose(m.frame((s.lead + s.rise + s.hold / 2) as usize), p, y);
+                let (head, q) = (pose.position(Bone::Head), pose.rotation(Bone::Head));
+                let eye = head + q * Vector3::new(0.0, 0.075, 0.08);
+                let tip = pose.tip(Bone::finger(s.side, Finger::Index, 2));
+                let u = (t - eye).normalize();
+                ((tip - eye) - u * (tip - eye).dot(&u)).norm()
+            };
+            if s.eye_aligned && s.shape != HandShape::OpenPalm {
+                eye_real.push(gap(&m, &s));
+                let (mc, sc) = referencing(seed, p, y, t);
+                if !sc.bent_elbow && sc.shape != HandShape::OpenPalm {
+                    eye_clean.push(gap(&mc, &sc));
+                }
+            }
+        }
+        let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+        let (real, clean) = (mean(&eye_real), mean(&eye_clean));
+        eprintln!("arm-aimed {arm}/80; fingertip to the eye→target line: realistic {real:.3} m, clean {clean:.3} m");
+        assert!((20..50).contains(&arm), "arm-aimed {arm} of 80");
+        assert!(eye_real.len() >= 10 && real < 0.06 && clean > 2.0 * real, "realistic {real}, clean {clean}");
     }
 
     #[test]

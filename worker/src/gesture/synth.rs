@@ -330,9 +330,11 @@ pub fn aim_bone(sk: &Skeleton, pose: &mut [f32; MUSCLES], bone: Bone, dir: Vecto
     let axis = b.cross(&w);
     let s = axis.norm();
     let angle = s.atan2(b.dot(&w));
-    let sv = if s > 1e-6 { axis / s * angle } else { Vector3::zeros() };
+    // Tan-half angles along the swing axes, as BoneDef::local_rotation composes them.
+    let tan_half = if s > 1e-6 { axis / s * (0.5 * angle).tan() } else { Vector3::zeros() };
     for m in d.swing.iter().flatten() {
-        pose[m.muscle] = muscle_value(m.muscle, sv.dot(&m.axis).to_degrees()).clamp(-1.0, 1.0);
+        let a = 2.0 * tan_half.dot(&m.axis).atan();
+        pose[m.muscle] = muscle_value(m.muscle, a.to_degrees()).clamp(-1.0, 1.0);
     }
 }
 

@@ -21,7 +21,7 @@
 //! Lower Leg Stretch 1, fingers Stretched ≈ 0.9, and natural standing is
 //! [`crate::gesture::STANDING`] (arms at the sides at Arm Down-Up ≈ −0.65).
 
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3};
 
 use super::muscles::{MUSCLES, muscle_degrees};
 use crate::geometry::yaw_rotation;
@@ -378,13 +378,16 @@ impl BoneDef {
     /// The bone's rotation relative to its parent for these muscle values.
     #[inline]
     pub fn local_rotation(&self, m: &[f32; MUSCLES]) -> UnitQuaternion<f32> {
-        let mut sw = Vector3::zeros();
+        // Unity's ZYRoll: the swing quaternion's vector part over its scalar part holds
+        // tan(angle / 2) along each swing axis (not an exponential map: the two differ by up
+        // to ~10° when both swing muscles act), and the twist comes after.
+        let mut tan_half = Vector3::zeros();
         for s in self.swing.iter().flatten() {
-            sw += s.axis * muscle_degrees(s.muscle, m[s.muscle]).to_radians();
+            tan_half += s.axis * (0.5 * muscle_degrees(s.muscle, m[s.muscle]).to_radians()).tan();
         }
         let mut q = self.zero;
-        if sw != Vector3::zeros() {
-            q *= UnitQuaternion::from_scaled_axis(sw);
+        if tan_half != Vector3::zeros() {
+            q *= UnitQuaternion::from_quaternion(Quaternion::from_parts(1.0, tan_half));
         }
         if let Some(t) = self.twist {
             let a = muscle_degrees(t.muscle, m[t.muscle]).to_radians();
@@ -500,7 +503,8 @@ impl Skeleton {
         sh.swing = [ma(46, z), ma(47, y)];
         right.push((RightShoulder, sh));
         let mut ua = def(RightShoulder, v(0.145, 0.01, 0.0), v(0.28, 0.0, 0.0));
-        ua.zero = deg(v(0.0, -30.0, -40.0));
+        // Unity's upper-arm neutral: 48.65° about (0, 0.593, 0.805) in its axes.
+        ua.zero = UnitQuaternion::from_axis_angle(&Unit::new_normalize(v(0.0, -0.593, -0.805)), 48.65f32.to_radians());
         ua.twist = ma(50, -x);
         ua.swing = [ma(48, z), ma(49, y)];
         right.push((RightUpperArm, ua));
@@ -510,6 +514,10 @@ impl Skeleton {
         la.swing = [ma(51, y), None];
         right.push((RightLowerArm, la));
         let mut hand = def(RightLowerArm, v(0.25, 0.0, 0.0), v(0.097, 0.0, 0.0));
+        // Hand In-Out +1 bends the hand towards the thumb (palm down: forward), "out" as
+        // abduction, the sense of Eye and Upper Leg In-Out here; the GOND recording holds it at
+        // 0.11 (4.5°) while pointing, too little to tell the sign from its rays (its hand ray
+        // is 41.6° off the target with this sign, 40.9° with the other).
         hand.swing = [ma(53, z), ma(54, -y)];
         right.push((RightHand, hand));
 
@@ -834,10 +842,11 @@ mod tests {
     fn muscle_zero_pose() {
         let sk = Skeleton::new(1.7);
         let p = sk.pose(&zero(), Point3::origin(), 0.0);
-        // Upper arms: 40° below horizontal, 30° forward of the frontal plane, outwards.
+        // Upper arms: Unity's neutral, 48.65° from the T-pose about (0, 0.593, 0.805) (about
+        // 39° below horizontal, 29° forward of the frontal plane), outwards.
         for side in Side::BOTH {
             let d = p.direction(Bone::upper_arm(side));
-            let t = deg(Vector3::new(0.0, -30.0, -40.0)) * Vector3::x();
+            let t = deg(Vector3::new(0.0, -0.593, -0.805).normalize() * 48.65) * Vector3::x();
             let expect = Vector3::new(t.x * side.sign(), t.y, t.z);
             assert!(angle_between(d, expect) < 0.5, "{side:?} upper arm {d:?}");
             assert!(d.y < -0.5 && d.z > 0.3 && d.x * side.sign() > 0.4, "{side:?} {d:?}");
