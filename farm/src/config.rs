@@ -411,6 +411,23 @@ impl RunConfig {
         if !(0.0..=1.0).contains(&p.gamma) || !(0.0..=1.0).contains(&p.gae_lambda) {
             return e("ppo.gamma", "gamma and gae_lambda must be in [0, 1]".into());
         }
+        if !(p.clip > 0.0 && p.clip < 1.0) {
+            return e("ppo.clip", format!("must be in (0, 1), got {}", p.clip));
+        }
+        if !(p.max_grad_norm > 0.0) {
+            return e("ppo.max_grad_norm", format!("must be positive, got {}", p.max_grad_norm));
+        }
+        for (f, v) in [("ppo.value_coef", p.value_coef), ("ppo.entropy_coef", p.entropy_coef)] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return e(f, format!("must be zero or positive, got {v}"));
+            }
+        }
+        if self.run.total_frames == 0 {
+            return e("run.total_frames", "must be at least 1 frame".into());
+        }
+        if self.checkpoint.every_updates == 0 {
+            return e("checkpoint.every_updates", "must be at least 1".into());
+        }
         if self.model.hidden <= 0 || self.model.gru_layers <= 0 {
             return e("model.hidden", "hidden and gru_layers must be positive".into());
         }
@@ -466,6 +483,14 @@ mod tests {
         let err = RunConfig::from_toml("[run]\nmethod = \"both\"\n[model]\nencoder = \"pretrained\"\n", "x.toml")
             .unwrap_err();
         assert!(err.to_string().contains("model.encoder_weights"), "{err}");
+        for (toml, field) in [
+            ("[run]\nmethod = \"both\"\ntotal_frames = 0\n", "run.total_frames"),
+            ("[run]\nmethod = \"both\"\n[ppo]\nclip = -5\n", "ppo.clip"),
+            ("[run]\nmethod = \"both\"\n[ppo]\nmax_grad_norm = 0\n", "ppo.max_grad_norm"),
+        ] {
+            let err = RunConfig::from_toml(toml, "x.toml").unwrap_err().to_string();
+            assert!(err.contains("x.toml") && err.contains(field), "{toml}: {err}");
+        }
     }
 
     #[test]

@@ -73,12 +73,30 @@ pub fn run_config(run_id: &str) -> Result<Config, TransportError> {
 pub fn open_node(run_id: &str, name: &str) -> Result<Node<IpcService>, TransportError> {
     let cfg = run_config(run_id)?;
     let node_name = NodeName::new(name).map_err(ipc(format!("node name `{name}`")))?;
-    NodeBuilder::new()
+    let node = NodeBuilder::new()
         .name(&node_name)
         .config(&cfg)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<IpcService>()
-        .map_err(ipc(format!("creating node `{name}`")))
+        .map_err(ipc(format!("creating node `{name}`")))?;
+    make_private(run_id);
+    Ok(node)
+}
+
+/// iceoryx2 0.10 creates a domain's node-counter segment (`/dev/shm/<prefix>…node.0_10_0.global_mgmt`)
+/// with global access (0666; `GlobalManagementSegment` asks for it and no setting changes
+/// that), so any user could corrupt a run's node ids. Every process of a run belongs to one
+/// user, so whichever node comes first makes the run's files owner-only.
+fn make_private(run_id: &str) {
+    use std::os::unix::fs::PermissionsExt;
+    for p in run_files(run_id) {
+        let Ok(meta) = std::fs::symlink_metadata(&p) else { continue };
+        if meta.is_file() && meta.permissions().mode() & 0o077 != 0 {
+            if let Err(e) = std::fs::set_permissions(&p, std::fs::Permissions::from_mode(0o600)) {
+                tracing::warn!("cannot make {} private to its user: {e}", p.display());
+            }
+        }
+    }
 }
 
 fn service_name(name: &str) -> Result<ServiceName, TransportError> {
@@ -518,6 +536,13 @@ mod tests {
         let node = open_node(&run, "test-learner").unwrap();
         let ready = create_obs_ready(&node, &run, 1).unwrap();
         let listener = ready.listener_builder().create().unwrap();
+        // no file of the run in /dev/shm is open to other users (iceoryx2 makes its node
+        // counter 0666)
+        for f in shm_files(&service::prefix(&run)) {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(format!("/dev/shm/{f}")).unwrap().permissions().mode();
+            assert_eq!(mode & 0o077, 0, "/dev/shm/{f} has mode {mode:o}");
+        }
         let obs = open_obs_service(&node, &run, 0).unwrap();
         let act = open_act_service(&node, &run, 0).unwrap();
         let act_ready = open_act_ready(&node, &run, 0).unwrap().notifier_builder().create().unwrap();

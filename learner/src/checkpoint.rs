@@ -21,7 +21,7 @@ use crate::agent::{Agent, AgentError};
 use crate::ppo::Trainer;
 use crate::spec::NetSpec;
 
-const FORMAT: &str = "gesthor-rs learner checkpoint v1";
+use farm::checkpoints::{FORMAT, digest};
 
 /// A checkpoint that cannot be used: the file, and one reason.
 #[derive(Debug, thiserror::Error)]
@@ -220,17 +220,6 @@ fn kind_of(dtype: Dtype) -> Option<Kind> {
 }
 
 /// Digest of every tensor, names included, in name order.
-fn digest<'a>(items: impl Iterator<Item = (&'a str, &'a [u8])>) -> String {
-    let mut h = Sha256::new();
-    for (name, data) in items {
-        h.update((name.len() as u64).to_le_bytes());
-        h.update(name.as_bytes());
-        h.update((data.len() as u64).to_le_bytes());
-        h.update(data);
-    }
-    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
-}
-
 fn write(
     path: &Path,
     cfg: &RunConfig,

@@ -67,13 +67,29 @@ impl PpoPolicy {
     ) -> anyhow::Result<PpoPolicy> {
         let n = workers * cfg.env.envs_per_worker;
         let checkpoints = farm::checkpoints::dir_of(run_dir);
-        let trainer = match (resume, checkpoint::latest(&checkpoints)) {
+        let partial = farm::checkpoints::remove_partial(&checkpoints);
+        if partial > 0 {
+            tracing::warn!("removed {partial} unfinished checkpoint write(s) in {}", checkpoints.display());
+        }
+        let (latest, skipped) =
+            if resume { farm::checkpoints::latest_verified(&checkpoints) } else { (None, Vec::new()) };
+        for (p, why) in &skipped {
+            tracing::warn!("--resume: skipped {}: {why}", p.display());
+        }
+        let trainer = match (resume, latest) {
             (true, Some(path)) => {
                 let t = checkpoint::resume_trainer(cfg, n, device, &path)?;
                 tracing::info!("resumed from {} at update {} ({} frames)", path.display(), t.updates, t.frames);
                 t
             }
-            (true, None) => anyhow::bail!("--resume: {} holds no checkpoint", checkpoints.display()),
+            (true, None) if skipped.is_empty() => {
+                anyhow::bail!("--resume: {} holds no checkpoint", checkpoints.display())
+            }
+            (true, None) => anyhow::bail!(
+                "--resume: {} holds no usable checkpoint ({})",
+                checkpoints.display(),
+                farm::checkpoints::describe_skipped(&skipped).replace('\n', "; ")
+            ),
             (false, _) => Trainer::new(cfg, n, device)?,
         };
         for note in trainer.agent.notes() {
@@ -260,11 +276,12 @@ impl Policy for PpoPolicy {
     }
 
     fn finish(&mut self, checkpoint: bool) -> anyhow::Result<()> {
-        if let Mode::Train { log, .. } = &self.mode {
-            log.plot()?;
-        }
+        // The checkpoint first: a plot that fails (a full disk) must not cost the training.
         if checkpoint {
             self.save_checkpoint()?;
+        }
+        if let Mode::Train { log, .. } = &self.mode {
+            log.plot()?;
         }
         Ok(())
     }

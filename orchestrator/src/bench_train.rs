@@ -26,7 +26,7 @@ pub struct BenchTrainArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Worker processes.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
     pub workers: usize,
     /// Frames to train for (the run stops at the first update boundary past it).
     #[arg(long, default_value_t = 50_000)]

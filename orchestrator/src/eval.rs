@@ -46,7 +46,7 @@ pub struct EvalArgs {
     /// Fold to evaluate on.
     #[arg(long, default_value = "test")]
     pub split: String,
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
     pub workers: usize,
     /// Run configuration when there is no run directory to take it from (Random baseline).
     #[arg(long)]
@@ -85,8 +85,14 @@ pub fn read_episodes(path: &Path) -> anyhow::Result<Vec<EpisodeResult>> {
 /// Resolves `--checkpoint` into (checkpoint file, run directory holding its config).
 fn locate(path: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
     if path.is_dir() {
-        let ckpt = farm::checkpoints::latest_in_run(path)
-            .with_context(|| format!("{}: no checkpoint in {}/checkpoints yet", path.display(), path.display()))?;
+        let (ckpt, skipped) = farm::checkpoints::latest_verified(&farm::checkpoints::dir_of(path));
+        if !skipped.is_empty() {
+            eprintln!("[eval] {}", farm::checkpoints::describe_skipped(&skipped).replace('\n', "\n[eval] "));
+        }
+        let ckpt = ckpt.with_context(|| {
+            let none = if skipped.is_empty() { "no checkpoint" } else { "no usable checkpoint" };
+            format!("{}: {none} in {}/checkpoints yet", path.display(), path.display())
+        })?;
         return Ok((ckpt, path.to_path_buf()));
     }
     anyhow::ensure!(path.is_file(), "--checkpoint {}: no such file or run directory", path.display());
@@ -95,6 +101,15 @@ fn locate(path: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
         .and_then(|p| p.parent())
         .with_context(|| format!("{}: not inside RUN/checkpoints", path.display()))?;
     Ok((path.to_path_buf(), run.to_path_buf()))
+}
+
+/// `base` if it does not exist yet, else the first of `base-2`, `base-3`, ... that does not.
+fn unused_dir(base: PathBuf) -> PathBuf {
+    let name = base.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    std::iter::once(base.clone())
+        .chain((2..).map(|k| base.with_file_name(format!("{name}-{k}"))))
+        .find(|p| !p.exists())
+        .expect("some numbered folder is free")
 }
 
 /// Every program of the split, or `max` of them spread evenly (so each room keeps its share).
@@ -197,10 +212,14 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     let default_label = if a.expert { "Expert (shortest path)" } else { cfg.run.method.label() };
     let greedy = if a.greedy && checkpoint.is_some() { ", greedy" } else { "" };
     let label = a.label.clone().unwrap_or_else(|| format!("{default_label}{greedy}"));
-    let out = a.out.clone().unwrap_or_else(|| match &run_dir {
-        Some(r) => r.join("eval").join(split.name()),
-        None if a.expert => PathBuf::from("runs/eval-expert").join(split.name()),
-        None => PathBuf::from("runs/eval-random").join(split.name()),
+    // An explicit --out is replaced; a default one is never: a second evaluation of the same
+    // run and split goes beside the first (test-2, test-3, ...).
+    let out = a.out.clone().unwrap_or_else(|| {
+        unused_dir(match &run_dir {
+            Some(r) => r.join("eval").join(split.name()),
+            None if a.expert => PathBuf::from("runs/eval-expert").join(split.name()),
+            None => PathBuf::from("runs/eval-random").join(split.name()),
+        })
     });
     std::fs::create_dir_all(&out)?;
     eprintln!(
@@ -352,6 +371,17 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_default_output_folder_is_never_reused() {
+        let d = tempfile::tempdir().unwrap();
+        let base = d.path().join("eval").join("test");
+        assert_eq!(unused_dir(base.clone()), base);
+        std::fs::create_dir_all(&base).unwrap();
+        assert_eq!(unused_dir(base.clone()), d.path().join("eval").join("test-2"));
+        std::fs::create_dir_all(d.path().join("eval").join("test-2")).unwrap();
+        assert_eq!(unused_dir(base), d.path().join("eval").join("test-3"));
+    }
+
+    #[test]
     fn programs_are_spread_and_assigned_exactly_once() {
         assert_eq!(choose_programs(10, None), (0..10).collect::<Vec<_>>());
         assert_eq!(choose_programs(10, Some(4)), vec![0, 2, 5, 7]);
@@ -364,18 +394,22 @@ mod tests {
     }
 
     #[test]
-    fn locate_takes_the_newest_complete_checkpoint() {
+    fn locate_takes_the_newest_checkpoint_that_verifies() {
         let d = tempfile::tempdir().unwrap();
         let c = d.path().join("checkpoints");
         std::fs::create_dir_all(&c).unwrap();
-        for f in [
-            "ckpt-00000010.safetensors",
-            "ckpt-00000020.safetensors",
-            ".ckpt-00000030.safetensors.tmp123",
-            "ckpt-00000040.safetensors.partial",
-        ] {
+        let whole = farm::checkpoints::minimal_file(&[1, 2, 3]);
+        std::fs::write(c.join("ckpt-00000010.safetensors"), &whole).unwrap();
+        std::fs::write(c.join("ckpt-00000020.safetensors"), &whole).unwrap();
+        // truncated by a kill during the write of a newer one, and temporary files
+        std::fs::write(c.join("ckpt-00000030.safetensors"), &whole[..whole.len() / 2]).unwrap();
+        for f in [".ckpt-00000040.safetensors.tmp123", "ckpt-00000050.safetensors.partial"] {
             std::fs::write(c.join(f), b"x").unwrap();
         }
         assert_eq!(locate(d.path()).unwrap().0, c.join("ckpt-00000020.safetensors"));
+        std::fs::write(c.join("ckpt-00000010.safetensors"), b"x").unwrap();
+        std::fs::write(c.join("ckpt-00000020.safetensors"), b"x").unwrap();
+        let err = locate(d.path()).unwrap_err().to_string();
+        assert!(err.contains("no usable checkpoint"), "{err}");
     }
 }

@@ -10,6 +10,7 @@ pub mod bench_sim;
 pub mod bench_train;
 pub mod binaries;
 pub mod child;
+pub mod cli_values;
 pub mod crew;
 pub mod dataset_cmd;
 pub mod encoder_cmd;

@@ -240,6 +240,11 @@ pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
 /// scene type and number. The robot starts 2.5 m in front of the person, facing them.
 fn replay_from_metadata(a: &ReplayArgs, ds: Option<&Dataset>) -> anyhow::Result<(Scene, Program, Motion, String)> {
     let path = Path::new(&a.program);
+    anyhow::ensure!(
+        path.is_file(),
+        "{}: neither SPLIT:INDEX (train, val or test, e.g. val:61) nor a recorder metadata JSON file",
+        a.program
+    );
     let meta = Metadata::load(path)?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let beside = path.with_extension("csv");

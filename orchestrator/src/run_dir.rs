@@ -45,9 +45,17 @@ impl RunDir {
     /// Creates (or reopens, for `--resume`) `path` and takes its lock. Fails with a clear
     /// message when another live run holds it; a lock left by a dead run is simply taken over.
     pub fn open(path: &Path) -> anyhow::Result<RunDir> {
-        std::fs::create_dir_all(path).with_context(|| format!("creating run directory {}", path.display()))?;
-        std::fs::create_dir_all(path.join("logs"))
-            .with_context(|| format!("creating {}", path.join("logs").display()))?;
+        // Private to the user: checkpoints and logs are nobody else's to read or change.
+        use std::os::unix::fs::{DirBuilderExt, PermissionsExt};
+        std::fs::DirBuilder::new()
+            .recursive(true)
+            .mode(0o700)
+            .create(path.join("logs"))
+            .with_context(|| format!("creating run directory {}", path.display()))?;
+        for d in [path.to_path_buf(), path.join("logs")] {
+            std::fs::set_permissions(&d, std::fs::Permissions::from_mode(0o700))
+                .with_context(|| format!("making {} private (0700)", d.display()))?;
+        }
         let lock_path = path.join(".lock");
         let file = std::fs::OpenOptions::new()
             .read(true)
@@ -155,6 +163,22 @@ mod tests {
         drop(first); // the process of the first run "died": its lock is gone
         let again = RunDir::open(d.path()).unwrap();
         assert!(again.logs().is_dir());
+    }
+
+    #[test]
+    fn run_directories_are_private() {
+        use std::os::unix::fs::PermissionsExt;
+        let d = tempfile::tempdir().unwrap();
+        let run = d.path().join("runs").join("x");
+        let r = RunDir::open(&run).unwrap();
+        for p in [&run, &r.logs()] {
+            assert_eq!(std::fs::metadata(p).unwrap().permissions().mode() & 0o777, 0o700, "{}", p.display());
+        }
+        // an existing world-readable one (an older run resumed) is made private too
+        drop(r);
+        std::fs::set_permissions(&run, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let _r = RunDir::open(&run).unwrap();
+        assert_eq!(std::fs::metadata(&run).unwrap().permissions().mode() & 0o777, 0o700);
     }
 
     #[test]

@@ -19,7 +19,7 @@ pub const DEFAULT_CONFIG: &str = include_str!("../../configs/tiny/both.toml");
 #[derive(Args, Debug)]
 pub struct UpArgs {
     /// Worker processes (each steps the config's `env.envs_per_worker` environments).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
     pub workers: usize,
     /// Run configuration (TOML); the embedded CPU default of +Both when omitted.
     #[arg(long)]
@@ -36,7 +36,7 @@ pub struct UpArgs {
     #[arg(long, conflicts_with = "seconds")]
     pub frames: Option<u64>,
     /// Stop after this many seconds.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::cli_values::seconds)]
     pub seconds: Option<f64>,
     /// Fail on any lost, duplicated or malformed message between workers and learner.
     #[arg(long)]
@@ -45,7 +45,7 @@ pub struct UpArgs {
     #[arg(long)]
     pub synthetic: bool,
     /// Seconds between the learner's progress records.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, value_parser = crate::cli_values::seconds)]
     pub report_every: f64,
 }
 

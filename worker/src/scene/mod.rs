@@ -133,8 +133,8 @@ pub struct Scene {
 /// A scene file that cannot be used, with the file and the field at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
-    #[error("{file}: cannot read: {source}")]
-    Io { file: String, source: std::io::Error },
+    #[error("{file}: cannot read: {reason}")]
+    Io { file: String, reason: std::io::Error },
     #[error("{file}: field `{field}`: {message}")]
     Field { file: String, field: String, message: String },
 }
@@ -145,7 +145,7 @@ impl Scene {
     /// Reads and validates a scene file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io { file: file.clone(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|reason| SceneError::Io { file: file.clone(), reason })?;
         Scene::from_json(&text, &file)
     }
 
