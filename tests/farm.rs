@@ -152,6 +152,51 @@ fn sigint_stops_every_process_cleanly() {
     assert_eq!(s["stop_reason"], "stopped by SIGINT", "{s}");
 }
 
+/// Ctrl-C while PPO trains: the learner ends (or cuts short) its update, writes a final
+/// checkpoint the orchestrator waits for, and `up --resume` continues from it.
+#[test]
+fn ctrl_c_while_training_keeps_a_checkpoint_that_resumes() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("small.toml");
+    // no periodic checkpoint: the final one is all there is
+    let text = format!(
+        "[run]\nmethod = \"both\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 32\nheight = 32\n\n\
+         [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\nepochs = 8\n\n\
+         [checkpoint]\nevery_updates = 100000\n",
+        dataset().display()
+    );
+    std::fs::write(&cfg, text).unwrap();
+    let dir = tmp.path().join("run");
+    let args = ["--workers", "1", "--config", cfg.to_str().unwrap(), "--seconds", "900", "--report-every", "0.5"];
+    let mut run = Run::start(&dir, &args);
+    run.wait_progress(Duration::from_secs(240), "two PPO updates", |p| p["frames"].as_u64() > Some(64));
+    run.signal(Signal::SIGINT);
+    let status = run.wait(EVENT_DEADLINE);
+    assert_eq!(status.code(), Some(130), "{}", run.diagnostics());
+    assert_gone(&run);
+    let ckpts = farm::checkpoints::dir_of(&dir);
+    let (found, skipped) = farm::checkpoints::latest_verified(&ckpts);
+    let found = found.unwrap_or_else(|| panic!("no checkpoint after Ctrl-C ({skipped:?}): {}", run.diagnostics()));
+    assert!(skipped.is_empty() && !farm::checkpoints::final_write_in_progress(&ckpts));
+    let learner_log = std::fs::read_to_string(dir.join("logs/learner.log")).unwrap();
+    assert!(learner_log.contains("writing the final checkpoint"), "{learner_log}");
+    let stopped_at = farm::checkpoints::update_of(&found).unwrap();
+    assert!(stopped_at >= 2, "{}", found.display());
+
+    let out = std::process::Command::new(bin("orchestrator"))
+        .args(["up", "--resume"])
+        .arg(&dir)
+        .args(["--workers", "1", "--frames", "96"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let learner_log = std::fs::read_to_string(dir.join("logs/learner.log")).unwrap();
+    assert!(learner_log.contains(&format!("resumed from {}", found.display())), "{learner_log}");
+    let newest = farm::checkpoints::latest(&ckpts).unwrap();
+    assert!(farm::checkpoints::update_of(&newest).unwrap() > stopped_at, "{}", newest.display());
+}
+
 /// Two runs with different run ids on one host at the same time: each sees only its own
 /// workers and messages.
 #[test]

@@ -111,13 +111,23 @@ pub fn minimal_file(data: &[u8]) -> Vec<u8> {
     safetensors::serialize([("w", view)], Some(meta)).expect("one small tensor serializes")
 }
 
+/// Present in a run's checkpoint folder while the learner writes its final checkpoint (after
+/// a stop was asked for), so the orchestrator waits for it instead of escalating.
+pub const FINAL_WRITE_MARKER: &str = ".writing-final";
+
+/// Whether the learner is writing its final checkpoint in `dir` now.
+pub fn final_write_in_progress(dir: &Path) -> bool {
+    dir.join(FINAL_WRITE_MARKER).exists()
+}
+
 /// Removes temporary files of checkpoint writes that never finished (a writer killed mid-write);
 /// only the run's one learner writes here, so any found at its start are stale.
 pub fn remove_partial(dir: &Path) -> usize {
     let mut n = 0;
     for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        if name.starts_with(".ckpt-") && name.contains(".safetensors.tmp") && std::fs::remove_file(e.path()).is_ok() {
+        let partial = (name.starts_with(".ckpt-") && name.contains(".safetensors.tmp")) || name == FINAL_WRITE_MARKER;
+        if partial && std::fs::remove_file(e.path()).is_ok() {
             n += 1;
         }
     }

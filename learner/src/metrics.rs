@@ -43,6 +43,9 @@ pub struct UpdateMetrics {
     pub skipped_steps: u64,
     /// Seconds spent in the PPO epochs.
     pub update_seconds: f64,
+    /// A stop (Ctrl-C) arrived during the update and ended its epochs early.
+    #[serde(default)]
+    pub cut_short: bool,
 }
 
 /// The episodes finished between two updates (a window of the run), summed until the update

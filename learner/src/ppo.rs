@@ -61,6 +61,9 @@ pub struct Trainer {
     last_real: Vec<bool>,
     counts: FeedbackCounts,
     last_update_at: Instant,
+    /// Asked before every minibatch: true ends the update's epochs there (a stop signal), so a
+    /// stop never waits for a whole update.
+    pub interrupted: fn() -> bool,
 }
 
 impl Trainer {
@@ -100,6 +103,7 @@ impl Trainer {
             last_real: vec![false; n_envs],
             counts: FeedbackCounts::default(),
             last_update_at: Instant::now(),
+            interrupted: || false,
         })
     }
 
@@ -189,9 +193,13 @@ impl Trainer {
             let mut sums = [0.0f64; 6];
             let mut batches = 0.0;
 
-            for _epoch in 0..hp.epochs {
+            'epochs: for _epoch in 0..hp.epochs {
                 envs.shuffle(&mut self.rng);
                 for mb in envs.chunks(per_mb) {
+                    if (self.interrupted)() {
+                        m.cut_short = true;
+                        break 'epochs;
+                    }
                     let idx = Tensor::from_slice(mb).to_device(r.device());
                     let sel = |t: &Tensor| t.index_select(1, &idx);
                     let any_start: Vec<bool> =
@@ -428,6 +436,27 @@ mod tests {
         let r = [1.0, 2.0, 3.0];
         assert!((explained_variance(&r, &r, &[true; 3]) - 1.0).abs() < 1e-9);
         assert!(explained_variance(&[0.0; 3], &r, &[true; 3]).abs() < 1e-9);
+    }
+
+    /// A stop during an update ends its epochs before the next minibatch: nothing more is
+    /// learned from the rollout, the update is counted (its frames were collected) and says so.
+    #[test]
+    fn a_stop_cuts_the_update_short() {
+        let mut cfg = crate::bench::tiny_config();
+        cfg.ppo.rollout = 8;
+        let mut t = Trainer::new(&cfg, 2, Device::Cpu).unwrap();
+        crate::bench::fill_rollout(&mut t, 1).unwrap();
+        let before: Vec<Tensor> = t.agent.vs.trainable_variables().iter().map(|v| v.copy()).collect();
+        t.interrupted = || true;
+        let m = crate::bench::update_once(&mut t);
+        assert!(m.cut_short && m.update == 1 && m.frames == 16, "{m:?}");
+        let after = t.agent.vs.trainable_variables();
+        assert!(before.iter().zip(&after).all(|(a, b)| a.equal(b)), "weights moved");
+        crate::bench::fill_rollout(&mut t, 2).unwrap();
+        t.interrupted = || false;
+        let m = crate::bench::update_once(&mut t);
+        assert!(!m.cut_short && m.update == 2);
+        assert!(before.iter().zip(&t.agent.vs.trainable_variables()).any(|(a, b)| !a.equal(b)), "learned");
     }
 
     #[test]

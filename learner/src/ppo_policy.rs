@@ -92,6 +92,9 @@ impl PpoPolicy {
             ),
             (false, _) => Trainer::new(cfg, n, device)?,
         };
+        // A stop (Ctrl-C) during an update cuts it short; the final checkpoint follows.
+        let mut trainer = trainer;
+        trainer.interrupted = || farm::process::termination_signal().is_some();
         for note in trainer.agent.notes() {
             tracing::info!("{note}");
         }
@@ -277,8 +280,15 @@ impl Policy for PpoPolicy {
 
     fn finish(&mut self, checkpoint: bool) -> anyhow::Result<()> {
         // The checkpoint first: a plot that fails (a full disk) must not cost the training.
-        if checkpoint {
-            self.save_checkpoint()?;
+        if checkpoint && let Mode::Train { checkpoints, .. } = &self.mode {
+            // While this marker exists the orchestrator waits instead of escalating.
+            let marker = checkpoints.join(farm::checkpoints::FINAL_WRITE_MARKER);
+            std::fs::create_dir_all(checkpoints)?;
+            std::fs::write(&marker, std::process::id().to_string())?;
+            tracing::info!("writing the final checkpoint");
+            let saved = self.save_checkpoint();
+            let _ = std::fs::remove_file(&marker);
+            saved?;
         }
         if let Mode::Train { log, .. } = &self.mode {
             log.plot()?;

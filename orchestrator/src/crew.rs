@@ -4,9 +4,10 @@
 //! [`Crew::tick`] reaps children that ended and acts: a worker that crashed is restarted at once
 //! as generation + 1 (after the iceoryx2 resources it left are removed); a worker that exits 0
 //! was told to shut down and stays down; when the learner ends, the run ends. [`Crew::stop`]
-//! stops everything in order: SIGINT to the learner (it checkpoints and tells the workers to
-//! shut down) and SIGTERM to the workers, SIGTERM again after the grace period, SIGKILL just
-//! before the 5 s mark. [`Crew::finish`] then ends the run's iceoryx2 domain, so nothing of
+//! stops everything in order: SIGINT to the learner (it cuts its update short at the next
+//! minibatch, writes the final checkpoint and tells the workers to shut down) and SIGTERM to the
+//! workers, SIGTERM again after the grace period, SIGKILL just before the 5 s mark; the learner
+//! is waited for (up to 10 minutes). [`Crew::finish`] then ends the run's iceoryx2 domain, so nothing of
 //! the run remains in `/dev/shm`.
 //!
 //! Used by `orchestrator up`, `orchestrator bench farm` and evaluation.
@@ -159,8 +160,12 @@ const LP_THREADS_ENV: &str = "LP_NUM_THREADS";
 /// A failure this soon after start counts towards giving up on a worker slot.
 const QUICK_FAILURE: Duration = Duration::from_secs(10);
 const MAX_QUICK_FAILURES: u32 = 3;
-/// When stopping: SIGKILL whatever is left at this point.
+/// When stopping: SIGKILL the workers left at this point.
 const KILL_AFTER: Duration = Duration::from_millis(4500);
+/// When stopping: the learner finishes (or cuts short) its update and writes the final
+/// checkpoint, however long that takes; only a learner still alive after this is killed (a
+/// third Ctrl-C does it at once).
+const LEARNER_STOP_LIMIT: Duration = Duration::from_secs(600);
 
 /// Whether the farm is still running.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -411,10 +416,15 @@ impl Crew {
         if let Some(t0) = self.stopping {
             let el = t0.elapsed();
             if el >= KILL_AFTER {
-                self.signal_all(Signal::SIGKILL);
+                self.signal_workers(Signal::SIGKILL);
             } else if el >= Duration::from_secs_f64(self.spec.grace) && !self.escalated_term {
                 self.escalated_term = true;
-                self.signal_all(Signal::SIGTERM);
+                self.signal_workers(Signal::SIGTERM);
+            }
+            if el >= LEARNER_STOP_LIMIT
+                && let Some(l) = &self.learner
+            {
+                child::signal(l, Signal::SIGKILL);
             }
         }
         let alive = self.learner.is_some() || self.workers.iter().any(|w| w.child.is_some());
@@ -425,11 +435,26 @@ impl Crew {
         if let Some(l) = &self.learner {
             child::signal(l, sig);
         }
+        self.signal_workers(sig);
+    }
+
+    fn signal_workers(&self, sig: Signal) {
         for w in &self.workers {
             if let Some(c) = &w.child {
                 child::signal(c, sig);
             }
         }
+    }
+
+    /// Whether the learner is writing its final checkpoint now.
+    pub fn writing_final_checkpoint(&self) -> bool {
+        self.learner.is_some()
+            && farm::checkpoints::final_write_in_progress(&farm::checkpoints::dir_of(&self.spec.run_dir))
+    }
+
+    /// Whether the learner is still alive.
+    pub fn learner_alive(&self) -> bool {
+        self.learner.is_some()
     }
 
     fn begin_stop(&mut self) {
@@ -447,8 +472,9 @@ impl Crew {
         }
     }
 
-    /// Stops the run from outside (Ctrl-C): SIGINT to the learner so it checkpoints, SIGTERM
-    /// to the workers; [`Crew::tick`] escalates to SIGTERM and SIGKILL.
+    /// Stops the run from outside (Ctrl-C): SIGINT to the learner so it ends its update and
+    /// checkpoints, SIGTERM to the workers; [`Crew::tick`] escalates for the workers (SIGTERM,
+    /// SIGKILL) and waits for the learner.
     pub fn stop(&mut self) {
         if self.stopping.is_none() {
             self.stopped_from_outside = true;
@@ -456,7 +482,7 @@ impl Crew {
         self.begin_stop();
     }
 
-    /// SIGKILL to every child now (a second Ctrl-C).
+    /// SIGKILL to every child now (a third Ctrl-C).
     pub fn kill_now(&mut self) {
         if self.stopping.is_none() {
             self.stopping = Some(Instant::now());

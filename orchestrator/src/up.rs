@@ -115,14 +115,16 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         let n = process::termination_count();
         if n > signals_seen {
             signals_seen = n;
-            if n == 1 {
-                eprintln!(
-                    "[up] {}: stopping every process (Ctrl-C again to kill at once)",
-                    process::termination_signal().map(|s| s.to_string()).unwrap_or_default()
-                );
-                crew.stop();
-            } else {
-                crew.kill_now();
+            match n {
+                1 => {
+                    eprintln!(
+                        "[up] {}: stopping; the learner ends its update and writes a final checkpoint",
+                        process::termination_signal().map(|s| s.to_string()).unwrap_or_default()
+                    );
+                    crew.stop();
+                }
+                2 => eprintln!("[up] {}", what_killing_loses(&crew, &dir.path)),
+                _ => crew.kill_now(),
             }
         }
         ui.update(&crew);
@@ -247,5 +249,20 @@ mod tests {
         std::fs::write(&p, "[run]\nmethod = \"both\"\n[env]\nwidht = 3\n").unwrap();
         let e = load_config(Some(&p)).unwrap_err().to_string();
         assert!(e.contains("bad.toml") && e.contains("widht"), "{e}");
+    }
+}
+
+/// What a third Ctrl-C would cost, said before it is needed.
+fn what_killing_loses(crew: &Crew, run: &Path) -> String {
+    let since = match farm::checkpoints::latest_in_run(run) {
+        Some(c) => format!("since {}", c.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()),
+        None => "of this run (no checkpoint yet)".into(),
+    };
+    if crew.writing_final_checkpoint() {
+        format!("the final checkpoint is being written; Ctrl-C once more kills it and loses the training {since}")
+    } else if crew.learner_alive() {
+        format!("the learner is ending its update; Ctrl-C once more kills it and loses the training {since}")
+    } else {
+        "Ctrl-C once more kills what is left at once".into()
     }
 }
