@@ -197,6 +197,41 @@ fn ctrl_c_while_training_keeps_a_checkpoint_that_resumes() {
     assert!(farm::checkpoints::update_of(&newest).unwrap() > stopped_at, "{}", newest.display());
 }
 
+/// A dataset with one flipped bit is refused before any process starts, with one line naming
+/// the damaged file; `eval` on it writes no tables.
+#[test]
+fn a_bit_flipped_dataset_is_refused_before_the_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let copy = tmp.path().join("gond");
+    std::fs::create_dir_all(copy.join("scenes")).unwrap();
+    for e in std::fs::read_dir(dataset()).unwrap().chain(std::fs::read_dir(dataset().join("scenes")).unwrap()) {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_file() {
+            let rel = e.path().strip_prefix(dataset()).unwrap().to_path_buf();
+            std::fs::copy(e.path(), copy.join(rel)).unwrap();
+        }
+    }
+    orchestrator::launch::verify_dataset(&copy).unwrap();
+    let val = copy.join("val.gond");
+    let mut bytes = std::fs::read(&val).unwrap();
+    let k = bytes.len() * 2 / 3;
+    bytes[k] ^= 0x10;
+    std::fs::write(&val, &bytes).unwrap();
+    let err = format!("{:#}", orchestrator::launch::verify_dataset(&copy).unwrap_err());
+    assert!(err.contains("val.gond") && err.contains("corrupted"), "{err}");
+    let out_dir = tmp.path().join("eval");
+    let out = std::process::Command::new(bin("orchestrator"))
+        .args(["eval", "--split", "val", "--max-programs", "4", "--workers", "1", "--dataset"])
+        .arg(&copy)
+        .arg("--out")
+        .arg(&out_dir)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("val.gond"), "{stderr}");
+    assert!(!out_dir.join("tables.md").exists());
+}
+
 /// Two runs with different run ids on one host at the same time: each sees only its own
 /// workers and messages.
 #[test]

@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use farm::config::{Encoder, RunConfig};
+use worker::scene::Split;
 
 use crate::crew::PolicyArg;
 use crate::run_dir::RunDir;
@@ -18,13 +19,31 @@ pub fn resolve_dataset(cfg: &mut RunConfig, synthetic: bool) -> anyhow::Result<(
         cfg.run.dataset = std::env::current_dir()?.join(&cfg.run.dataset);
     }
     let manifest = cfg.run.dataset.join("manifest.json");
-    if !synthetic && !manifest.is_file() {
+    if synthetic {
+        return Ok(());
+    }
+    if !manifest.is_file() {
         anyhow::bail!(
             "no dataset at {} (missing {}); build one with `orchestrator dataset build --out {}` or set run.dataset in the config",
             cfg.run.dataset.display(),
             manifest.display(),
             cfg.run.dataset.display()
         );
+    }
+    verify_dataset(&cfg.run.dataset)
+}
+
+/// Checks every byte of a dataset against its manifest's checksums (and the JSON indexes
+/// against the records) once, before any worker reads it: a damaged file is one clear error
+/// naming it instead of episodes built from flipped bits. BENCHMARKS.md has the cost.
+pub fn verify_dataset(dir: &Path) -> anyhow::Result<()> {
+    let t = std::time::Instant::now();
+    let ds = worker::dataset::Dataset::open(dir, worker::dataset::Verify::Full)
+        .with_context(|| format!("dataset {} failed its integrity check (rebuild it)", dir.display()))?;
+    let secs = t.elapsed().as_secs_f64();
+    if secs > 2.0 {
+        let programs: usize = Split::ALL.iter().filter_map(|&s| ds.split(s)).map(|f| f.len()).sum();
+        eprintln!("[dataset] {} verified: {programs} programs in {secs:.1} s", dir.display());
     }
     Ok(())
 }

@@ -404,8 +404,9 @@ pub fn build_split(
 }
 
 /// Builds the whole dataset into `dir`. Refuses a folder that already holds a dataset unless
-/// `force`; the manifest is written last, so an interrupted build never looks complete.
-#[allow(clippy::too_many_arguments)]
+/// `force`; the manifest is written last, so an interrupted build never looks complete. A
+/// forced rebuild is made beside the old dataset and swapped in atomically once complete, so
+/// the old one stays usable until then (and stays if the build fails or is killed).
 pub fn build(
     dir: &Path,
     opts: &BuildOptions,
@@ -414,14 +415,42 @@ pub fn build(
     interventions: &[(String, Vec<f32>)],
     progress: &Progress,
 ) -> anyhow::Result<Manifest> {
-    let manifest_path = dir.join("manifest.json");
-    if manifest_path.exists() && !force {
+    if !dir.join("manifest.json").exists() {
+        return build_into(dir, opts, synth, interventions, progress);
+    }
+    if !force {
         anyhow::bail!("{}: a dataset is already here; pass --force to replace it", dir.display());
     }
-    std::fs::create_dir_all(dir.join("scenes"))?;
-    if manifest_path.exists() {
-        std::fs::remove_file(&manifest_path)?;
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "dataset".into());
+    let staging = dir.with_file_name(format!(".{name}.rebuilding"));
+    // a rebuild killed earlier left this; nothing else uses it
+    if staging.exists() {
+        std::fs::remove_dir_all(&staging)?;
     }
+    let built = build_into(&staging, opts, synth, interventions, progress);
+    let manifest = match built {
+        Ok(m) => m,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&staging);
+            return Err(e);
+        }
+    };
+    use nix::fcntl::{AT_FDCWD, RenameFlags, renameat2};
+    renameat2(AT_FDCWD, &staging, AT_FDCWD, dir, RenameFlags::RENAME_EXCHANGE)
+        .map_err(|e| anyhow::anyhow!("swapping {} in for {}: {e}", staging.display(), dir.display()))?;
+    // `staging` now holds the old dataset
+    std::fs::remove_dir_all(&staging)?;
+    Ok(manifest)
+}
+
+fn build_into(
+    dir: &Path,
+    opts: &BuildOptions,
+    synth: &Synth,
+    interventions: &[(String, Vec<f32>)],
+    progress: &Progress,
+) -> anyhow::Result<Manifest> {
+    std::fs::create_dir_all(dir.join("scenes"))?;
     let scenes: BTreeMap<SceneId, Scene> = SceneId::all()
         .collect::<Vec<_>>()
         .par_iter()
@@ -471,7 +500,7 @@ pub fn build(
     };
     let mut json = serde_json::to_string_pretty(&manifest)?;
     json.push('\n');
-    files::write_atomic(&manifest_path, json.as_bytes())?;
+    files::write_atomic(&dir.join("manifest.json"), json.as_bytes())?;
     Ok(manifest)
 }
 
@@ -582,6 +611,25 @@ mod tests {
         let err = build(dirs[0].path(), &small(vec![Split::Test]), false, &test_synth, &interventions(), &|_, _, _| {})
             .unwrap_err();
         assert!(err.to_string().contains("--force"), "{err}");
+    }
+
+    /// `--force` builds beside the old dataset and swaps: the folder always holds one complete
+    /// dataset, and no staging folder is left (a stale one from a killed rebuild is removed).
+    #[test]
+    fn a_forced_rebuild_swaps_a_complete_dataset_in() {
+        let root = tempfile::tempdir().unwrap();
+        let dir = root.path().join("gond");
+        let quiet = |_, _, _| {};
+        let first = build(&dir, &small(vec![Split::Test]), false, &test_synth, &interventions(), &quiet).unwrap();
+        std::fs::create_dir_all(root.path().join(".gond.rebuilding/junk")).unwrap();
+        let opts = BuildOptions { seed: 4, ..small(vec![Split::Test]) };
+        let second = build(&dir, &opts, true, &test_synth, &interventions(), &quiet).unwrap();
+        assert_ne!(first.splits["test"].checksum, second.splits["test"].checksum);
+        let ds = Dataset::open(&dir, Verify::Full).unwrap();
+        assert_eq!(ds.manifest.build.seed, 4);
+        let names: Vec<String> =
+            std::fs::read_dir(root.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+        assert_eq!(names, vec!["gond".to_string()], "only the dataset remains");
     }
 
     #[test]
