@@ -55,5 +55,7 @@ export LIBTORCH="$TORCH_DIR/torch"
 export LIBTORCH_BYPASS_VERSION_CHECK=0
 export LD_LIBRARY_PATH="$TORCH_DIR/torch/lib\${LD_LIBRARY_PATH:+:\$LD_LIBRARY_PATH}"
 export PYTHONPATH="$PYDIR\${PYTHONPATH:+:\$PYTHONPATH}"
+# mesa-vulkan-drivers (lavapipe) is installed above: tests that render must find an adapter
+export GESTHOR_ADAPTER_REQUIRED=1
 ENV
 log "ready; environment in $DEPS/env.sh"

@@ -403,6 +403,10 @@ mod tests {
         match EnvPool::new(cfg, spec) {
             Ok(p) => Some(p),
             Err(e) if format!("{e:#}").contains("adapter") => {
+                assert!(
+                    !crate::render::adapter_required(),
+                    "no wgpu adapter ({e:#}), but CI or scripts/setup.sh says there must be one"
+                );
                 eprintln!("skipped: no wgpu adapter ({e:#})");
                 None
             }

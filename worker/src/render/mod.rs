@@ -65,5 +65,13 @@ pub use renderer::Renderer;
 pub use scenes::SceneHandle;
 pub use view::{View, ViewOut, count_id};
 
+/// Whether this machine must have a wgpu adapter: under CI, or where `scripts/setup.sh`
+/// installed Mesa's lavapipe (its env.sh sets `GESTHOR_ADAPTER_REQUIRED=1`). Tests that render
+/// skip on a machine without any adapter only when this is false, and fail otherwise.
+pub fn adapter_required() -> bool {
+    let set = |k: &str| std::env::var(k).is_ok_and(|v| !v.is_empty() && v != "0" && v != "false");
+    set("CI") || set("GESTHOR_ADAPTER_REQUIRED")
+}
+
 #[cfg(test)]
 mod tests;

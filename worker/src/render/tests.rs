@@ -11,6 +11,7 @@ fn renderer(cfg: &RenderConfig) -> Option<Renderer> {
     match Renderer::new(cfg) {
         Ok(r) => Some(r),
         Err(RenderError::NoAdapter(b)) => {
+            assert!(!adapter_required(), "no wgpu adapter ({b}), but CI or scripts/setup.sh says there must be one");
             eprintln!("skipped: no wgpu adapter ({b})");
             None
         }
