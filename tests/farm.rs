@@ -232,6 +232,41 @@ fn a_bit_flipped_dataset_is_refused_before_the_run() {
     assert!(!out_dir.join("tables.md").exists());
 }
 
+/// A short chaos soak: a seeded schedule of worker, learner and orchestrator kills and Ctrl-Cs
+/// during training, resumed after each stop, loses no checkpoint, sample or file.
+#[test]
+fn a_short_soak_survives_every_fault() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("soak.toml");
+    let text = format!(
+        "[run]\nmethod = \"both\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 32\nheight = 32\n\n\
+         [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\n\n\
+         [checkpoint]\nevery_updates = 2\nkeep = 3\n",
+        dataset().display()
+    );
+    std::fs::write(&cfg, text).unwrap();
+    let out = tmp.path().join("soak");
+    // seed 3's first eight faults include every kind (a unit test of the schedule says so)
+    let status = std::process::Command::new(bin("orchestrator"))
+        .args(["soak", "--faults", "8", "--seed", "3", "--workers", "2", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&out)
+        .status()
+        .unwrap();
+    let report: Value = serde_json::from_str(&std::fs::read_to_string(out.join("soak.json")).unwrap()).unwrap();
+    assert!(status.success(), "{report:#}");
+    let injected: Vec<u64> = report["injected"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+    assert_eq!(injected.iter().sum::<u64>(), 8);
+    assert!(injected.iter().all(|&n| n > 0), "every kind of fault: {injected:?}");
+    assert_eq!(report["survived"], report["injected"]);
+    for k in ["bad_resumes", "unusable_checkpoints", "integrity_errors"] {
+        assert_eq!(report[k], 0, "{k}: {report:#}");
+    }
+    assert!(report["leftovers"].as_array().unwrap().is_empty(), "{report:#}");
+}
+
 /// Two runs with different run ids on one host at the same time: each sees only its own
 /// workers and messages.
 #[test]

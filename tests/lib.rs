@@ -244,24 +244,7 @@ impl Drop for Run {
     }
 }
 
-/// `(pid, command line)` of every process whose command line contains `needle`.
-pub fn processes_mentioning(needle: &str) -> Vec<(i32, String)> {
-    let me = std::process::id() as i32;
-    let mut out = vec![];
-    for e in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else { continue };
-        if pid == me {
-            continue;
-        }
-        let Ok(raw) = std::fs::read(e.path().join("cmdline")) else { continue };
-        let cmd = String::from_utf8_lossy(&raw).replace('\0', " ");
-        // zombies have an empty command line: already gone for our purposes
-        if !cmd.is_empty() && cmd.contains(needle) {
-            out.push((pid, cmd));
-        }
-    }
-    out
-}
+pub use orchestrator::soak::processes_mentioning;
 
 /// Files the run left in `/dev/shm` (and iceoryx2's folder).
 pub fn shm_leftovers(run_id: &str) -> Vec<PathBuf> {

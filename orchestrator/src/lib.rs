@@ -23,6 +23,7 @@ pub mod plot;
 pub mod program_cmd;
 pub mod render_cmd;
 pub mod run_dir;
+pub mod soak;
 pub mod study;
 pub mod study_report;
 pub mod study_tables;

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench, dataset_cmd, encoder_cmd, eval, program_cmd, render_cmd, study, up};
+use orchestrator::{bench, dataset_cmd, encoder_cmd, eval, program_cmd, render_cmd, soak, study, up};
 
 #[derive(Parser)]
 #[command(
@@ -43,6 +43,9 @@ enum Command {
     /// The dissertation's comparison (T4.2): every method trained with N seeds, checkpoints
     /// selected on val, tested; resumable (the same command continues a killed study).
     Study(study::StudyArgs),
+    /// A training run under a seeded schedule of kills and Ctrl-Cs, resumed after each stop;
+    /// checks that no checkpoint, sample or file is lost or left.
+    Soak(soak::SoakArgs),
 }
 
 fn main() -> ExitCode {
@@ -57,6 +60,7 @@ fn main() -> ExitCode {
         Command::Encoder(c) => encoder_cmd::run(c).map(|_| 0),
         Command::Bench(c) => bench::run(c).map(|_| 0),
         Command::Study(a) => study::run(a).map(|_| 0),
+        Command::Soak(a) => soak::run(a),
     };
     match result {
         Ok(code) => ExitCode::from(code.clamp(0, 255) as u8),

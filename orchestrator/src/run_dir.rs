@@ -94,6 +94,15 @@ impl RunDir {
     }
 
     pub fn write_info(&self, workers: usize, policy: &str) -> anyhow::Result<()> {
+        // The previous session of this folder is dead (we hold its lock): whatever its
+        // shared memory left (an orchestrator killed with SIGKILL) goes now, not a minute later.
+        if let Some(prev) = self.previous_run_id()
+            && prev != self.run_id
+            && let Ok(left) = farm::transport::end_run_domain(&prev)
+            && !left.is_empty()
+        {
+            eprintln!("[up] removed {} shared-memory file(s) of the previous session {prev}", left.len());
+        }
         let info = RunInfo {
             run_id: self.run_id.clone(),
             pid: std::process::id(),
@@ -105,6 +114,14 @@ impl RunDir {
         let p = self.path.join("run.json");
         farm::files::write_atomic(&p, serde_json::to_string_pretty(&info)?.as_bytes())
             .with_context(|| format!("writing {}", p.display()))
+    }
+}
+
+impl RunDir {
+    /// The run id in `run.json` before this session rewrites it.
+    fn previous_run_id(&self) -> Option<String> {
+        let text = std::fs::read_to_string(self.path.join("run.json")).ok()?;
+        serde_json::from_str::<RunInfo>(&text).ok().map(|i| i.run_id)
     }
 }
 
