@@ -2,7 +2,9 @@
 //! requests by signal, and the parent-death signal that keeps a child from outliving its
 //! supervisor.
 
-use std::sync::atomic::{AtomicI32, Ordering};
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicI32, AtomicU64, Ordering};
+use std::time::{Duration, Instant};
 
 use nix::sys::signal::{SaFlags, SigAction, SigHandler, SigSet, Signal, sigaction};
 
@@ -12,6 +14,27 @@ pub const SUPERVISOR_PID_ENV: &str = "GESTHOR_SUPERVISOR_PID";
 
 static LAST_SIGNAL: AtomicI32 = AtomicI32::new(0);
 static SIGNAL_COUNT: AtomicI32 = AtomicI32::new(0);
+/// Nanoseconds after [`EPOCH`] at which the role's time budget ends (0: none).
+static DEADLINE_NS: AtomicU64 = AtomicU64::new(0);
+static EPOCH: OnceLock<Instant> = OnceLock::new();
+
+/// Sets the role's time budget: [`deadline_passed`] is true `after` from now.
+pub fn set_deadline(after: Duration) {
+    let epoch = *EPOCH.get_or_init(Instant::now);
+    let at = epoch.elapsed() + after;
+    DEADLINE_NS.store((at.as_nanos() as u64).max(1), Ordering::SeqCst);
+}
+
+/// Whether the time budget set by [`set_deadline`] has run out.
+pub fn deadline_passed() -> bool {
+    let at = DEADLINE_NS.load(Ordering::SeqCst);
+    at != 0 && EPOCH.get().is_some_and(|e| e.elapsed().as_nanos() as u64 >= at)
+}
+
+/// Whether the role should stop what it is doing: a termination signal, or the time budget spent.
+pub fn stop_requested() -> bool {
+    termination_signal().is_some() || deadline_passed()
+}
 
 extern "C" fn on_signal(sig: std::ffi::c_int) {
     // Only atomics: async-signal-safe.
@@ -71,6 +94,14 @@ mod tests {
         // (Raising a real signal here would set the process-wide flag for every other test of
         // this binary; the integration tests in tests/ signal real processes instead.)
         assert_eq!(signal_exit_code(Signal::SIGTERM), 143);
+    }
+
+    #[test]
+    fn a_time_budget_runs_out() {
+        set_deadline(Duration::from_secs(3600));
+        assert!(!deadline_passed());
+        set_deadline(Duration::ZERO);
+        assert!(deadline_passed() && stop_requested());
         assert_eq!(signal_exit_code(Signal::SIGINT), 130);
         assert_eq!(termination_signal(), None);
     }

@@ -92,9 +92,10 @@ impl PpoPolicy {
             ),
             (false, _) => Trainer::new(cfg, n, device)?,
         };
-        // A stop (Ctrl-C) during an update cuts it short; the final checkpoint follows.
+        // A stop (Ctrl-C, or the time budget spent) during an update cuts it short; the final
+        // checkpoint follows.
         let mut trainer = trainer;
-        trainer.interrupted = || farm::process::termination_signal().is_some();
+        trainer.interrupted = farm::process::stop_requested;
         for note in trainer.agent.notes() {
             tracing::info!("{note}");
         }

@@ -180,6 +180,10 @@ pub fn serve(opts: &ServeOptions, policy: &mut dyn Policy) -> Result<Summary, Se
     let records = RunRecords::open(&opts.run_dir, opts.eval, opts.workers, opts.envs_per_worker)?;
     let ports = LearnerPorts::open(&opts.run_id, opts.workers)?;
     let now = Instant::now();
+    if let Some(s) = opts.max_seconds {
+        // so that an update running when the budget ends is cut short too
+        process::set_deadline(Duration::from_secs_f64(s));
+    }
     let mut server = Server {
         opts: opts.clone(),
         shape,

@@ -319,7 +319,10 @@ impl Soak {
         let good = match &expected {
             Some(p) => {
                 let update = farm::checkpoints::update_of(p).unwrap_or(0);
-                let ok = session.contains(&format!("resumed from {}", p.display())) && update >= self.resumed_update;
+                // the learner names the file by its absolute path
+                let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+                let said = session.lines().any(|l| l.contains("resumed from ") && l.contains(&format!("/{name} ")));
+                let ok = said && update >= self.resumed_update;
                 self.resumed_update = update;
                 ok
             }
