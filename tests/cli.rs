@@ -43,3 +43,19 @@ fn replay_of_an_unknown_program_is_one_line() {
     let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
     assert!(!ok && lines.len() == 1 && lines[0].contains("nope:1"), "{err}");
 }
+
+/// On a headless machine (no XDG_RUNTIME_DIR) the drivers' Wayland probe stays quiet.
+#[test]
+fn render_on_a_headless_machine_prints_no_error_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = Command::new(bin("orchestrator"))
+        .args(["render", "--scene", "FloorPlan201", "--out"])
+        .arg(tmp.path())
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(!err.lines().any(|l| l.starts_with("error:")), "{err}");
+}

@@ -49,6 +49,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    worker::render::quiet_headless_display();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Dataset(c) => dataset_cmd::run(c).map(|_| 0),

@@ -65,6 +65,25 @@ pub use renderer::Renderer;
 pub use scenes::SceneHandle;
 pub use view::{View, ViewOut, count_id};
 
+/// Mesa's drivers probe Wayland, whose client library prints "error: XDG_RUNTIME_DIR is invalid
+/// or not set in the environment." where it is missing (headless machines, CI). Pointing it at
+/// a private empty folder keeps that line out of the user's terminal (`RUST_LOG` set: left as
+/// is, so a driver problem can be looked into). Call first thing in `main`, before any thread
+/// starts: it sets an environment variable, which children inherit.
+pub fn quiet_headless_display() {
+    let valid = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_dir());
+    if valid || std::env::var_os("RUST_LOG").is_some() {
+        return;
+    }
+    use std::os::unix::fs::{DirBuilderExt, MetadataExt};
+    let uid = std::fs::metadata("/proc/self").map_or(0, |m| m.uid());
+    let dir = std::env::temp_dir().join(format!("gesthor-runtime-{uid}"));
+    if std::fs::DirBuilder::new().mode(0o700).create(&dir).is_ok() || dir.is_dir() {
+        // SAFETY: called at the start of main, before any other thread exists.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", &dir) };
+    }
+}
+
 /// Whether this machine must have a wgpu adapter: under CI, or where `scripts/setup.sh`
 /// installed Mesa's lavapipe (its env.sh sets `GESTHOR_ADAPTER_REQUIRED=1`). Tests that render
 /// skip on a machine without any adapter only when this is false, and fail otherwise.
