@@ -59,3 +59,14 @@ fn render_on_a_headless_machine_prints_no_error_line() {
     assert!(out.status.success(), "{err}");
     assert!(!err.lines().any(|l| l.starts_with("error:")), "{err}");
 }
+
+/// `--set` overrides a config value; a wrong key is one line naming it, before anything is made.
+#[test]
+fn a_wrong_override_key_is_one_line_naming_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("run");
+    let (ok, err) = orchestrator(&["up", "--set", "ppo.lrr=1", "--run-dir", run.to_str().unwrap()]);
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert!(!ok && lines.len() == 1 && lines[0].contains("ppo.lrr"), "{err}");
+    assert!(!run.exists());
+}

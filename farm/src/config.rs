@@ -377,6 +377,41 @@ impl RunConfig {
         toml::to_string_pretty(self).expect("config serialises")
     }
 
+    /// This config with `section.key=value` overrides applied in order (`--set`; the value in
+    /// TOML syntax, a bare word taken as a string), each checked as a config file is; an
+    /// error names the override and its key.
+    pub fn with_overrides(&self, sets: &[String]) -> Result<RunConfig, ConfigError> {
+        let mut table: toml::Table = toml::from_str(&self.to_toml()).expect("a config reads its own TOML");
+        let mut cfg = self.clone();
+        for s in sets {
+            let fail =
+                |field: &str, message: String| ConfigError { file: format!("--set {s}"), field: field.into(), message };
+            let (key, raw) =
+                s.split_once('=').ok_or_else(|| fail("(syntax)", "expected KEY=VALUE, e.g. ppo.lr=1e-4".into()))?;
+            let key = key.trim();
+            let value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+                .ok()
+                .and_then(|mut t| t.remove("v"))
+                .unwrap_or_else(|| toml::Value::String(raw.trim().to_string()));
+            let (path, last) = match key.rsplit_once('.') {
+                Some((p, l)) => (p.split('.').collect::<Vec<_>>(), l),
+                None => (Vec::new(), key),
+            };
+            let mut t = &mut table;
+            for part in path {
+                t = t
+                    .entry(part)
+                    .or_insert_with(|| toml::Value::Table(Default::default()))
+                    .as_table_mut()
+                    .ok_or_else(|| fail(key, format!("`{part}` is a value, not a section")))?;
+            }
+            t.insert(last.to_string(), value);
+            let text = toml::to_string(&table).expect("a TOML table serialises");
+            cfg = RunConfig::from_toml(&text, &format!("--set {s}")).map_err(|e| fail(key, e.message))?;
+        }
+        Ok(cfg)
+    }
+
     /// Range checks serde cannot express.
     pub fn validate(&self) -> Result<(), (String, String)> {
         let e = |f: &str, m: String| Err((f.to_string(), m));
@@ -468,6 +503,25 @@ mod tests {
         assert_eq!(c.task.max_steps, 100);
         assert_eq!(c.env.width, 224);
         assert_eq!(c.run.method.schedule(), GestureSchedule::Both);
+    }
+
+    #[test]
+    fn overrides_apply_in_order_and_a_bad_one_names_its_key() {
+        let c = RunConfig::from_toml("[run]\nmethod = \"both\"\n", "x.toml").unwrap();
+        let sets = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let o =
+            c.with_overrides(&sets(&["ppo.lr=1e-4", "env.width=96", "run.method=vis_sem", "env.width = 80"])).unwrap();
+        assert_eq!((o.ppo.lr, o.env.width, o.run.method), (1e-4, 80, Method::VisSem));
+        assert_eq!(o.ppo.rollout, c.ppo.rollout, "the rest untouched");
+        for (bad, says) in [
+            ("ppo.lrr=1", "ppo.lrr"),
+            ("ppo.clip=-5", "ppo.clip"),
+            ("env.width", "KEY=VALUE"),
+            ("env.width=abc", "env.width"),
+        ] {
+            let err = c.with_overrides(&sets(&[bad])).unwrap_err().to_string();
+            assert!(err.contains(says) && !err.contains('\n'), "{bad}: {err}");
+        }
     }
 
     #[test]

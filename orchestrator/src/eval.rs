@@ -72,6 +72,10 @@ pub struct EvalArgs {
     /// Draw this many episodes (trajectory map PNG + robot-view GIF) from the normal pass.
     #[arg(long, default_value_t = 0)]
     pub trajectories: usize,
+    /// Override a config value, e.g. `--set ppo.lr=1e-4` (repeatable; checked as the file is;
+    /// the effective config is the one written into the run directory).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
     /// Put earlier evaluations side by side instead (their output folders, or run directories).
     #[arg(long, num_args = 1..)]
     pub compare: Vec<PathBuf>,
@@ -176,13 +180,14 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         }
         None => (None, None),
     };
-    let mut cfg = match (&run_dir, &a.config) {
+    let cfg = match (&run_dir, &a.config) {
         (Some(r), _) => {
             RunConfig::load(&r.join("config.toml")).with_context(|| format!("{}: the run's config", r.display()))?
         }
         (None, Some(c)) => RunConfig::load(c)?,
         (None, None) => crate::up::load_config(None)?,
     };
+    let mut cfg = cfg.with_overrides(&a.set)?;
     let baseline = checkpoint.is_none();
     if baseline && !a.expert {
         cfg.run.method = Method::Random;

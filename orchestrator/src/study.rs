@@ -66,6 +66,10 @@ pub struct StudyArgs {
     /// Test programs per evaluation (spread over the test rooms).
     #[arg(long, default_value_t = 1000)]
     pub test_programs: usize,
+    /// Override a config value, e.g. `--set ppo.lr=1e-4` (repeatable; checked as the file is;
+    /// the effective config is the one written into each run directory).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
     /// Train and evaluate every method on this dataset instead of the configs' `run.dataset`
     /// (e.g. one built with `dataset build --pointing realistic`).
     #[arg(long)]
@@ -149,7 +153,7 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
             anyhow::ensure!(a.methods.is_empty(), "--methods {stem}: no {}", path.display());
             continue;
         }
-        let mut cfg = RunConfig::load(&path)?;
+        let mut cfg = RunConfig::load(&path)?.with_overrides(&a.set)?;
         if let Some(d) = &a.dataset {
             cfg.run.dataset = d.clone();
         }
@@ -585,6 +589,7 @@ mod tests {
             val_programs: 100,
             test_programs: 100,
             dataset: None,
+            set: Vec::new(),
         }
     }
 

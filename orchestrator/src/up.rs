@@ -44,6 +44,10 @@ pub struct UpArgs {
     /// Step synthetic environments instead of the simulator (tests the farm's plumbing only).
     #[arg(long)]
     pub synthetic: bool,
+    /// Override a config value, e.g. `--set ppo.lr=1e-4` (repeatable; checked as the file is;
+    /// the effective config is the one written into the run directory).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
     /// Seconds between the learner's progress records.
     #[arg(long, default_value_t = 2.0, value_parser = crate::cli_values::seconds)]
     pub report_every: f64,
@@ -72,6 +76,11 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         }
         None => (a.run_dir.clone().unwrap_or_else(|| run_dir::default_path("up")), load_config(a.config.as_deref())?),
     };
+    anyhow::ensure!(
+        !(resume && !a.set.is_empty()),
+        "--set with --resume: a resumed run keeps its own config (start a new run to change it)"
+    );
+    cfg = cfg.with_overrides(&a.set)?;
     if !resume && let Some(c) = farm::checkpoints::latest_in_run(&run_path) {
         anyhow::bail!(
             "{} already holds a training run ({}): continue it with `orchestrator up --resume {}`, or choose another --run-dir",
