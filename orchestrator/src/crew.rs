@@ -7,8 +7,8 @@
 //! stops everything in order: SIGINT to the learner (it cuts its update short at the next
 //! minibatch, writes the final checkpoint and tells the workers to shut down) and SIGTERM to the
 //! workers, SIGTERM again after the grace period, SIGKILL just before the 5 s mark; the learner
-//! is waited for (up to 10 minutes). [`Crew::finish`] then ends the run's iceoryx2 domain, so nothing of
-//! the run remains in `/dev/shm`.
+//! is waited for (up to 10 minutes). [`Crew::finish`] then ends the run's iceoryx2 domain, so
+//! nothing of the run remains in `/dev/shm`.
 //!
 //! Used by `orchestrator up`, `orchestrator bench farm` and evaluation.
 

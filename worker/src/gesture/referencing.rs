@@ -15,7 +15,7 @@
 //! How cleanly people point is a stated quantity, [`Pointing`]: `clean` (the level of the
 //! committed study) draws an aiming error of N(0, 2.5°) sideways and N(0, 2°) up, clamped to
 //! ±6°/±5°, and puts the finger (or forearm) ray through that aimed point. `realistic` follows
-//! what people do: they aim with the arm as often as with the finger (the GOND recording holds
+//! what people do: 40% aim with the arm rather than the finger (the GOND recording holds
 //! its wrist on the shoulder→target line with the elbow bent ≈80°); with a straight arm they put
 //! the fingertip on the line from the eye to the target (Herbort & Kunde 2016, 2018), so the
 //! arm–finger line an observer extrapolates passes above and beside the target; and the random
