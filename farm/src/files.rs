@@ -53,6 +53,21 @@ pub fn read_jsonl<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result
 mod tests {
     use super::*;
 
+    /// A write that fails after its temporary file exists (here: the name is a non-empty
+    /// folder) leaves no temporary file behind.
+    #[test]
+    fn a_failed_atomic_write_leaves_no_temporary_file() {
+        let d = tempfile::tempdir().unwrap();
+        let target = d.path().join("ckpt");
+        std::fs::create_dir_all(target.join("inside")).unwrap();
+        assert!(write_atomic(&target, b"data").is_err());
+        let names: Vec<String> =
+            std::fs::read_dir(d.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+        assert_eq!(names, vec!["ckpt".to_string()]);
+        write_atomic(&d.path().join("ok"), b"data").unwrap();
+        assert_eq!(std::fs::read(d.path().join("ok")).unwrap(), b"data");
+    }
+
     #[test]
     fn with_ext_appends() {
         assert_eq!(with_ext(Path::new("enc/rgbd.v2"), "json"), Path::new("enc/rgbd.v2.json"));
