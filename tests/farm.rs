@@ -158,15 +158,8 @@ fn sigint_stops_every_process_cleanly() {
 fn ctrl_c_while_training_keeps_a_checkpoint_that_resumes() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = tmp.path().join("small.toml");
     // no periodic checkpoint: the final one is all there is
-    let text = format!(
-        "[run]\nmethod = \"both\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 32\nheight = 32\n\n\
-         [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\nepochs = 8\n\n\
-         [checkpoint]\nevery_updates = 100000\n",
-        dataset().display()
-    );
-    std::fs::write(&cfg, text).unwrap();
+    let cfg = small_ppo_config(tmp.path(), "epochs = 8\n\n[checkpoint]\nevery_updates = 100000\n");
     let dir = tmp.path().join("run");
     let args = ["--workers", "1", "--config", cfg.to_str().unwrap(), "--seconds", "900", "--report-every", "0.5"];
     let mut run = Run::start(&dir, &args);
@@ -217,7 +210,7 @@ fn a_bit_flipped_dataset_is_refused_before_the_run() {
     let k = bytes.len() * 2 / 3;
     bytes[k] ^= 0x10;
     std::fs::write(&val, &bytes).unwrap();
-    let err = format!("{:#}", orchestrator::launch::verify_dataset(&copy).unwrap_err());
+    let err = format!("{:#}", orchestrator::launch::verify_dataset(&copy).err().expect("a flipped bit is found"));
     assert!(err.contains("val.gond") && err.contains("corrupted"), "{err}");
     let out_dir = tmp.path().join("eval");
     let out = std::process::Command::new(bin("orchestrator"))
@@ -238,14 +231,7 @@ fn a_bit_flipped_dataset_is_refused_before_the_run() {
 fn a_short_soak_survives_every_fault() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = tmp.path().join("soak.toml");
-    let text = format!(
-        "[run]\nmethod = \"both\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 32\nheight = 32\n\n\
-         [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\n\n\
-         [checkpoint]\nevery_updates = 2\nkeep = 3\n",
-        dataset().display()
-    );
-    std::fs::write(&cfg, text).unwrap();
+    let cfg = small_ppo_config(tmp.path(), "\n[checkpoint]\nevery_updates = 2\nkeep = 3\n");
     let out = tmp.path().join("soak");
     // seed 3's first eight faults include every kind (a unit test of the schedule says so)
     let status = std::process::Command::new(bin("orchestrator"))
@@ -532,13 +518,7 @@ fn eval_of_the_expert_scores_full_success_and_random_does_not() {
 fn bench_train_reports_throughput_and_where_the_time_went() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = tmp.path().join("small.toml");
-    let text = format!(
-        "[run]\nmethod = \"both\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 32\nheight = 32\n\n\
-         [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\n",
-        dataset().display()
-    );
-    std::fs::write(&cfg, text).unwrap();
+    let cfg = small_ppo_config(tmp.path(), "");
     let out_dir = tmp.path().join("bench");
     let out = std::process::Command::new(bin("orchestrator"))
         .args(["bench", "train", "--workers", "2", "--frames", "300", "--config"])

@@ -108,6 +108,20 @@ pub fn tiny_config(dir: &Path, envs: usize) -> PathBuf {
     p
 }
 
+/// `dir/small.toml`: +Both with a small PPO network (trained small CNN, GRU 32) on 32×32 frames
+/// of the test dataset, 2 envs per worker, rollouts of 16 steps; `ppo_tail` is appended inside
+/// `[ppo]` (further keys, then other sections).
+pub fn small_ppo_config(dir: &Path, ppo_tail: &str) -> PathBuf {
+    let p = dir.join("small.toml");
+    let text = format!(
+        "[run]\nmethod = \"both\"\nseed = 7\ndataset = \"{}\"\n\n[env]\nenvs_per_worker = 2\nwidth = 32\nheight = 32\n\n\
+         [model]\nencoder = \"small_cnn\"\nhidden = 32\ngru_layers = 1\n\n[ppo]\nrollout = 16\n{ppo_tail}",
+        dataset().display()
+    );
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
 /// A live `orchestrator up`, watched from outside. Killed (with its children) when dropped.
 pub struct Run {
     pub dir: PathBuf,

@@ -68,9 +68,14 @@ pub fn digest<'a>(items: impl Iterator<Item = (&'a str, &'a [u8])>) -> String {
 /// match its checksum. The error is one reason, without the path.
 pub fn verify(path: &Path) -> Result<(), String> {
     let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
-    let st = safetensors::SafeTensors::deserialize(&bytes)
+    check_bytes(&bytes).map(drop)
+}
+
+/// [`verify`] on a checkpoint's bytes; its metadata when whole (the learner reads on from it).
+pub fn check_bytes(bytes: &[u8]) -> Result<std::collections::HashMap<String, String>, String> {
+    let st = safetensors::SafeTensors::deserialize(bytes)
         .map_err(|e| format!("not a complete safetensors file (truncated or corrupted?): {e}"))?;
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| e.to_string())?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| e.to_string())?;
     let meta = header.metadata().clone().unwrap_or_default();
     if meta.get("format").map(String::as_str) != Some(FORMAT) {
         return Err("not a GesTHOR-RS learner checkpoint (no format tag)".into());
@@ -80,7 +85,7 @@ pub fn verify(path: &Path) -> Result<(), String> {
     if meta.get("sha256") != Some(&digest(views.iter().map(|(n, v)| (n.as_str(), v.data())))) {
         return Err("its data does not match its checksum (the file is corrupted)".into());
     }
-    Ok(())
+    Ok(meta)
 }
 
 /// The newest checkpoint in `dir` that [`verify`]s, and the newer ones passed over with why.

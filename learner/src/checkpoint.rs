@@ -256,19 +256,10 @@ fn write(
 /// Reads and checks a checkpoint: complete file, our format, intact data, same network.
 fn read(path: &Path, cfg: &RunConfig) -> Result<(HashMap<String, Tensor>, HashMap<String, String>), CheckpointError> {
     let bytes = std::fs::read(path).map_err(|e| error(path, format!("cannot read: {e}")))?;
-    let st = SafeTensors::deserialize(&bytes)
-        .map_err(|e| error(path, format!("not a complete safetensors file (truncated or corrupted?): {e}")))?;
-    let (_, header) = SafeTensors::read_metadata(&bytes).map_err(|e| error(path, e.to_string()))?;
-    let meta = header.metadata().clone().unwrap_or_default();
-    if meta.get("format").map(String::as_str) != Some(FORMAT) {
-        return Err(error(path, "not a GesTHOR-RS learner checkpoint (no format tag)"));
-    }
-    let mut views = st.tensors();
-    views.sort_by(|a, b| a.0.cmp(&b.0));
-    let sum = digest(views.iter().map(|(n, v)| (n.as_str(), v.data())));
-    if meta.get("sha256") != Some(&sum) {
-        return Err(error(path, "its data does not match its checksum (the file is corrupted)"));
-    }
+    // whole, ours, intact: the same check as checkpoint discovery
+    let meta = farm::checkpoints::check_bytes(&bytes).map_err(|why| error(path, why))?;
+    let st = SafeTensors::deserialize(&bytes).map_err(|e| error(path, e.to_string()))?;
+    let views = st.tensors();
     let want = config_hash(cfg);
     let have = meta.get("config_hash").cloned().unwrap_or_default();
     if have != want {

@@ -76,7 +76,7 @@ impl PpoPolicy {
         for (p, why) in &skipped {
             tracing::warn!("--resume: skipped {}: {why}", p.display());
         }
-        let trainer = match (resume, latest) {
+        let mut trainer = match (resume, latest) {
             (true, Some(path)) => {
                 let t = checkpoint::resume_trainer(cfg, n, device, &path)?;
                 tracing::info!("resumed from {} at update {} ({} frames)", path.display(), t.updates, t.frames);
@@ -94,7 +94,6 @@ impl PpoPolicy {
         };
         // A stop (Ctrl-C, or the time budget spent) during an update cuts it short; the final
         // checkpoint follows.
-        let mut trainer = trainer;
         trainer.interrupted = farm::process::stop_requested;
         for note in trainer.agent.notes() {
             tracing::info!("{note}");

@@ -18,7 +18,6 @@ use clap::Args;
 
 use farm::config::{Method, RunConfig};
 use farm::metrics::{EpisodeResult, scores};
-use worker::dataset::{Dataset, Verify};
 use worker::program::Program;
 use worker::scene::Split;
 
@@ -201,8 +200,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     cfg.run.scenes.clear();
     cfg.run.max_programs = None;
     cfg.task.max_stops = 0;
-    resolve_dataset(&mut cfg, false)?;
-    let ds = Dataset::open(&cfg.run.dataset, Verify::Quick)?;
+    let ds = resolve_dataset(&mut cfg, false)?.expect("a dataset is opened unless synthetic");
     let index: Vec<Program> = ds.index(split)?;
     let mut candidates: Vec<u64> = (0..index.len() as u64).collect();
     if !a.scenes.is_empty() {

@@ -8,19 +8,21 @@ use std::time::Duration;
 
 use anyhow::Context;
 use farm::config::{Encoder, RunConfig};
+use worker::dataset::Dataset;
 use worker::scene::Split;
 
 use crate::crew::PolicyArg;
 use crate::run_dir::RunDir;
 
-/// Makes the dataset path absolute (children may run elsewhere) and checks it is a dataset.
-pub fn resolve_dataset(cfg: &mut RunConfig, synthetic: bool) -> anyhow::Result<()> {
+/// Makes the dataset path absolute (children may run elsewhere), checks it is a dataset and
+/// verifies it; the opened dataset, unless `synthetic` (no dataset is read then).
+pub fn resolve_dataset(cfg: &mut RunConfig, synthetic: bool) -> anyhow::Result<Option<Dataset>> {
     if cfg.run.dataset.is_relative() {
         cfg.run.dataset = std::env::current_dir()?.join(&cfg.run.dataset);
     }
     let manifest = cfg.run.dataset.join("manifest.json");
     if synthetic {
-        return Ok(());
+        return Ok(None);
     }
     if !manifest.is_file() {
         anyhow::bail!(
@@ -30,22 +32,22 @@ pub fn resolve_dataset(cfg: &mut RunConfig, synthetic: bool) -> anyhow::Result<(
             cfg.run.dataset.display()
         );
     }
-    verify_dataset(&cfg.run.dataset)
+    verify_dataset(&cfg.run.dataset).map(Some)
 }
 
 /// Checks every byte of a dataset against its manifest's checksums (and the JSON indexes
 /// against the records) once, before any worker reads it: a damaged file is one clear error
 /// naming it instead of episodes built from flipped bits. BENCHMARKS.md has the cost.
-pub fn verify_dataset(dir: &Path) -> anyhow::Result<()> {
+pub fn verify_dataset(dir: &Path) -> anyhow::Result<Dataset> {
     let t = std::time::Instant::now();
-    let ds = worker::dataset::Dataset::open(dir, worker::dataset::Verify::Full)
+    let ds = Dataset::open(dir, worker::dataset::Verify::Full)
         .with_context(|| format!("dataset {} failed its integrity check (rebuild it)", dir.display()))?;
     let secs = t.elapsed().as_secs_f64();
     if secs > 2.0 {
         let programs: usize = Split::ALL.iter().filter_map(|&s| ds.split(s)).map(|f| f.len()).sum();
         eprintln!("[dataset] {} verified: {programs} programs in {secs:.1} s", dir.display());
     }
-    Ok(())
+    Ok(ds)
 }
 
 /// For a network on the frozen pretrained encoder: makes the weights path absolute and checks the

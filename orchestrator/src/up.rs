@@ -246,7 +246,7 @@ mod tests {
     fn a_missing_dataset_names_the_path_and_the_command() {
         let mut c = load_config(None).unwrap();
         c.run.dataset = PathBuf::from("/nonexistent/gond");
-        let e = resolve_dataset(&mut c, false).unwrap_err().to_string();
+        let e = resolve_dataset(&mut c, false).err().expect("no dataset there").to_string();
         assert!(e.contains("/nonexistent/gond") && e.contains("orchestrator dataset build"), "{e}");
         assert!(resolve_dataset(&mut c, true).is_ok());
     }

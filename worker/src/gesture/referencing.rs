@@ -187,8 +187,8 @@ pub fn referencing_with(
         x if x < 0.8 => HandShape::OpenPalm,
         _ => HandShape::TwoFinger,
     };
-    let bent = r.random_bool(if shape == HandShape::OpenPalm { 0.2 } else { 0.4 });
-    let stretch = if bent { r.random_range(0.2..0.55f32) } else { r.random_range(0.82..0.98f32) };
+    let mut bent = r.random_bool(if shape == HandShape::OpenPalm { 0.2 } else { 0.4 });
+    let mut stretch = if bent { r.random_range(0.2..0.55f32) } else { r.random_range(0.82..0.98f32) };
     let torso_turn = bearing.signum() * ((bearing.abs() - 35.0).max(0.0) * r.random_range(0.35..0.6f32)).min(65.0);
 
     // Timing (frames).
@@ -208,8 +208,6 @@ pub fn referencing_with(
     // The realistic level draws after everything the clean one draws, so a clean dataset's
     // gestures do not depend on it.
     let (mut arm_aimed, mut eye_aligned) = (false, false);
-    let mut stretch = stretch;
-    let mut bent = bent;
     if pointing == Pointing::Realistic {
         aim_err = [normal(3.0).sample(&mut r).clamp(-9.0, 9.0), normal(3.0).sample(&mut r).clamp(-9.0, 9.0)];
         arm_aimed = r.random_bool(0.4);
