@@ -2,7 +2,7 @@
 # Installs what GesTHOR-RS needs on a fresh Debian/Ubuntu machine; safe to run again.
 #   - Mesa lavapipe + Vulkan loader: wgpu renders headless on the CPU
 #   - libtorch 2.11.0 (from the PyPI wheel, no Python needed at run time) for tch 0.24
-#   - numpy + iceoryx2 0.10.0 for the Python frame reader in tests/python
+#   - numpy, iceoryx2 0.10.0 and tensorboard 2.21.0 for the Python readers in tests/python
 # Prints the environment to source as its last lines; `source scripts/env.sh` does that for you.
 set -euo pipefail
 
@@ -24,6 +24,7 @@ if ((${#need_apt[@]})); then
 fi
 
 PY=python3
+export PIP_ROOT_USER_ACTION=ignore  # pip installs into our own folders, not the system
 # Older pips match a wheel's platform tag exactly, so name every manylinux level the wheels use.
 PLATFORMS=""
 for n in 17 24 25 26 27 28; do PLATFORMS+=" --platform manylinux_2_${n}_x86_64"; done
@@ -42,12 +43,14 @@ if [ ! -f "$TORCH_DIR/.complete" ]; then
 fi
 
 PYDIR="$DEPS/python"
-if [ ! -f "$PYDIR/.complete" ]; then
-  log "installing numpy + iceoryx2 0.10.0 (Python) into $PYDIR"
+# The marker holds the requirements it was made from: a changed list installs afresh.
+PY_REQS="numpy iceoryx2==0.10.0 tensorboard==2.21.0"
+if [ "$(cat "$PYDIR/.complete" 2>/dev/null)" != "$PY_REQS" ]; then
+  log "installing $PY_REQS (Python) into $PYDIR"
   rm -rf "$PYDIR"
-  $PY -m pip install -q --disable-pip-version-check --only-binary=:all: --target "$PYDIR" \
-    numpy iceoryx2==0.10.0
-  touch "$PYDIR/.complete"
+  # shellcheck disable=SC2086 # one word per requirement
+  $PY -m pip install -q --disable-pip-version-check --only-binary=:all: --target "$PYDIR" $PY_REQS
+  echo "$PY_REQS" > "$PYDIR/.complete"
 fi
 
 cat > "$DEPS/env.sh" <<ENV
@@ -55,7 +58,9 @@ export LIBTORCH="$TORCH_DIR/torch"
 export LIBTORCH_BYPASS_VERSION_CHECK=0
 export LD_LIBRARY_PATH="$TORCH_DIR/torch/lib\${LD_LIBRARY_PATH:+:\$LD_LIBRARY_PATH}"
 export PYTHONPATH="$PYDIR\${PYTHONPATH:+:\$PYTHONPATH}"
-# mesa-vulkan-drivers (lavapipe) is installed above: tests that render must find an adapter
+# mesa-vulkan-drivers (lavapipe) and the Python packages are installed above: tests that render
+# must find an adapter, tests that read with Python must find their packages
 export GESTHOR_ADAPTER_REQUIRED=1
+export GESTHOR_PYTHON_REQUIRED=1
 ENV
 log "ready; environment in $DEPS/env.sh"

@@ -331,7 +331,7 @@ fn a_live_run_directory_is_locked() {
 /// reads one observation and writes its RGB frame as a PNG.
 #[test]
 fn python_reads_one_frame_of_a_live_run() {
-    let mut python = match python_with_iceoryx2() {
+    let mut python = match python_with(&["iceoryx2", "numpy"]) {
         Ok(p) => p,
         Err(why) => {
             eprintln!("skipping python_reads_one_frame_of_a_live_run: {why}");

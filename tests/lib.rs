@@ -273,9 +273,9 @@ pub fn png_size(path: &Path) -> (u32, u32) {
     (u32::from_be_bytes(b[16..20].try_into().unwrap()), u32::from_be_bytes(b[20..24].try_into().unwrap()))
 }
 
-/// `python3` with iceoryx2 and numpy importable (PYTHONPATH from the environment, plus the
-/// folder scripts/setup.sh installs into), or why not.
-pub fn python_with_iceoryx2() -> Result<Command, String> {
+/// `python3` with the project's Python packages (setup.sh's folder) on its path, when it can
+/// import every one of `modules`; why not otherwise.
+pub fn python_with(modules: &[&str]) -> Result<Command, String> {
     let mut path = std::env::var("PYTHONPATH").unwrap_or_default();
     if let Some(home) = std::env::var_os("HOME") {
         let deps = std::env::var_os("GESTHOR_DEPS")
@@ -286,18 +286,25 @@ pub fn python_with_iceoryx2() -> Result<Command, String> {
             path = if path.is_empty() { py.display().to_string() } else { format!("{path}:{}", py.display()) };
         }
     }
-    let probe = Command::new("python3").env("PYTHONPATH", &path).args(["-c", "import iceoryx2, numpy"]).output();
-    match probe {
-        Err(e) => Err(format!("no python3 ({e})")),
+    let import = format!("import {}", modules.join(", "));
+    let probe = Command::new("python3").env("PYTHONPATH", &path).args(["-c", &import]).output();
+    let why = match probe {
+        Err(e) => format!("no python3 ({e})"),
         Ok(o) if !o.status.success() => {
-            Err(format!("python3 cannot import iceoryx2 and numpy: {}", String::from_utf8_lossy(&o.stderr).trim()))
+            format!("python3 cannot `{import}`: {}", String::from_utf8_lossy(&o.stderr).trim())
         }
         Ok(_) => {
             let mut c = Command::new("python3");
             c.env("PYTHONPATH", path);
-            Ok(c)
+            return Ok(c);
         }
+    };
+    // Where setup.sh installed the packages (its env.sh says so, and CI runs it), a test that
+    // needs them fails instead of skipping.
+    if std::env::var_os("CI").is_some() || std::env::var_os("GESTHOR_PYTHON_REQUIRED").is_some_and(|v| v == "1") {
+        panic!("{why} (scripts/setup.sh installs the packages)");
     }
+    Err(why)
 }
 
 /// The repository's root (the tests crate's parent folder).

@@ -88,6 +88,13 @@ pub fn check_bytes(bytes: &[u8]) -> Result<std::collections::HashMap<String, Str
     Ok(meta)
 }
 
+/// The environment frames a whole checkpoint was trained on (its `frames` metadata).
+pub fn frames(path: &Path) -> Result<u64, String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read: {e}"))?;
+    let meta = check_bytes(&bytes)?;
+    meta.get("frames").and_then(|f| f.parse().ok()).ok_or_else(|| "no `frames` in its metadata".into())
+}
+
 /// The newest checkpoint in `dir` that [`verify`]s, and the newer ones passed over with why.
 pub fn latest_verified(dir: &Path) -> (Option<PathBuf>, Vec<(PathBuf, String)>) {
     let mut skipped = Vec::new();

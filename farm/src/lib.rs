@@ -12,6 +12,7 @@
 //! - [`checkpoints`]: where a run's checkpoints live and how they are named
 //! - [`metrics`]: SR, SPL, DTS at k stops, episode results and trajectories
 //! - [`profile`]: where a training run's time goes (learner timeline, worker loops)
+//! - [`tensorboard`]: TensorBoard event files (scalars, images, text) of a run
 //! - [`files`], [`font`]: atomic writes and the one compiled-in font
 
 pub mod checkpoints;
@@ -25,4 +26,5 @@ pub mod profile;
 pub mod rooms;
 pub mod seed;
 pub mod stepper;
+pub mod tensorboard;
 pub mod transport;

@@ -1,9 +1,11 @@
-//! Training metrics: one JSON line per PPO update (`metrics.jsonl`) and a PNG of the curves
-//! (`curves.png`), both in the run directory.
+//! Training metrics: one JSON line per PPO update (`metrics.jsonl`), the same scalars and the
+//! farm's counters in TensorBoard (`tb/`), and a PNG of the curves (`curves.png`), all in the
+//! run directory.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use farm::tensorboard::EventWriter;
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -87,12 +89,14 @@ impl EpisodeWindow {
     }
 }
 
-/// `metrics.jsonl` of a run directory, appended one line per update.
+/// `metrics.jsonl` of a run directory, appended one line per update, and this process's
+/// TensorBoard event file in `tb/`.
 #[derive(Debug)]
 pub struct MetricsLog {
     pub jsonl: PathBuf,
     pub png: PathBuf,
     pub rows: Vec<UpdateMetrics>,
+    tb: EventWriter,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -118,7 +122,43 @@ impl MetricsLog {
                 rows.push(row);
             }
         }
-        Ok(MetricsLog { jsonl, png, rows })
+        let tb_dir = dir.join("tb");
+        let tb = EventWriter::create(&tb_dir, "train")
+            .map_err(|e| MetricsError::File { file: tb_dir.display().to_string(), message: e.to_string() })?;
+        Ok(MetricsLog { jsonl, png, rows, tb })
+    }
+
+    fn tb_err(&self) -> impl FnOnce(std::io::Error) -> MetricsError + '_ {
+        |e| MetricsError::File { file: self.tb.path().display().to_string(), message: e.to_string() }
+    }
+
+    /// Marks in TensorBoard that training goes on from a checkpoint taken at `frames`: what an
+    /// earlier process recorded after it is hidden (those updates are done again), and the
+    /// effective configuration is shown as text.
+    pub fn started_at(&mut self, frames: u64, config_toml: &str) -> Result<(), MetricsError> {
+        if frames > 0 {
+            self.tb.restart_at(frames as i64 + 1).map_err(self.tb_err())?;
+        }
+        let text = format!("```toml\n{config_toml}\n```");
+        self.tb.text("config", frames as i64, &text).map_err(self.tb_err())
+    }
+
+    /// The farm's counters since this learner process started, at an update's frame count.
+    pub fn farm(&mut self, frames: u64, p: &crate::records::Progress) -> Result<(), MetricsError> {
+        let t = &p.totals;
+        let mut v = vec![
+            ("farm/fps", p.fps),
+            ("farm/workers_live", p.workers_live as f64),
+            ("farm/restarts", t.restarts as f64),
+            ("farm/lost", t.lost as f64),
+            ("farm/duplicates", t.duplicates as f64),
+            ("farm/corrupt", t.corrupt as f64),
+            ("farm/stale", t.stale as f64),
+        ];
+        if let Some(l) = p.latency_ms {
+            v.push(("farm/step_latency_ms", l));
+        }
+        self.tb.scalars(frames as i64, &v).map_err(self.tb_err())
     }
 
     pub fn append(&mut self, m: &UpdateMetrics) -> Result<(), MetricsError> {
@@ -130,6 +170,7 @@ impl MetricsLog {
         let mut f = std::fs::OpenOptions::new().create(true).append(true).open(&self.jsonl).map_err(err)?;
         let line = serde_json::to_string(m).expect("metrics serialise");
         writeln!(f, "{line}").map_err(err)?;
+        self.tb.scalars(m.frames as i64, &tensorboard_scalars(m)).map_err(self.tb_err())?;
         self.rows.push(m.clone());
         Ok(())
     }
@@ -138,6 +179,51 @@ impl MetricsLog {
     pub fn plot(&self) -> Result<(), MetricsError> {
         plot_curves(&self.rows, &self.png)
     }
+
+    /// Redraws `curves.png` and puts it in TensorBoard (at the end of a run: TensorBoard draws
+    /// the scalars itself while it runs).
+    pub fn plot_final(&mut self) -> Result<(), MetricsError> {
+        self.plot()?;
+        let png = std::fs::read(&self.png)
+            .map_err(|e| MetricsError::File { file: self.png.display().to_string(), message: e.to_string() })?;
+        let frames = self.rows.last().map_or(0, |r| r.frames) as i64;
+        let (w, h) = CURVES_SIZE;
+        self.tb.image_png("charts/curves", frames, &png, w, h).map_err(self.tb_err())
+    }
+}
+
+/// One update's scalars under CleanRL's tag groups (charts/, losses/) and ours (rollout/, perf/).
+fn tensorboard_scalars(m: &UpdateMetrics) -> Vec<(&'static str, f64)> {
+    let mut v = vec![
+        ("charts/learning_rate", m.lr),
+        ("charts/episodes", m.episodes as f64),
+        ("losses/policy_loss", m.policy_loss),
+        ("losses/value_loss", m.value_loss),
+        ("losses/entropy", m.entropy),
+        ("losses/approx_kl", m.approx_kl),
+        ("losses/clip_fraction", m.clip_fraction),
+        ("losses/explained_variance", m.explained_variance),
+        ("losses/grad_norm", m.grad_norm),
+        ("losses/skipped_steps", m.skipped_steps as f64),
+        ("rollout/valid_fraction", m.valid_fraction),
+        ("rollout/bootstrapped", m.bootstrapped as f64),
+        ("rollout/truncated_without_final", m.truncated_without_final as f64),
+        ("rollout/lost_messages", m.lost_messages as f64),
+        ("perf/fps", m.fps),
+        ("perf/update_seconds", m.update_seconds),
+    ];
+    // Means over the episodes that ended in the rollout; none ended, no point.
+    for (tag, value) in [
+        ("charts/success_rate", m.success_rate),
+        ("charts/spl", m.spl),
+        ("charts/episode_return", m.episode_return),
+        ("charts/episode_length", m.episode_length),
+    ] {
+        if let Some(x) = value {
+            v.push((tag, x));
+        }
+    }
+    v
 }
 
 fn register_font() {
@@ -160,10 +246,12 @@ const PANELS: [Series; 8] = [
     ("approx KL", |m| Some(m.approx_kl)),
 ];
 
+const CURVES_SIZE: (u32, u32) = (1600, 800);
+
 /// Eight panels against frames, written atomically as PNG.
 pub fn plot_curves(rows: &[UpdateMetrics], path: &Path) -> Result<(), MetricsError> {
     register_font();
-    let (w, h) = (1600u32, 800u32);
+    let (w, h) = CURVES_SIZE;
     let mut buf = vec![0u8; (w * h * 3) as usize];
     let perr = |e: String| MetricsError::Plot { file: path.display().to_string(), message: e };
     {

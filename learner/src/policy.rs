@@ -26,6 +26,11 @@ pub trait Policy {
     fn learning_seconds(&self) -> f64 {
         0.0
     }
+    /// Sees each progress record the server writes (the farm's counters), e.g. to log them
+    /// beside its own metrics.
+    fn report(&mut self, _progress: &crate::records::Progress) -> anyhow::Result<()> {
+        Ok(())
+    }
     /// The run is ending; `checkpoint` says whether to save state first (Ctrl-C: yes).
     fn finish(&mut self, _checkpoint: bool) -> anyhow::Result<()> {
         Ok(())

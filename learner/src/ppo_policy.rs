@@ -54,6 +54,9 @@ pub struct PpoPolicy {
     generations: Vec<Option<u32>>,
     /// Seconds spent learning (updates, their records, checkpoints), for the profile.
     learning: f64,
+    /// The server's latest progress record, logged with the next update (one point per update,
+    /// at the update's frame count).
+    farm_progress: Option<crate::records::Progress>,
 }
 
 impl PpoPolicy {
@@ -98,7 +101,8 @@ impl PpoPolicy {
         for note in trainer.agent.notes() {
             tracing::info!("{note}");
         }
-        let log = MetricsLog::open(run_dir)?;
+        let mut log = MetricsLog::open(run_dir)?;
+        log.started_at(trainer.frames, &cfg.to_toml())?;
         Ok(PpoPolicy::with_mode(
             Mode::Train { trainer: Box::new(trainer), log, checkpoints },
             cfg,
@@ -141,6 +145,7 @@ impl PpoPolicy {
             steps: vec![EnvStep { lost: true, ..Default::default() }; workers * e],
             generations: vec![None; workers],
             learning: 0.0,
+            farm_progress: None,
         }
     }
 
@@ -239,6 +244,9 @@ impl Policy for PpoPolicy {
                 if let Some(m) = &out.update {
                     self.learning += m.update_seconds;
                     log.append(m)?;
+                    if let Some(p) = self.farm_progress.take() {
+                        log.farm(m.frames, &p)?;
+                    }
                     tracing::info!(
                         "update {} frames {} fps {:.0} success {} loss π {:.3} v {:.3} entropy {:.3}",
                         m.update,
@@ -290,8 +298,15 @@ impl Policy for PpoPolicy {
             let _ = std::fs::remove_file(&marker);
             saved?;
         }
-        if let Mode::Train { log, .. } = &self.mode {
-            log.plot()?;
+        if let Mode::Train { log, .. } = &mut self.mode {
+            log.plot_final()?;
+        }
+        Ok(())
+    }
+
+    fn report(&mut self, progress: &crate::records::Progress) -> anyhow::Result<()> {
+        if matches!(self.mode, Mode::Train { .. }) {
+            self.farm_progress = Some(progress.clone());
         }
         Ok(())
     }

@@ -506,6 +506,7 @@ impl Server<'_> {
         }
         let p = self.progress(now, stop);
         self.records.progress(&p)?;
+        self.policy.report(&p).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
         eprintln!(
             "[learner] {:>7.1} s  frames {:>9} ({:>7.1}/s)  episodes {:>6}  success {}  workers {}/{}  restarts {}  step {}",
             p.t,

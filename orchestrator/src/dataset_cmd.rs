@@ -3,11 +3,11 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use indicatif::MultiProgress;
 
 use rayon::prelude::*;
 use worker::dataset::build::{BuildOptions, build, default_interventions, synthesize};
@@ -17,6 +17,7 @@ use worker::program::{Hand, Program};
 use worker::scene::{Category, SceneType, Split};
 
 use crate::plot;
+use crate::progress::Bar;
 
 #[derive(Subcommand, Debug)]
 pub enum DatasetCmd {
@@ -95,16 +96,12 @@ fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
     let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
     let multi = MultiProgress::new();
-    let style = ProgressStyle::with_template("{prefix:>6} [{bar:40}] {pos}/{len} programs {per_sec} eta {eta}")
-        .unwrap()
-        .progress_chars("=> ");
-    let bars: BTreeMap<Split, ProgressBar> = opts
+    let bars: BTreeMap<Split, Bar> = opts
         .splits
         .iter()
         .map(|&s| {
             let total: u64 = worker::dataset::build::per_room(&opts, s).iter().map(|r| r.1).sum();
-            let b = multi.add(ProgressBar::new(total).with_style(style.clone()).with_prefix(s.name()));
-            (s, b)
+            (s, Bar::in_group(&multi, s.name(), total, "programs", Duration::from_secs(10)))
         })
         .collect();
     let t = Instant::now();
@@ -112,7 +109,7 @@ fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
         let synth = |seed, human, yaw, target| synthesize(opts.pointing, seed, human, yaw, target);
         build(&a.out, &opts, a.force, &synth, &default_interventions(), &|s, done, _| {
             if let Some(b) = bars.get(&s) {
-                b.set_position(done);
+                b.set(done, "");
             }
         })
     })?;

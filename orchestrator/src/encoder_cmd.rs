@@ -2,14 +2,12 @@
 //! (`encoder_frames`), writes them as one frame-set file (`farm::frame_set`), then runs
 //! `learner pretrain-encoder` on it, which writes `OUT.safetensors` and `OUT.json`.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use indicatif::{ProgressBar, ProgressStyle};
 
 use farm::files::with_ext;
 use farm::rooms::SceneId;
@@ -17,6 +15,7 @@ use worker::dataset::{Dataset, Verify};
 use worker::scene::Scene;
 
 use crate::encoder_frames::{FrameOptions, render_set};
+use crate::progress::Bar;
 
 #[derive(Subcommand, Debug)]
 pub enum EncoderCmd {
@@ -91,28 +90,15 @@ fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
     let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: threads.max(1) };
 
-    let bar = std::io::stderr().is_terminal().then(|| {
-        ProgressBar::new(a.frames as u64).with_style(
-            ProgressStyle::with_template("render [{bar:40}] {pos}/{len} frames {per_sec} eta {eta}")
-                .expect("template")
-                .progress_chars("=> "),
-        )
-    });
+    let bar = Bar::new("render", a.frames as u64, "frames", Duration::from_secs(10));
     let finished = AtomicUsize::new(0);
-    let tenth = a.frames.div_ceil(10).max(1);
     let done = |n: usize| {
         let before = finished.fetch_add(n, Ordering::Relaxed);
-        match &bar {
-            Some(b) => b.inc(n as u64),
-            None if (before + n) / tenth > before / tenth => eprintln!("rendered {}/{} frames", before + n, a.frames),
-            None => {}
-        }
+        bar.set((before + n) as u64, "");
     };
     let t = Instant::now();
     let set = render_set(&opts, scene_of.as_ref(), &done)?;
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
+    bar.finish();
     let secs = t.elapsed().as_secs_f64();
     let frames_path = with_ext(&a.out, "frames");
     set.write(&frames_path)?;

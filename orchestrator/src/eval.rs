@@ -11,7 +11,7 @@
 use std::collections::BTreeMap;
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Args;
@@ -21,8 +21,9 @@ use farm::metrics::{EpisodeResult, scores};
 use worker::program::Program;
 use worker::scene::Split;
 
-use crate::crew::{Crew, CrewSpec, PolicyArg};
+use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg};
 use crate::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
+use crate::progress::Bar;
 use crate::tables::{EvalMode, Evaluation, compare};
 
 #[derive(Args, Debug)]
@@ -267,7 +268,20 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             spec.learner_args = args;
         }
         let t = Instant::now();
-        let crew = Crew::start(spec)?;
+        let mut crew = Crew::start(spec)?;
+        let bar =
+            Bar::new(&format!("eval {}", mode.name()), programs.len() as u64, "episodes", Duration::from_secs(10));
+        let mut polled = Instant::now();
+        while crew.tick()? == CrewState::Running {
+            if polled.elapsed() >= Duration::from_millis(500) {
+                polled = Instant::now();
+                if let Some(p) = crew.progress() {
+                    bar.set(p.episodes, &format!("{:.0} frames/s", p.fps));
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        bar.finish();
         let outcome = crew.finish()?;
         let secs = t.elapsed().as_secs_f64();
         let ok = outcome.learner.as_ref().is_some_and(|e| e.success());
@@ -320,9 +334,18 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     }
     farm::files::write_atomic(&out.join("tables.md"), md.as_bytes())?;
     farm::files::write_atomic(&out.join("tables.csv"), evaluation.csv().as_bytes())?;
-    if a.trajectories > 0 {
-        crate::trajectory::draw(&cfg, &ds, split, &evaluation, checkpoint.as_deref(), &out, a.trajectories)?;
-    }
+    let maps = if a.trajectories > 0 {
+        crate::trajectory::draw(&cfg, &ds, split, &evaluation, checkpoint.as_deref(), &out, a.trajectories)?
+    } else {
+        Vec::new()
+    };
+    // Beside the training curves when the checkpoint belongs to a run, at its frame count.
+    let tb = run_dir.as_ref().unwrap_or(&out).join("tb");
+    let step = match &checkpoint {
+        Some(c) => farm::checkpoints::frames(c).map_err(|e| anyhow::anyhow!("{}: {e}", c.display()))?,
+        None => 0,
+    };
+    write_tensorboard(&tb, step, &evaluation, &md, &maps).with_context(|| format!("writing {}", tb.display()))?;
     println!("{md}");
     let (short, successes) = evaluation.shorter_than_l();
     if short > 0 {
@@ -331,6 +354,36 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         );
     }
     eprintln!("[eval] tables in {}", out.display());
+    Ok(())
+}
+
+/// The evaluation's SR/SPL/DTS at 1, 2, 3 and unlimited stops under `eval/<split>/` (other
+/// passes under `eval/<split>/<pass>/`), its tables as text and the trajectory maps as images,
+/// all at `step` (the checkpoint's frames). SR and SPL are fractions, as training's success
+/// rate and SPL are, so the curves share an axis (the tables show percent).
+fn write_tensorboard(tb: &Path, step: u64, ev: &Evaluation, md: &str, maps: &[PathBuf]) -> anyhow::Result<()> {
+    let mut w = farm::tensorboard::EventWriter::create(tb, &format!("eval-{}", ev.split))?;
+    let step = step as i64;
+    let mut values: Vec<(String, f64)> = Vec::new();
+    for &mode in ev.passes.keys() {
+        let prefix = match mode {
+            EvalMode::Normal => format!("eval/{}", ev.split),
+            other => format!("eval/{}/{}", ev.split, other.name()),
+        };
+        for (k, stops) in [(Some(1), "1"), (Some(2), "2"), (Some(3), "3"), (None, "inf")] {
+            let s = ev.scores(mode, k, |_| true).unwrap_or_default();
+            values.push((format!("{prefix}/SR@{stops}"), s.sr / 100.0));
+            values.push((format!("{prefix}/SPL@{stops}"), s.spl / 100.0));
+            values.push((format!("{prefix}/DTS@{stops}"), s.dts));
+        }
+    }
+    w.scalars(step, &values.iter().map(|(t, v)| (t.as_str(), *v)).collect::<Vec<_>>())?;
+    w.text(&format!("eval/{}/tables", ev.split), step, md)?;
+    for png in maps {
+        let (width, height) = image::image_dimensions(png)?;
+        let name = png.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        w.image_png(&format!("eval/{}/trajectories/{name}", ev.split), step, &std::fs::read(png)?, width, height)?;
+    }
     Ok(())
 }
 

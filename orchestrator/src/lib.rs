@@ -21,6 +21,7 @@ pub mod launch;
 pub mod map;
 pub mod plot;
 pub mod program_cmd;
+pub mod progress;
 pub mod render_cmd;
 pub mod run_dir;
 pub mod soak;

@@ -50,6 +50,13 @@ enum Command {
 
 fn main() -> ExitCode {
     worker::render::quiet_headless_display();
+    // Library and driver logs (wgpu, naga, Vulkan loader) reach the terminal only when asked for.
+    if std::env::var_os("RUST_LOG").is_some() {
+        tracing_subscriber::fmt()
+            .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+            .with_writer(std::io::stderr)
+            .init();
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Dataset(c) => dataset_cmd::run(c).map(|_| 0),

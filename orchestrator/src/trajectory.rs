@@ -130,7 +130,8 @@ pub fn views(cfg: &RunConfig, ds: &Dataset, p: &Program, t: &Trajectory, size: u
     Ok(frames)
 }
 
-/// Draws the chosen episodes of an evaluation's normal pass into `out/trajectories/`.
+/// Draws the chosen episodes of an evaluation's normal pass into `out/trajectories/`; returns
+/// the maps written.
 pub fn draw(
     cfg: &RunConfig,
     ds: &Dataset,
@@ -139,12 +140,13 @@ pub fn draw(
     _checkpoint: Option<&Path>,
     out: &Path,
     n: usize,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Vec<std::path::PathBuf>> {
     let path = out.join(EvalMode::Normal.name()).join("trajectories.jsonl");
     let trajs = read(&path)?;
     let dir = out.join("trajectories");
     std::fs::create_dir_all(&dir)?;
     let picks = choose(&trajs, ev.programs, n);
+    let mut maps = Vec::with_capacity(picks.len());
     let mut md = String::from(
         "# Trajectories\n\nTop-down maps: path (blue), person and where they face, the target instance (ring), other instances of its category (thin rings), stops (squares), steps with an intervention gesture (red). GIFs: the robot's view; the band shows the gesture it perceives (blue referencing, red intervention, grey none).\n\n",
     );
@@ -163,14 +165,16 @@ pub fn draw(
             t.steps.len().saturating_sub(1)
         );
         let name = format!("{k:02}_{}_{:06}", if t.success { "success" } else { "failure" }, p.id);
-        map(ds, p, t, &title)?.save_png(&dir.join(format!("{name}.png")))?;
+        let png = dir.join(format!("{name}.png"));
+        map(ds, p, t, &title)?.save_png(&png)?;
+        maps.push(png);
         let frames = views(cfg, ds, p, t, 160)?;
         write_gif(&dir.join(format!("{name}.gif")), &frames, 150)?;
         md += &format!("## {title}\n\n![map]({name}.png) ![view]({name}.gif)\n\n");
     }
     farm::files::write_atomic(&dir.join("README.md"), md.as_bytes())?;
     eprintln!("[eval] drew {} trajectories in {}", picks.len(), dir.display());
-    Ok(())
+    Ok(maps)
 }
 
 pub fn write_gif(path: &Path, frames: &[RgbImage], delay_ms: u32) -> anyhow::Result<()> {

@@ -1,7 +1,6 @@
 //! `orchestrator up`: start a run (learner + N workers), supervise it, show progress, stop it
 //! cleanly on Ctrl-C or SIGTERM.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -11,6 +10,7 @@ use farm::process;
 
 use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
 use crate::launch::{prepare_run, resolve_dataset, resolve_encoder, sweep_dead_runs};
+use crate::progress::Bar;
 use crate::run_dir;
 
 /// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.
@@ -117,8 +117,9 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         a.policy.name(),
         if a.synthetic { ", synthetic envs" } else { "" }
     );
+    let spec_frames = spec.max_frames;
     let mut crew = Crew::start(spec)?;
-    let ui = Progressline::new();
+    let ui = Progressline::new(spec_frames, a.seconds);
     let mut signals_seen = 0;
     while crew.tick()? == CrewState::Running {
         let n = process::termination_count();
@@ -126,13 +127,13 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
             signals_seen = n;
             match n {
                 1 => {
-                    eprintln!(
+                    ui.println(&format!(
                         "[up] {}: stopping; the learner ends its update and writes a final checkpoint",
                         process::termination_signal().map(|s| s.to_string()).unwrap_or_default()
-                    );
+                    ));
                     crew.stop();
                 }
-                2 => eprintln!("[up] {}", what_killing_loses(&crew, &dir.path)),
+                2 => ui.println(&format!("[up] {}", what_killing_loses(&crew, &dir.path))),
                 _ => crew.kill_now(),
             }
         }
@@ -169,26 +170,30 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
     })
 }
 
-/// The progress line: a spinner on a terminal, a plain line every 5 s otherwise.
+/// The run's progress: frames of the frame budget (or seconds of the time budget), with what
+/// the learner last reported beside them.
 struct Progressline {
-    bar: Option<indicatif::ProgressBar>,
-    last: std::cell::Cell<Instant>,
+    bar: Bar,
+    by_frames: bool,
+    started: Instant,
+    /// When farm.jsonl was last read (twice a second is enough).
+    polled: std::cell::Cell<Instant>,
 }
 
 impl Progressline {
-    fn new() -> Progressline {
-        let bar = std::io::stderr().is_terminal().then(|| {
-            let b = indicatif::ProgressBar::new_spinner();
-            b.enable_steady_tick(Duration::from_millis(200));
-            b
-        });
-        Progressline { bar, last: std::cell::Cell::new(Instant::now()) }
+    fn new(max_frames: Option<u64>, max_seconds: Option<f64>) -> Progressline {
+        let every = Duration::from_secs(5);
+        let (bar, by_frames) = match (max_frames, max_seconds) {
+            (Some(f), _) => (Bar::new("up", f, "frames", every), true),
+            (None, s) => (Bar::new("up", s.unwrap_or(0.0).ceil() as u64, "s", every), false),
+        };
+        let now = Instant::now();
+        Progressline { bar, by_frames, started: now, polled: std::cell::Cell::new(now) }
     }
 
     fn text(crew: &Crew, p: &Progress) -> String {
         format!(
-            "frames {} ({:.1}/s)  episodes {}  success {}  workers {}/{}  restarts {}{}",
-            p.frames,
+            "{:.0} frames/s  episodes {}  success {}  workers {}/{}  restarts {}{}",
             p.fps,
             p.episodes,
             p.success_rate.map(|s| format!("{:.1}%", 100.0 * s)).unwrap_or_else(|| "-".into()),
@@ -200,23 +205,21 @@ impl Progressline {
     }
 
     fn update(&self, crew: &Crew) {
-        let every = if self.bar.is_some() { Duration::from_millis(500) } else { Duration::from_secs(5) };
-        if self.last.get().elapsed() < every {
+        if self.polled.get().elapsed() < Duration::from_millis(500) {
             return;
         }
-        self.last.set(Instant::now());
+        self.polled.set(Instant::now());
         let Some(p) = crew.progress() else { return };
-        let line = Self::text(crew, &p);
-        match &self.bar {
-            Some(b) => b.set_message(line),
-            None => eprintln!("[up] {:.0} s  {line}", p.t),
-        }
+        let pos = if self.by_frames { p.frames } else { self.started.elapsed().as_secs() };
+        self.bar.set(pos, &Self::text(crew, &p));
+    }
+
+    fn println(&self, line: &str) {
+        self.bar.println(line);
     }
 
     fn clear(&self) {
-        if let Some(b) = &self.bar {
-            b.finish_and_clear();
-        }
+        self.bar.finish();
     }
 }
 

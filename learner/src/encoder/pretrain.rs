@@ -312,12 +312,13 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
             step += 1;
         }
         held = evaluate(&model, &data, &data.held, (1.0, 1.0), dev);
+        let spent = started.elapsed().as_secs_f64();
         println!(
-            "epoch {:>2}/{}: loss {:.4}; held-out {held}; {:.0} s",
+            "epoch {:>2}/{}: loss {:.4}; held-out {held}; {spent:.0} s, about {:.0} s left",
             epoch + 1,
             o.epochs,
             loss_sum / data.train.len() as f64,
-            started.elapsed().as_secs_f64()
+            spent / (epoch + 1) as f64 * (o.epochs - epoch - 1) as f64
         );
     }
     let training_seconds = started.elapsed().as_secs_f64();

@@ -1,0 +1,136 @@
+//! Progress of long commands (`up`, `eval`, `dataset build`, `encoder pretrain`): a bar with
+//! ETA when stderr is a terminal; otherwise (logs, CI) a plain line now and then, never the same
+//! line twice.
+
+use std::io::IsTerminal;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+
+/// One counted piece of work: `pos` of `total` `unit`s.
+pub struct Bar {
+    name: String,
+    unit: &'static str,
+    total: u64,
+    shown: Option<ProgressBar>,
+    started: Instant,
+    /// Plain lines: at most one per `every`; the last one printed, to never repeat it.
+    every: Duration,
+    last: Mutex<(Option<Instant>, String)>,
+}
+
+impl Bar {
+    /// A bar on stderr; plain lines every `every` when stderr is not a terminal.
+    pub fn new(name: &str, total: u64, unit: &'static str, every: Duration) -> Bar {
+        Bar::build(name, total, unit, every, |b| b)
+    }
+
+    /// A bar among others drawn together (one per split of `dataset build`).
+    pub fn in_group(group: &MultiProgress, name: &str, total: u64, unit: &'static str, every: Duration) -> Bar {
+        Bar::build(name, total, unit, every, |b| group.add(b))
+    }
+
+    fn build(
+        name: &str,
+        total: u64,
+        unit: &'static str,
+        every: Duration,
+        place: impl FnOnce(ProgressBar) -> ProgressBar,
+    ) -> Bar {
+        let shown = std::io::stderr().is_terminal().then(|| {
+            let template =
+                format!("{{prefix}} [{{bar:30}}] {{pos}}/{{len}} {unit} ({{percent}}%) eta {{eta}}  {{msg}}");
+            let b = place(ProgressBar::new(total))
+                .with_style(ProgressStyle::with_template(&template).expect("a valid template").progress_chars("=> "))
+                .with_prefix(name.to_string());
+            b.enable_steady_tick(Duration::from_millis(500));
+            b
+        });
+        Bar {
+            name: name.into(),
+            unit,
+            total,
+            shown,
+            started: Instant::now(),
+            every,
+            last: Mutex::new((None, String::new())),
+        }
+    }
+
+    /// Moves the bar to `pos` with `msg` beside it.
+    pub fn set(&self, pos: u64, msg: &str) {
+        if let Some(b) = &self.shown {
+            b.set_position(pos);
+            b.set_message(msg.to_string());
+            return;
+        }
+        let mut last = self.last.lock().expect("no panic while printing");
+        if last.0.is_some_and(|t| t.elapsed() < self.every) {
+            return;
+        }
+        let line = self.plain_line(pos, msg);
+        if line != last.1 {
+            eprintln!("{line}");
+            *last = (Some(Instant::now()), line);
+        }
+    }
+
+    /// `[name] pos/total unit (p%), eta …  msg`, the ETA from the average rate so far.
+    fn plain_line(&self, pos: u64, msg: &str) -> String {
+        let pos = pos.min(self.total);
+        let pct = if self.total == 0 { 100.0 } else { 100.0 * pos as f64 / self.total as f64 };
+        let elapsed = self.started.elapsed().as_secs_f64();
+        let eta =
+            if pos == 0 { "-".to_string() } else { duration_words((self.total - pos) as f64 * elapsed / pos as f64) };
+        let msg = if msg.is_empty() { String::new() } else { format!("  {msg}") };
+        format!("[{}] {pos}/{} {} ({pct:.0}%), eta {eta}{msg}", self.name, self.total, self.unit)
+    }
+
+    /// A line that stays (above the bar on a terminal).
+    pub fn println(&self, line: &str) {
+        match &self.shown {
+            Some(b) => b.println(line),
+            None => eprintln!("{line}"),
+        }
+    }
+
+    /// Removes the bar (a summary line follows from the command).
+    pub fn finish(&self) {
+        if let Some(b) = &self.shown {
+            b.finish_and_clear();
+        }
+    }
+}
+
+/// `42 s`, `3 min 20 s`, `1 h 05 min`.
+pub fn duration_words(seconds: f64) -> String {
+    let s = seconds.max(0.0).round() as u64;
+    match s {
+        0..60 => format!("{s} s"),
+        60..3600 => format!("{} min {:02} s", s / 60, s % 60),
+        _ => format!("{} h {:02} min", s / 3600, (s % 3600) / 60),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plain_lines_say_where_the_work_is_and_what_is_left() {
+        let b = Bar { shown: None, ..Bar::new("up", 1000, "frames", Duration::ZERO) };
+        let line = b.plain_line(0, "");
+        assert_eq!(line, "[up] 0/1000 frames (0%), eta -");
+        let line = b.plain_line(250, "success 3.0%");
+        assert!(line.starts_with("[up] 250/1000 frames (25%), eta ") && line.ends_with("  success 3.0%"), "{line}");
+        assert!(b.plain_line(2000, "").starts_with("[up] 1000/1000 frames (100%)"), "past the total reads as done");
+    }
+
+    #[test]
+    fn durations_read_as_words() {
+        assert_eq!(duration_words(42.4), "42 s");
+        assert_eq!(duration_words(200.0), "3 min 20 s");
+        assert_eq!(duration_words(3900.0), "1 h 05 min");
+    }
+}
