@@ -2,7 +2,7 @@
 # Installs what GesTHOR-RS needs on a fresh Debian/Ubuntu machine; safe to run again.
 #   - Mesa lavapipe + Vulkan loader: wgpu renders headless on the CPU
 #   - libtorch 2.11.0 (from the PyPI wheel, no Python needed at run time) for tch 0.24
-#   - numpy, iceoryx2 0.10.0 and tensorboard 2.21.0 for the Python readers in tests/python
+#   - numpy, iceoryx2 0.10.0, tensorboard 2.21.0, gymnasium 1.4.0 for the Python tests (tests/python)
 # Prints the environment to source as its last lines; `source scripts/env.sh` does that for you.
 set -euo pipefail
 
@@ -44,7 +44,7 @@ fi
 
 PYDIR="$DEPS/python"
 # The marker holds the requirements it was made from: a changed list installs afresh.
-PY_REQS="numpy iceoryx2==0.10.0 tensorboard==2.21.0"
+PY_REQS="numpy iceoryx2==0.10.0 tensorboard==2.21.0 gymnasium==1.4.0"
 if [ "$(cat "$PYDIR/.complete" 2>/dev/null)" != "$PY_REQS" ]; then
   log "installing $PY_REQS (Python) into $PYDIR"
   rm -rf "$PYDIR"
