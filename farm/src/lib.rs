@@ -6,7 +6,8 @@
 //! - [`rooms`]: the 120 rooms by name, scene type and split
 //! - [`seed`]: seeded random streams keyed by what they are for
 //! - [`process`]: signals and parent-death plumbing of a role's process
-//! - [`transport`]: iceoryx2 nodes, services and the worker's serving loop
+//! - [`transport`]: iceoryx2 nodes, services and the worker's serving loop; [`learner_ports`]:
+//!   the learner's side of them
 //! - [`stepper`]: what a worker drives ([`stepper::Stepper`]) and a synthetic one for tests
 //! - [`frame_set`]: labelled RGB-D frames for pretraining the visual encoder
 //! - [`checkpoints`]: where a run's checkpoints live and how they are named
@@ -20,6 +21,7 @@ pub mod config;
 pub mod files;
 pub mod font;
 pub mod frame_set;
+pub mod learner_ports;
 pub mod metrics;
 pub mod process;
 pub mod profile;

@@ -162,7 +162,11 @@ pub fn create_obs_ready(node: &Node<IpcService>, run_id: &str, workers: usize) -
 }
 
 /// Opens the run's `obs_ready` event service once the learner has created it.
-fn open_obs_ready(node: &Node<IpcService>, run_id: &str, deadline: Instant) -> Result<EventService, TransportError> {
+pub fn open_obs_ready(
+    node: &Node<IpcService>,
+    run_id: &str,
+    deadline: Instant,
+) -> Result<EventService, TransportError> {
     let name = service::obs_ready(run_id);
     let sname = service_name(&name)?;
     loop {
@@ -364,6 +368,35 @@ impl WorkerPorts {
             .create()
             .map_err(ipc("creating the obs_ready notifier"))?;
         Ok(WorkerPorts { obs, act, publisher, subscriber, obs_ready, act_ready, _node: node })
+    }
+
+    /// Sends an observation made elsewhere: a bridge forwarding a remote worker's message
+    /// (`orchestrator up --listen`) into the learner's shared memory.
+    pub fn forward(&self, header: &ObsHeader, payload: &[u8]) -> Result<(), TransportError> {
+        let mut sample =
+            self.publisher.loan_slice_uninit(payload.len()).map_err(ipc("loaning an observation sample"))?;
+        for (dst, &b) in sample.payload_mut().iter_mut().zip(payload) {
+            dst.write(b);
+        }
+        *sample.user_header_mut() = *header;
+        // SAFETY: every byte of the payload was written just above.
+        let sample = unsafe { sample.assume_init() };
+        sample.send().map_err(ipc("sending an observation"))?;
+        let _ = self.obs_ready.notify();
+        // A subscriber that connected late gets the history sample.
+        let _ = self.publisher.update_connections();
+        Ok(())
+    }
+
+    /// The next action message on this worker's service, whichever step or generation it
+    /// answers (non-blocking; a bridge forwards it as it is).
+    pub fn try_action(&self) -> Result<Option<ActionMsg>, TransportError> {
+        Ok(self.subscriber.receive().map_err(ipc("receiving actions"))?.map(|s| *s.payload()))
+    }
+
+    /// Whether the learner is there (subscribed to this worker's observations).
+    pub fn learner_attached(&self) -> bool {
+        self.obs.dynamic_config().number_of_subscribers() > 0
     }
 
     /// Waits until the learner subscribes to observations and publishes actions.

@@ -47,7 +47,7 @@ pub mod rollout;
 pub mod serve;
 pub mod smoke;
 pub mod spec;
-pub mod transport;
+pub use farm::learner_ports as transport;
 
 pub use agent::{ActMode, Actions, Agent};
 pub use checkpoint::CheckpointError;

@@ -16,6 +16,9 @@ pub enum BenchCmd {
     /// Training throughput end to end for a fixed frame count, and where the time went
     /// (learner: update, inference, waiting; workers: env step, render, transport).
     Train(BenchTrainArgs),
+    /// A worker host over Zenoh on loopback against local workers: frames/s and bytes per
+    /// remote worker, per frame size and codec.
+    Remote(crate::bench_remote::BenchRemoteArgs),
 }
 
 pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
@@ -23,5 +26,6 @@ pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
         BenchCmd::Farm(a) => bench_farm::run(a),
         BenchCmd::Sim(a) => bench_sim::run(a),
         BenchCmd::Train(a) => bench_train::run(a),
+        BenchCmd::Remote(a) => crate::bench_remote::run(a),
     }
 }

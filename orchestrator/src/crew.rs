@@ -75,6 +75,19 @@ pub struct CrewSpec {
     /// Folder of the `worker` and `learner` programs (default: next to this executable, or
     /// `$GESTHOR_BIN_DIR`).
     pub bin_dir: Option<PathBuf>,
+    /// Learner slots served by worker hosts on other machines (`up --listen`): the learner
+    /// expects `workers + remote_slots` workers, this crew spawns the first `workers`.
+    pub remote_slots: usize,
+    /// A worker host's crew (`orchestrator workers`): no learner here.
+    pub host: Option<HostSlots>,
+}
+
+/// Which of the learner's slots a worker host's workers are: `first_slot..`, their generations
+/// counting from `first_generation` (above any earlier process in those slots).
+#[derive(Clone, Copy, Debug)]
+pub struct HostSlots {
+    pub first_slot: u32,
+    pub first_generation: u32,
 }
 
 impl CrewSpec {
@@ -103,6 +116,8 @@ impl CrewSpec {
             report_every: 2.0,
             grace: 3.0,
             bin_dir: None,
+            remote_slots: 0,
+            host: None,
         }
     }
 }
@@ -201,9 +216,10 @@ impl Crew {
         if let Some(p) = &spec.programs {
             anyhow::ensure!(p.len() == spec.workers, "{} program lists for {} workers", p.len(), spec.workers);
         }
+        let first_generation = spec.host.map_or(0, |h| h.first_generation);
         let mut crew = Crew {
             workers: (0..spec.workers)
-                .map(|_| WorkerSlot { child: None, generation: 0, quick_failures: 0, done: false })
+                .map(|_| WorkerSlot { child: None, generation: first_generation, quick_failures: 0, done: false })
                 .collect(),
             spec,
             worker_bin,
@@ -219,7 +235,9 @@ impl Crew {
         };
         // A previous run in this folder may have been killed: remove what it left.
         let _ = transport::clean_dead_nodes(&crew.spec.run_id);
-        crew.spawn_learner()?;
+        if crew.spec.host.is_none() {
+            crew.spawn_learner()?;
+        }
         for k in 0..crew.spec.workers {
             if let Err(e) = crew.spawn_worker(k) {
                 crew.kill_now();
@@ -246,7 +264,7 @@ impl Crew {
             "--run-id".into(),
             s.run_id.clone().into(),
             "--workers".into(),
-            s.workers.to_string().into(),
+            (s.workers + s.remote_slots).to_string().into(),
             "--run-dir".into(),
             s.run_dir.clone().into(),
             "--policy".into(),
@@ -292,16 +310,22 @@ impl Crew {
         Some(all.into_iter().filter(|p| !done.contains(p)).collect())
     }
 
+    /// The learner's slot of this crew's worker `k`.
+    fn worker_id(&self, k: usize) -> usize {
+        k + self.spec.host.map_or(0, |h| h.first_slot as usize)
+    }
+
     fn spawn_worker(&mut self, k: usize) -> anyhow::Result<()> {
         let g = self.workers[k].generation;
         let s = &self.spec;
+        let id = self.worker_id(k);
         let mut args: Vec<OsString> = vec![
             "--config".into(),
             s.config_path.clone().into(),
             "--run-id".into(),
             s.run_id.clone().into(),
             "--worker-id".into(),
-            k.to_string().into(),
+            id.to_string().into(),
             "--generation".into(),
             g.to_string().into(),
         ];
@@ -318,8 +342,8 @@ impl Crew {
         if s.synthetic {
             args.push("--synthetic".into());
         }
-        let log = self.log_path(&format!("worker-{k}"));
-        append_line(&log, &format!("=== worker {k}, generation {g} ==="));
+        let log = self.log_path(&format!("worker-{id}"));
+        append_line(&log, &format!("=== worker {id}, generation {g} ==="));
         let child = child::spawn(&self.worker_bin, &args, &self.renderer_env(), &log, Signal::SIGTERM)
             .with_context(|| format!("starting {}", self.worker_bin.display()))?;
         self.workers[k].child = Some(child);
@@ -378,12 +402,14 @@ impl Crew {
                 self.workers[k].done = true;
                 continue;
             }
-            let log = self.log_path(&format!("worker-{k}"));
+            let id = self.worker_id(k);
+            let log = self.log_path(&format!("worker-{id}"));
+            let tag = if self.spec.host.is_some() { "workers" } else { "up" };
             let slot = &mut self.workers[k];
             slot.quick_failures = if ran < QUICK_FAILURE { slot.quick_failures + 1 } else { 0 };
             if slot.quick_failures >= MAX_QUICK_FAILURES {
                 self.fatal = Some(anyhow::anyhow!(
-                    "worker {k} failed {MAX_QUICK_FAILURES} times within {} s of starting (last: pid {pid} {ended}); last lines of {}:\n{}",
+                    "worker {id} failed {MAX_QUICK_FAILURES} times within {} s of starting (last: pid {pid} {ended}); last lines of {}:\n{}",
                     QUICK_FAILURE.as_secs(),
                     log.display(),
                     child::tail(&log, 15)
@@ -392,7 +418,7 @@ impl Crew {
                 break;
             }
             eprintln!(
-                "[up] worker {k} (pid {pid}, generation {}) {ended}; restarting it as generation {}",
+                "[{tag}] worker {id} (pid {pid}, generation {}) {ended}; restarting it as generation {}",
                 slot.generation,
                 slot.generation + 1
             );

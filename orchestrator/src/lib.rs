@@ -6,6 +6,7 @@
 
 pub mod bench;
 pub mod bench_farm;
+pub mod bench_remote;
 pub mod bench_sim;
 pub mod bench_train;
 pub mod binaries;
@@ -22,6 +23,7 @@ pub mod map;
 pub mod plot;
 pub mod program_cmd;
 pub mod progress;
+pub mod remote;
 pub mod render_cmd;
 pub mod run_dir;
 pub mod soak;
@@ -31,3 +33,4 @@ pub mod study_tables;
 pub mod tables;
 pub mod trajectory;
 pub mod up;
+pub mod workers_cmd;

@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench, dataset_cmd, encoder_cmd, eval, program_cmd, render_cmd, soak, study, up};
+use orchestrator::{bench, dataset_cmd, encoder_cmd, eval, program_cmd, render_cmd, soak, study, up, workers_cmd};
 
 #[derive(Parser)]
 #[command(
@@ -46,6 +46,8 @@ enum Command {
     /// A training run under a seeded schedule of kills and Ctrl-Cs, resumed after each stop;
     /// checks that no checkpoint, sample or file is lost or left.
     Soak(soak::SoakArgs),
+    /// Run workers here for a run whose learner is on another machine (`up --listen`).
+    Workers(workers_cmd::WorkersArgs),
 }
 
 fn main() -> ExitCode {
@@ -69,6 +71,7 @@ fn main() -> ExitCode {
         Command::Bench(c) => bench::run(c).map(|_| 0),
         Command::Study(a) => study::run(a).map(|_| 0),
         Command::Soak(a) => soak::run(a),
+        Command::Workers(a) => workers_cmd::run(a),
     };
     match result {
         Ok(code) => ExitCode::from(code.clamp(0, 255) as u8),

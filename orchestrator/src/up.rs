@@ -51,6 +51,17 @@ pub struct UpArgs {
     /// Seconds between the learner's progress records.
     #[arg(long, default_value_t = 2.0, value_parser = crate::cli_values::seconds)]
     pub report_every: f64,
+    /// Accept worker hosts on this Zenoh endpoint (e.g. tcp/0.0.0.0:7447); they join with
+    /// `orchestrator workers --connect`.
+    #[arg(long, requires = "remote_workers")]
+    pub listen: Option<String>,
+    /// Learner slots kept for worker hosts (after the local --workers).
+    #[arg(long, default_value_t = 0, requires = "listen")]
+    pub remote_workers: usize,
+    /// The secret a worker host must know (default: a new random one, printed, and kept in
+    /// RUN/secret for a resume).
+    #[arg(long, requires = "listen")]
+    pub secret: Option<String>,
 }
 
 /// Loads the run configuration: `--config`, the run directory's copy when resuming, or the
@@ -117,8 +128,13 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         a.policy.name(),
         if a.synthetic { ", synthetic envs" } else { "" }
     );
+    spec.remote_slots = a.remote_workers;
     let spec_frames = spec.max_frames;
     let mut crew = Crew::start(spec)?;
+    let bridge = match &a.listen {
+        Some(endpoint) => Some(listen(&a, endpoint, &dir.path, &dir.run_id, &cfg)?),
+        None => None,
+    };
     let ui = Progressline::new(spec_frames, a.seconds);
     let mut signals_seen = 0;
     while crew.tick()? == CrewState::Running {
@@ -137,10 +153,23 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
                 _ => crew.kill_now(),
             }
         }
+        if bridge.as_ref().is_some_and(|b| b.ended()) && !crew.is_stopping() {
+            ui.println("[up] the bridge to worker hosts failed; stopping");
+            crew.stop();
+        }
         ui.update(&crew);
         std::thread::sleep(Duration::from_millis(50));
     }
     ui.clear();
+    if let Some(b) = bridge {
+        let refused = b.counts.refused.load(std::sync::atomic::Ordering::Relaxed);
+        if let Err(e) = b.finish() {
+            eprintln!("[up] the bridge to worker hosts: {e:#}");
+        }
+        if refused > 0 {
+            eprintln!("[up] {refused} message(s) from worker hosts without a grant were dropped");
+        }
+    }
     let stopped_by_signal = process::termination_signal();
     let out = crew.finish()?;
     if !out.leftovers.is_empty() {
@@ -198,7 +227,7 @@ impl Progressline {
             p.episodes,
             p.success_rate.map(|s| format!("{:.1}%", 100.0 * s)).unwrap_or_else(|| "-".into()),
             p.workers_live,
-            crew.spec().workers,
+            crew.spec().workers + crew.spec().remote_slots,
             crew.restarts(),
             p.latency_ms.map(|l| format!("  step {l:.1} ms")).unwrap_or_default()
         )
@@ -262,6 +291,42 @@ mod tests {
         let e = load_config(Some(&p)).unwrap_err().to_string();
         assert!(e.contains("bad.toml") && e.contains("widht"), "{e}");
     }
+}
+
+/// Starts the bridge that lets worker hosts join (`--listen`), and says how to join.
+fn listen(
+    a: &UpArgs,
+    endpoint: &str,
+    run: &Path,
+    run_id: &str,
+    cfg: &RunConfig,
+) -> anyhow::Result<crate::remote::LearnerBridge> {
+    let secret_file = run.join("secret");
+    let secret = match (&a.secret, std::fs::read_to_string(&secret_file)) {
+        (Some(s), _) => s.clone(),
+        (None, Ok(s)) => s.trim().to_string(),
+        (None, Err(_)) => crate::remote::random_hex(16),
+    };
+    farm::files::write_atomic(&secret_file, secret.as_bytes())?;
+    let digest = if a.synthetic { String::new() } else { crate::workers_cmd::manifest_digest(&cfg.run.dataset)? };
+    let (e, w, h) = (cfg.env.envs_per_worker as u32, cfg.env.width, cfg.env.height);
+    let bridge = crate::remote::LearnerBridge::start(crate::remote::ListenOptions {
+        endpoint: endpoint.into(),
+        run_id: run_id.into(),
+        secret: secret.clone(),
+        first_slot: a.workers as u32,
+        slots: a.remote_workers as u32,
+        config_toml: cfg.to_toml(),
+        manifest_digest: digest,
+        layout: shm_schema::ObsLayout::new(e, w, h),
+        width: w,
+        height: h,
+    })?;
+    eprintln!(
+        "[up] {} learner slot(s) wait for worker hosts on {endpoint}; on each host:\n[up]   orchestrator workers --connect {endpoint} --run-id {run_id} --secret {secret} --workers N",
+        a.remote_workers
+    );
+    Ok(bridge)
 }
 
 /// What a third Ctrl-C would cost, said before it is needed.

@@ -5,10 +5,13 @@
 //!
 //! iceoryx2 stays in this file: what it receives leaves as an [`ObsMessage`], which holds the
 //! sample (in shared memory, zero copy) and shows only the schema's types.
+//!
+//! A worker host's bridge (`orchestrator workers`) stands in for the learner towards its local
+//! workers with the same ports ([`LearnerPorts::open_slots`]).
 
 use std::time::Duration;
 
-use farm::transport::{self as wt, ActService, EventService, IpcService, ObsService, TransportError};
+use crate::transport::{self as wt, ActService, EventService, IpcService, ObsService, TransportError};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -73,12 +76,19 @@ impl LearnerPorts {
     /// worker's observations and publishes its actions. Workers wait for exactly these ports
     /// before they send anything (the start handshake).
     pub fn open(run_id: &str, workers: usize) -> Result<LearnerPorts, TransportError> {
-        let node = wt::open_node(run_id, "learner")?;
+        LearnerPorts::open_slots(run_id, "learner", &(0..workers as u32).collect::<Vec<_>>())
+    }
+
+    /// [`LearnerPorts::open`] for the workers `slots` only (a worker host's share of the
+    /// learner's slots); link `k` of the result is worker `slots[k]`.
+    pub fn open_slots(run_id: &str, node_name: &str, slots: &[u32]) -> Result<LearnerPorts, TransportError> {
+        let workers = slots.len();
+        let node = wt::open_node(run_id, node_name)?;
         let obs_ready_service = wt::create_obs_ready(&node, run_id, workers)?;
         let obs_ready =
             obs_ready_service.listener_builder().create().map_err(ipc("creating the obs_ready listener"))?;
         let mut links = Vec::with_capacity(workers);
-        for k in 0..workers as u32 {
+        for &k in slots {
             let obs = wt::open_obs_service(&node, run_id, k)?;
             let act = wt::open_act_service(&node, run_id, k)?;
             let act_ready_service = wt::open_act_ready(&node, run_id, k)?;

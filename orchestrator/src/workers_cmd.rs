@@ -1,0 +1,165 @@
+//! `orchestrator workers`: this machine becomes a worker host of a run whose learner is on
+//! another machine (`orchestrator up --listen`). It joins the run over Zenoh, runs N workers
+//! here exactly as `up` does (same supervision and restarts, shared memory on this host), and
+//! bridges their observations to the learner and the learner's actions back (`remote`).
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use clap::Args;
+
+use farm::config::RunConfig;
+use farm::process;
+
+use crate::crew::{Crew, CrewSpec, CrewState, HostSlots, PolicyArg};
+use crate::remote::{self, Codec, HostBridge, HostOptions};
+
+#[derive(Args, Debug)]
+pub struct WorkersArgs {
+    /// The learner host's endpoint, as `up --listen` printed it (e.g. tcp/10.0.0.5:7447).
+    #[arg(long)]
+    pub connect: String,
+    /// Worker processes on this machine.
+    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
+    pub workers: usize,
+    /// The run to join (`up --listen` prints it).
+    #[arg(long)]
+    pub run_id: String,
+    /// The run's secret (`up --listen` prints it; default: $GESTHOR_SECRET).
+    #[arg(long)]
+    pub secret: Option<String>,
+    /// The dataset on this machine (default: the path in the run's config); it must be the
+    /// learner's dataset (its manifest is compared).
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+    /// Folder for this host's copy of the config and its workers' logs (default:
+    /// runs/host-<run id>).
+    #[arg(long)]
+    pub dir: Option<PathBuf>,
+    /// How observations travel: lz4-compressed or raw.
+    #[arg(long, value_enum, default_value_t = Codec::Lz4)]
+    pub codec: Codec,
+    /// Step synthetic environments (the farm's plumbing only).
+    #[arg(long)]
+    pub synthetic: bool,
+    /// Seconds to keep asking while the learner is not up yet.
+    #[arg(long, default_value_t = 60.0, value_parser = crate::cli_values::seconds)]
+    pub wait: f64,
+}
+
+/// SHA-256 of a dataset's manifest: the same bytes mean the same dataset (it holds every
+/// file's checksum).
+pub fn manifest_digest(dataset: &std::path::Path) -> anyhow::Result<String> {
+    use sha2::Digest;
+    let p = dataset.join("manifest.json");
+    let bytes = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
+    Ok(sha2::Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
+}
+
+pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {
+    process::install_termination_handler()?;
+    let secret = a
+        .secret
+        .clone()
+        .or_else(|| std::env::var("GESTHOR_SECRET").ok())
+        .context("--secret: the run's secret is needed (or $GESTHOR_SECRET); `up --listen` printed it")?;
+    // Shared memory of earlier hosts on this machine that were killed.
+    crate::launch::sweep_dead_runs();
+    let session = remote::session(&[], std::slice::from_ref(&a.connect))?;
+    let host = remote::hostname();
+    let asked = Instant::now();
+    let grant = loop {
+        match remote::join(&session, &a.run_id, &secret, a.workers as u32, &host) {
+            Ok(g) => break g,
+            Err(e) if e.to_string().contains("no learner answered") && asked.elapsed().as_secs_f64() < a.wait => {
+                if process::termination_signal().is_some() {
+                    return Ok(130);
+                }
+                std::thread::sleep(Duration::from_secs(1));
+            }
+            Err(e) => return Err(e.context(format!("joining run {} at {}", a.run_id, a.connect))),
+        }
+    };
+    let mut cfg = RunConfig::from_toml(&grant.config_toml, "(the learner's config)")?;
+    if let Some(d) = &a.dataset {
+        cfg.run.dataset = d.clone();
+    }
+    if !a.synthetic {
+        let mine = manifest_digest(&cfg.run.dataset)?;
+        anyhow::ensure!(
+            mine == grant.manifest_digest,
+            "{}: not the learner's dataset (its manifest differs); copy the learner's or pass --dataset",
+            cfg.run.dataset.display()
+        );
+        worker::dataset::Dataset::open(&cfg.run.dataset, worker::dataset::Verify::Full)?;
+    }
+    let dir = a.dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("host-{}", a.run_id)));
+    std::fs::create_dir_all(dir.join("logs"))?;
+    let config_path = dir.join("config.toml");
+    farm::files::write_atomic(&config_path, cfg.to_toml().as_bytes())?;
+    // This host's own shared-memory domain, apart from any other run or host on the machine.
+    let local_run_id = format!("{}-h{:06x}", a.run_id, grant.token & 0xff_ffff);
+    let slots = grant.first_slot..grant.first_slot + a.workers as u32;
+    eprintln!(
+        "[workers] joined run {} at {}: {} workers as learner slots {}..{}, generations from {}",
+        a.run_id,
+        a.connect,
+        a.workers,
+        slots.start,
+        slots.end - 1,
+        grant.first_generation
+    );
+    let host_slots = HostSlots { first_slot: grant.first_slot, first_generation: grant.first_generation };
+    let bridge = HostBridge::start(
+        session,
+        HostOptions {
+            run_id: a.run_id.clone(),
+            local_run_id: local_run_id.clone(),
+            grant,
+            workers: a.workers as u32,
+            codec: a.codec,
+        },
+    )?;
+    let mut spec = CrewSpec::new(&dir, &local_run_id, &config_path, cfg, a.workers, PolicyArg::Ppo);
+    spec.host = Some(host_slots);
+    spec.synthetic = a.synthetic;
+    let mut crew = Crew::start(spec)?;
+    let mut learner_gone = false;
+    let mut last_line = Instant::now();
+    while crew.tick()? == CrewState::Running {
+        if process::termination_signal().is_some() && !crew.is_stopping() {
+            eprintln!("[workers] stopping");
+            crew.stop();
+        }
+        if bridge.learner_gone() && !crew.is_stopping() {
+            eprintln!("[workers] the learner's host went away; stopping the workers");
+            learner_gone = true;
+            crew.stop();
+        }
+        if bridge.ended() && !crew.is_stopping() {
+            crew.stop();
+        }
+        if last_line.elapsed() > Duration::from_secs(10) {
+            last_line = Instant::now();
+            let c = &bridge.counts;
+            eprintln!(
+                "[workers] {} observations ({:.1} MB) sent, {} actions received, {} restart(s)",
+                c.observations.load(std::sync::atomic::Ordering::Relaxed),
+                c.bytes.load(std::sync::atomic::Ordering::Relaxed) as f64 / 1e6,
+                c.actions.load(std::sync::atomic::Ordering::Relaxed),
+                crew.restarts()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // The bridge's ports go first: ending the host's shared-memory domain needs every node gone.
+    bridge.finish()?;
+    let out = crew.finish()?;
+    eprintln!("[workers] ended after {:.1} s, {} worker restart(s)", out.seconds, out.restarts);
+    Ok(match process::termination_signal() {
+        Some(sig) => process::signal_exit_code(sig),
+        None if learner_gone => 1,
+        None => 0,
+    })
+}
