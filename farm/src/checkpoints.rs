@@ -61,7 +61,7 @@ pub fn digest<'a>(items: impl Iterator<Item = (&'a str, &'a [u8])>) -> String {
         h.update((data.len() as u64).to_le_bytes());
         h.update(data);
     }
-    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    crate::files::hex(&h.finalize())
 }
 
 /// Whether a checkpoint file is whole: a safetensors file with our format tag whose tensors

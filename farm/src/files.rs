@@ -39,6 +39,17 @@ pub fn with_ext(stem: &Path, ext: &str) -> std::path::PathBuf {
     s.into()
 }
 
+/// Lowercase hex of bytes (digests, secrets, seeds).
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Hex SHA-256 of bytes: a file's fingerprint.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    hex(&sha2::Sha256::digest(bytes))
+}
+
 /// Every line of a JSON-lines file, a bad line named by its number.
 pub fn read_jsonl<T: serde::de::DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;

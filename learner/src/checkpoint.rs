@@ -65,7 +65,7 @@ pub fn config_hash(cfg: &RunConfig) -> String {
         s.gru_layers
     );
     let digest = Sha256::digest(key.as_bytes());
-    digest.iter().take(8).map(|b| format!("{b:02x}")).collect()
+    farm::files::hex(&digest[..8])
 }
 
 pub use farm::checkpoints::{latest, list, path as checkpoint_path};
@@ -289,7 +289,7 @@ fn read(path: &Path, cfg: &RunConfig) -> Result<(HashMap<String, Tensor>, HashMa
 }
 
 fn rng_to_string(r: &ChaCha8Rng) -> String {
-    let seed: String = r.get_seed().iter().map(|b| format!("{b:02x}")).collect();
+    let seed = farm::files::hex(&r.get_seed());
     format!("{seed}:{}:{}", r.get_stream(), r.get_word_pos())
 }
 

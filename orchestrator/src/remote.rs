@@ -87,7 +87,7 @@ fn proof(secret: &str, role: &str, run_id: &str, nonce: &str) -> String {
         h.update((part.len() as u64).to_le_bytes());
         h.update(part.as_bytes());
     }
-    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    farm::files::hex(&h.finalize())
 }
 
 /// `bytes` random bytes from the kernel, in hex (secrets, nonces, grant tokens).
@@ -96,7 +96,7 @@ pub fn random_hex(bytes: usize) -> String {
     std::fs::File::open("/dev/urandom")
         .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut b))
         .expect("/dev/urandom is readable");
-    b.iter().map(|x| format!("{x:02x}")).collect()
+    farm::files::hex(&b)
 }
 
 /// What a worker host asks.

@@ -51,10 +51,9 @@ pub struct WorkersArgs {
 /// SHA-256 of a dataset's manifest: the same bytes mean the same dataset (it holds every
 /// file's checksum).
 pub fn manifest_digest(dataset: &std::path::Path) -> anyhow::Result<String> {
-    use sha2::Digest;
     let p = dataset.join("manifest.json");
     let bytes = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
-    Ok(sha2::Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
+    Ok(farm::files::sha256_hex(&bytes))
 }
 
 pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {

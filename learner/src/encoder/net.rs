@@ -17,7 +17,6 @@ use std::path::Path;
 
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 use tch::{Device, Kind, Tensor, nn};
 
 /// Input channels: R, G, B, depth.
@@ -139,9 +138,7 @@ pub fn weights_bytes(vs: &nn::VarStore, prefix: &str, info: &EncoderInfo) -> Res
 }
 
 /// Hex sha256 of bytes (what the pretraining report records of the weights file).
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
-}
+pub use farm::files::sha256_hex;
 
 /// Reads a weights file: its metadata and tensors by (short) name.
 pub fn read_weights(path: &Path) -> Result<(EncoderInfo, BTreeMap<String, Tensor>), EncoderFileError> {
