@@ -211,39 +211,65 @@ pub struct ListenOptions {
     pub height: u32,
 }
 
+/// A bridge's thread and the flag that stops it.
+struct BridgeThread {
+    name: &'static str,
+    stop: Arc<AtomicBool>,
+    thread: std::thread::JoinHandle<anyhow::Result<()>>,
+}
+
+impl BridgeThread {
+    /// Runs `body` (which loops until the flag it is given is set) in a thread called `name`.
+    fn spawn(
+        name: &'static str,
+        body: impl FnOnce(&AtomicBool) -> anyhow::Result<()> + Send + 'static,
+    ) -> anyhow::Result<BridgeThread> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = std::thread::Builder::new().name(name.into()).spawn({
+            let stop = stop.clone();
+            move || body(&stop)
+        })?;
+        Ok(BridgeThread { name, stop, thread })
+    }
+
+    /// Whether the thread has ended (on an error: `finish` returns it).
+    fn ended(&self) -> bool {
+        self.thread.is_finished()
+    }
+
+    /// Stops the thread; its error, if it ended on one.
+    fn finish(self) -> anyhow::Result<()> {
+        self.stop.store(true, Ordering::Relaxed);
+        self.thread.join().unwrap_or_else(|_| Err(anyhow::anyhow!("the {} panicked", self.name)))
+    }
+}
+
 /// A thread of `up --listen`: answers joins, forwards remote observations into the run's shared
 /// memory and the learner's answers back.
 pub struct LearnerBridge {
-    stop: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<anyhow::Result<()>>>,
+    thread: BridgeThread,
     pub counts: Arc<BridgeCounts>,
 }
 
 impl LearnerBridge {
     pub fn start(o: ListenOptions) -> anyhow::Result<LearnerBridge> {
         let session = session(std::slice::from_ref(&o.endpoint), &[])?;
-        let stop = Arc::new(AtomicBool::new(false));
         let counts = Arc::new(BridgeCounts::default());
-        let thread = std::thread::Builder::new().name("learner-bridge".into()).spawn({
-            let (stop, counts) = (stop.clone(), counts.clone());
-            move || learner_side(session, o, &stop, &counts)
+        let thread = BridgeThread::spawn("learner bridge", {
+            let counts = counts.clone();
+            move |stop| learner_side(session, o, stop, &counts)
         })?;
-        Ok(LearnerBridge { stop, thread: Some(thread), counts })
+        Ok(LearnerBridge { thread, counts })
     }
 
     /// Stops the thread; its error, if it ended on one.
-    pub fn finish(mut self) -> anyhow::Result<()> {
-        self.stop.store(true, Ordering::Relaxed);
-        match self.thread.take().map(|t| t.join()) {
-            Some(Ok(r)) => r,
-            Some(Err(_)) => anyhow::bail!("the learner bridge panicked"),
-            None => Ok(()),
-        }
+    pub fn finish(self) -> anyhow::Result<()> {
+        self.thread.finish()
     }
 
     /// Whether the thread has ended (on an error: `finish` returns it).
     pub fn ended(&self) -> bool {
-        self.thread.as_ref().is_none_or(|t| t.is_finished())
+        self.thread.ended()
     }
 }
 
@@ -465,23 +491,21 @@ pub struct HostOptions {
 
 /// A thread of `orchestrator workers`.
 pub struct HostBridge {
-    stop: Arc<AtomicBool>,
     learner_gone: Arc<AtomicBool>,
-    thread: Option<std::thread::JoinHandle<anyhow::Result<()>>>,
+    thread: BridgeThread,
     pub counts: Arc<BridgeCounts>,
 }
 
 impl HostBridge {
     pub fn start(session: zenoh::Session, o: HostOptions) -> anyhow::Result<HostBridge> {
-        let stop = Arc::new(AtomicBool::new(false));
         let learner_gone = Arc::new(AtomicBool::new(false));
         let counts = Arc::new(BridgeCounts::default());
         // iceoryx2 ports stay in the thread that made them; it says when they exist (the
         // workers, started after, wait for exactly these).
         let (opened, ready) = std::sync::mpsc::channel();
-        let thread = std::thread::Builder::new().name("host-bridge".into()).spawn({
-            let (stop, gone, counts) = (stop.clone(), learner_gone.clone(), counts.clone());
-            move || {
+        let thread = BridgeThread::spawn("host bridge", {
+            let (gone, counts) = (learner_gone.clone(), counts.clone());
+            move |stop| {
                 let slots: Vec<u32> = (o.grant.first_slot..o.grant.first_slot + o.workers).collect();
                 let ports = match LearnerPorts::open_slots(&o.local_run_id, "bridge", &slots) {
                     Ok(p) => p,
@@ -491,11 +515,11 @@ impl HostBridge {
                     }
                 };
                 let _ = opened.send(Ok(()));
-                host_side(session, o, ports, &stop, &gone, &counts)
+                host_side(session, o, ports, stop, &gone, &counts)
             }
         })?;
         match ready.recv() {
-            Ok(Ok(())) => Ok(HostBridge { stop, learner_gone, thread: Some(thread), counts }),
+            Ok(Ok(())) => Ok(HostBridge { learner_gone, thread, counts }),
             Ok(Err(e)) => anyhow::bail!("opening the workers' ports: {e}"),
             Err(_) => anyhow::bail!("the host bridge ended before opening its ports"),
         }
@@ -507,16 +531,11 @@ impl HostBridge {
     }
 
     pub fn ended(&self) -> bool {
-        self.thread.as_ref().is_none_or(|t| t.is_finished())
+        self.thread.ended()
     }
 
-    pub fn finish(mut self) -> anyhow::Result<()> {
-        self.stop.store(true, Ordering::Relaxed);
-        match self.thread.take().map(|t| t.join()) {
-            Some(Ok(r)) => r,
-            Some(Err(_)) => anyhow::bail!("the host bridge panicked"),
-            None => Ok(()),
-        }
+    pub fn finish(self) -> anyhow::Result<()> {
+        self.thread.finish()
     }
 }
 
