@@ -137,6 +137,12 @@ impl LearnerPorts {
         let _ = self.obs_ready.timed_wait(|_| {}, timeout);
     }
 
+    /// The event every worker raises with each observation: a bridge waits on it in a wait set
+    /// beside its other sources (drain it with `try_wait` before `receive`).
+    pub fn observation_events(&self) -> &Listener<IpcService> {
+        &self.obs_ready
+    }
+
     /// Whether worker `k` currently has a publisher on its observation service (a live
     /// process, or a killed one whose ports are not yet cleaned up).
     pub fn worker_attached(&self, k: usize) -> bool {

@@ -394,6 +394,12 @@ impl WorkerPorts {
         Ok(self.subscriber.receive().map_err(ipc("receiving actions"))?.map(|s| *s.payload()))
     }
 
+    /// The event the learner raises with each action for this worker: a bridge waits on it in
+    /// a wait set beside its other sources (drain it with `try_wait` before `try_action`).
+    pub fn action_events(&self) -> &Listener<IpcService> {
+        &self.act_ready
+    }
+
     /// Whether the learner is there (subscribed to this worker's observations).
     pub fn learner_attached(&self) -> bool {
         self.obs.dynamic_config().number_of_subscribers() > 0

@@ -3,6 +3,7 @@
 use clap::Subcommand;
 
 use crate::bench_farm::{self, BenchFarmArgs};
+use crate::bench_remote::BenchRemoteArgs;
 use crate::bench_sim::{self, SimArgs};
 use crate::bench_train::{self, BenchTrainArgs};
 
@@ -18,11 +19,14 @@ pub enum BenchCmd {
     Train(BenchTrainArgs),
     /// A worker host over Zenoh on loopback against local workers: frames/s and bytes per
     /// remote worker, per frame size and codec.
-    Remote(crate::bench_remote::BenchRemoteArgs),
+    Remote(BenchRemoteArgs),
 }
 
 pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
     match cmd {
+        BenchCmd::Farm(a) if a.remote => {
+            crate::bench_remote::run(BenchRemoteArgs { seconds: a.seconds, out: a.out, ..Default::default() })
+        }
         BenchCmd::Farm(a) => bench_farm::run(a),
         BenchCmd::Sim(a) => bench_sim::run(a),
         BenchCmd::Train(a) => bench_train::run(a),

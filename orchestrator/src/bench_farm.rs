@@ -54,6 +54,10 @@ pub struct BenchFarmArgs {
     /// Synthetic environments: measures the farm's transport alone (no simulator, no renderer).
     #[arg(long)]
     pub synthetic: bool,
+    /// A worker host over Zenoh on loopback against local workers instead: `bench remote`
+    /// with its defaults and these `--seconds` and `--out`.
+    #[arg(long, conflicts_with_all = ["workers", "config", "synthetic"])]
+    pub remote: bool,
 }
 
 /// One row of the table.
@@ -348,6 +352,7 @@ mod tests {
             warmup: 1.0,
             out: None,
             synthetic: false,
+            remote: false,
         };
         let row = |w, fps| Row {
             workers: w,

@@ -35,6 +35,18 @@ pub struct BenchRemoteArgs {
     pub out: Option<PathBuf>,
 }
 
+impl Default for BenchRemoteArgs {
+    /// The command line's defaults (for `bench farm --remote`).
+    fn default() -> Self {
+        #[derive(clap::Parser)]
+        struct Defaults {
+            #[command(flatten)]
+            args: BenchRemoteArgs,
+        }
+        <Defaults as clap::Parser>::parse_from(["bench-remote"]).args
+    }
+}
+
 /// frames/s of each worker of a finished run (frames over `seconds`), from farm_summary.json.
 fn worker_fps(run: &Path) -> anyhow::Result<Vec<(u64, f64)>> {
     let p = run.join("farm_summary.json");
@@ -106,12 +118,19 @@ pub fn run(a: BenchRemoteArgs) -> anyhow::Result<()> {
                 .concat(),
                 &out.join(format!("{name}-up.log")),
             )?;
+            // This run's run.json (an --out used before holds an older one).
             let t = Instant::now();
-            while !run.join("run.json").exists() {
-                anyhow::ensure!(t.elapsed() < Duration::from_secs(60), "the run did not start");
+            let info = loop {
+                let info = std::fs::read_to_string(run.join("run.json"))
+                    .ok()
+                    .and_then(|s| serde_json::from_str::<crate::run_dir::RunInfo>(&s).ok())
+                    .filter(|i| i.pid == up.id());
+                match info {
+                    Some(i) => break i,
+                    None => anyhow::ensure!(t.elapsed() < Duration::from_secs(60), "the run did not start"),
+                }
                 std::thread::sleep(Duration::from_millis(100));
-            }
-            let info: crate::run_dir::RunInfo = serde_json::from_str(&std::fs::read_to_string(run.join("run.json"))?)?;
+            };
             let host_log = out.join(format!("{name}-host.log"));
             let mut host = orchestrator(
                 &[

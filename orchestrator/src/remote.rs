@@ -21,8 +21,9 @@
 //! a line on both sides. Messages carry the grant's token: a host whose slots were given to
 //! another is ignored. The traffic itself is not encrypted (Zenoh's TLS transport would be).
 
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::Receiver;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::Context;
@@ -33,16 +34,18 @@ use zenoh::qos::CongestionControl;
 use zenoh::sample::SampleKind;
 
 use farm::learner_ports::LearnerPorts;
-use farm::transport::{WorkerOptions, WorkerPorts};
+use farm::transport::{IpcService, WorkerOptions, WorkerPorts};
+use iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSet, WaitSetBuilder};
+use iceoryx2_bb_posix::socket_pair::StreamingSocket;
 use shm_schema::{ActionMsg, ObsHeader, ObsLayout};
+use zenoh::sample::Sample;
 
 /// Zenoh's usual port.
 pub const DEFAULT_PORT: u16 = 7447;
 const JOIN_KEY: &str = "gesthor/join";
-/// The longest a bridge lets a message of its other side wait while it waits for one of this
-/// side (it wakes at once for the latter): a few hundred microseconds against steps of
-/// milliseconds, at a few thousand wake-ups a second.
-const POLL: Duration = Duration::from_micros(200);
+/// How often an idle bridge looks at joins, departures and its stop flag; messages wake it at
+/// once.
+const IDLE: Duration = Duration::from_millis(50);
 /// How long a host waits for the learner's answer to a join.
 const JOIN_TIMEOUT: Duration = Duration::from_secs(10);
 
@@ -66,6 +69,21 @@ fn slot_of(key: &str) -> Option<u32> {
 /// A Zenoh peer that listens on or connects to the given endpoints only: no multicast
 /// scouting, so nothing joins that was not pointed at.
 pub fn session(listen: &[String], connect: &[String]) -> anyhow::Result<zenoh::Session> {
+    let c = config(listen, connect)?;
+    // Zenoh's runtime threads start here and inherit the hint of the thread that opens it.
+    std::thread::scope(|s| {
+        s.spawn(|| {
+            short_slices();
+            zenoh::open(c).wait()
+        })
+        .join()
+        .expect("opening Zenoh does not panic")
+    })
+    .map_err(|e| anyhow::anyhow!("opening a Zenoh session (listen {listen:?}, connect {connect:?}): {e}"))
+}
+
+/// The configuration of [`session`].
+pub fn config(listen: &[String], connect: &[String]) -> anyhow::Result<zenoh::Config> {
     let mut c = zenoh::Config::default();
     let list = |v: &[String]| serde_json::to_string(v).expect("strings serialise");
     let set = |c: &mut zenoh::Config, k: &str, v: &str| {
@@ -75,9 +93,45 @@ pub fn session(listen: &[String], connect: &[String]) -> anyhow::Result<zenoh::S
     set(&mut c, "scouting/multicast/enabled", "false")?;
     set(&mut c, "listen/endpoints", &list(listen))?;
     set(&mut c, "connect/endpoints", &list(connect))?;
-    zenoh::open(c)
-        .wait()
-        .map_err(|e| anyhow::anyhow!("opening a Zenoh session (listen {listen:?}, connect {connect:?}): {e}"))
+    Ok(c)
+}
+
+/// Asks the scheduler to run the calling thread, and the threads it starts from now on, soon
+/// after they wake: Linux's latency hint for ordinary threads (a custom slice of 0.1 ms,
+/// `sched_attr.sched_runtime`, Linux ≥ 6.12; no privilege needed; older kernels ignore it or
+/// refuse, and then nothing changes). A remote step is a chain of about ten wake-ups (the
+/// bridges and Zenoh's threads on both sides) against two for a local one; on a machine busy
+/// rendering each of them waited out a render thread's slice (BENCHMARKS.md, "More than one
+/// machine"). These threads run for microseconds per message, so the hint costs the workers
+/// nothing. The nice value and the policy stay as they are.
+pub fn short_slices() {
+    // struct sched_attr as of Linux 3.14 (SCHED_ATTR_SIZE_VER0).
+    #[repr(C)]
+    #[derive(Default)]
+    struct SchedAttr {
+        size: u32,
+        policy: u32,
+        flags: u64,
+        nice: i32,
+        priority: u32,
+        runtime: u64,
+        deadline: u64,
+        period: u64,
+    }
+    let size = std::mem::size_of::<SchedAttr>();
+    let mut a = SchedAttr::default();
+    // SAFETY: both calls read or write at most `size` bytes of `a` for the calling thread (0).
+    unsafe {
+        if libc::syscall(libc::SYS_sched_getattr, 0, &mut a as *mut SchedAttr, size as u32, 0) != 0 {
+            return;
+        }
+        if a.policy != libc::SCHED_OTHER as u32 {
+            return;
+        }
+        a.size = size as u32;
+        a.runtime = 100_000;
+        let _ = libc::syscall(libc::SYS_sched_setattr, 0, &a as *const SchedAttr, 0);
+    }
 }
 
 /// SHA-256 of the secret, who speaks, the run id and the nonce, in hex.
@@ -211,6 +265,64 @@ pub struct ListenOptions {
     pub height: u32,
 }
 
+/// Zenoh delivers in its own threads; a bridge's iceoryx2 ports stay in the bridge's thread.
+/// So a subscriber hands each sample over a channel and rings this bell, a socket pair whose
+/// reading end the bridge's wait set watches beside the iceoryx2 events: one blocking wait for
+/// both sides, no polling.
+struct Doorbell {
+    ring: Arc<Mutex<StreamingSocket>>,
+    door: StreamingSocket,
+}
+
+impl Doorbell {
+    fn new() -> anyhow::Result<Doorbell> {
+        let (ring, door) = StreamingSocket::create_pair().map_err(|e| anyhow::anyhow!("a socket pair: {e:?}"))?;
+        Ok(Doorbell { ring: Arc::new(Mutex::new(ring)), door })
+    }
+
+    /// A subscriber on `key` whose samples arrive on the returned channel, each ringing the bell.
+    fn subscribe(
+        &self,
+        session: &zenoh::Session,
+        key: String,
+    ) -> anyhow::Result<(zenoh::pubsub::Subscriber<()>, Receiver<Sample>)> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let ring = self.ring.clone();
+        let sub = session
+            .declare_subscriber(key.clone())
+            .callback(move |s| {
+                if tx.send(s).is_ok() {
+                    // A full socket already holds a ring: nothing is lost by ignoring that.
+                    let _ = ring.lock().map(|r| r.try_send(&[1]));
+                }
+            })
+            .wait()
+            .map_err(|e| anyhow::anyhow!("subscribing to {key}: {e}"))?;
+        Ok((sub, rx))
+    }
+
+    /// Empties the bell; call before draining the channels, so a ring after that is kept.
+    fn answer(&self) {
+        let mut buf = [0u8; 256];
+        while matches!(self.door.try_receive(&mut buf), Ok(n) if n > 0) {}
+    }
+}
+
+/// A wait set without signal handlers of its own (the processes have theirs).
+fn wait_set() -> anyhow::Result<WaitSet<IpcService>> {
+    WaitSetBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<IpcService>()
+        .map_err(|e| anyhow::anyhow!("creating a wait set: {e:?}"))
+}
+
+/// Sleeps until something attached to `ws` fires or `IDLE` passes.
+fn wait(ws: &WaitSet<IpcService>) -> anyhow::Result<()> {
+    ws.wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, IDLE)
+        .map(|_| ())
+        .map_err(|e| anyhow::anyhow!("waiting in the bridge's wait set: {e:?}"))
+}
+
 /// A bridge's thread and the flag that stops it.
 struct BridgeThread {
     name: &'static str,
@@ -227,7 +339,10 @@ impl BridgeThread {
         let stop = Arc::new(AtomicBool::new(false));
         let thread = std::thread::Builder::new().name(name.into()).spawn({
             let stop = stop.clone();
-            move || body(&stop)
+            move || {
+                short_slices();
+                body(&stop)
+            }
         })?;
         Ok(BridgeThread { name, stop, thread })
     }
@@ -322,8 +437,8 @@ fn learner_side(
         .declare_subscriber(format!("gesthor/{}/host/*", o.run_id))
         .wait()
         .map_err(zerr("host liveliness"))?;
-    let obs =
-        session.declare_subscriber(format!("gesthor/{}/obs/*", o.run_id)).wait().map_err(zerr("obs subscriber"))?;
+    let bell = Doorbell::new()?;
+    let (_obs, obs) = bell.subscribe(&session, format!("gesthor/{}/obs/*", o.run_id))?;
     // One stand-in worker per remote slot, in the learner's shared memory. Its ports need the
     // learner's obs_ready, made when the learner starts: ask again each second until then (or
     // until the run ends, should the learner never start).
@@ -343,8 +458,18 @@ fn learner_side(
             Err(_) => return Ok(()),
         }
     };
+    // Wakes on a remote observation (the bell) or an answer of the learner (its event per slot).
+    let ws = wait_set()?;
+    let _bell = ws.attach_notification(&bell.door).map_err(|e| anyhow::anyhow!("watching the bell: {e:?}"))?;
+    let _answers = ports
+        .iter()
+        .map(|p| ws.attach_notification(p.action_events()))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| anyhow::anyhow!("watching the learner's answers: {e:?}"))?;
     let mut holders = Holders { first_slot: o.first_slot, held: vec![None; o.slots as usize], joins: 0 };
     while !stop.load(Ordering::Relaxed) {
+        wait(&ws)?;
+        bell.answer();
         while let Ok(Some(q)) = joins.try_recv() {
             let payload = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
             match grant(&o, &mut holders, &payload) {
@@ -373,9 +498,7 @@ fn learner_side(
                 }
             }
         }
-        // Wakes at once on a remote observation; the learner's answers wait at most POLL.
-        let mut next = obs.recv_timeout(POLL).ok().flatten();
-        while let Some(s) = next.take().or_else(|| obs.try_recv().ok().flatten()) {
+        while let Ok(s) = obs.try_recv() {
             let bytes = s.payload().to_bytes();
             match (slot_of(s.key_expr().as_str()), decode_obs(&bytes)) {
                 (Some(k), Ok((token, header, payload)))
@@ -394,6 +517,7 @@ fn learner_side(
         }
         for (i, p) in ports.iter().enumerate() {
             let k = o.first_slot + i as u32;
+            let _ = p.action_events().try_wait(|_| {});
             while let Some(m) = p.try_action()? {
                 if let Some(token) = holders.holder(k) {
                     session
@@ -553,10 +677,19 @@ fn host_side(
         session.liveliness().declare_token(host_key(&o.run_id, token)).wait().map_err(zerr("liveliness token"))?;
     let learner =
         session.liveliness().declare_subscriber(learner_key(&o.run_id)).wait().map_err(zerr("learner liveliness"))?;
-    let acts =
-        session.declare_subscriber(format!("gesthor/{}/act/*", o.run_id)).wait().map_err(zerr("act subscriber"))?;
+    let bell = Doorbell::new()?;
+    let (_acts, acts) = bell.subscribe(&session, format!("gesthor/{}/act/*", o.run_id))?;
+    // Wakes on an answer from the learner (the bell) or an observation of a local worker.
+    let ws = wait_set()?;
+    let _bell = ws.attach_notification(&bell.door).map_err(|e| anyhow::anyhow!("watching the bell: {e:?}"))?;
+    let _observations = ws
+        .attach_notification(ports.observation_events())
+        .map_err(|e| anyhow::anyhow!("watching the workers: {e:?}"))?;
     let first = o.grant.first_slot;
     while !stop.load(Ordering::Relaxed) {
+        wait(&ws)?;
+        bell.answer();
+        let _ = ports.observation_events().try_wait(|_| {});
         while let Ok(Some(s)) = learner.try_recv() {
             if s.kind() == SampleKind::Delete {
                 gone.store(true, Ordering::Relaxed);
@@ -577,9 +710,7 @@ fn host_side(
                 counts.bytes.fetch_add(n as u64, Ordering::Relaxed);
             }
         }
-        // Wakes at once on an action from the learner; local observations wait at most POLL.
-        let mut next = acts.recv_timeout(POLL).ok().flatten();
-        while let Some(s) = next.take().or_else(|| acts.try_recv().ok().flatten()) {
+        while let Ok(s) = acts.try_recv() {
             let slot = slot_of(s.key_expr().as_str());
             match (slot, decode_act(&s.payload().to_bytes())) {
                 (Some(k), Some((t, m))) if t == token && (first..first + o.workers).contains(&k) => {
@@ -604,6 +735,40 @@ pub fn hostname() -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_zenoh_message_wakes_a_bridge_waiting_on_its_wait_set() {
+        let session = session(&[], &[]).unwrap();
+        let bell = Doorbell::new().unwrap();
+        let (_sub, rx) = bell.subscribe(&session, "gesthor/test/bell".into()).unwrap();
+        let ws = wait_set().unwrap();
+        let guard = ws.attach_notification(&bell.door).unwrap();
+        session.put("gesthor/test/bell", vec![7u8; 3]).wait().unwrap();
+        // Only a ring calls back; the long timeout only keeps a broken bell from hanging the suite.
+        let mut rang = false;
+        ws.wait_and_process_once_with_timeout(
+            |id| {
+                rang |= id.has_event_from(&guard);
+                CallbackProgression::Continue
+            },
+            Duration::from_secs(60),
+        )
+        .unwrap();
+        assert!(rang, "the bell woke the wait set");
+        bell.answer();
+        assert_eq!(&rx.try_recv().unwrap().payload().to_bytes()[..], &[7, 7, 7]);
+        // Answered and drained: the next wait sleeps its whole timeout.
+        let mut again = false;
+        ws.wait_and_process_once_with_timeout(
+            |_| {
+                again = true;
+                CallbackProgression::Continue
+            },
+            Duration::from_millis(1),
+        )
+        .unwrap();
+        assert!(!again, "an answered bell does not ring again");
+    }
 
     #[test]
     fn observations_and_actions_survive_the_wire() {

@@ -125,6 +125,16 @@ pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {
     spec.synthetic = a.synthetic;
     let mut crew = Crew::start(spec)?;
     let mut learner_gone = false;
+    let counts = bridge.counts.clone();
+    let traffic = |restarts: u64| {
+        let n = |c: &std::sync::atomic::AtomicU64| c.load(std::sync::atomic::Ordering::Relaxed);
+        eprintln!(
+            "[workers] {} observations ({:.1} MB) sent, {} actions received, {restarts} restart(s)",
+            n(&counts.observations),
+            n(&counts.bytes) as f64 / 1e6,
+            n(&counts.actions),
+        );
+    };
     let mut last_line = Instant::now();
     while crew.tick()? == CrewState::Running {
         if process::termination_signal().is_some() && !crew.is_stopping() {
@@ -141,20 +151,15 @@ pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {
         }
         if last_line.elapsed() > Duration::from_secs(10) {
             last_line = Instant::now();
-            let c = &bridge.counts;
-            eprintln!(
-                "[workers] {} observations ({:.1} MB) sent, {} actions received, {} restart(s)",
-                c.observations.load(std::sync::atomic::Ordering::Relaxed),
-                c.bytes.load(std::sync::atomic::Ordering::Relaxed) as f64 / 1e6,
-                c.actions.load(std::sync::atomic::Ordering::Relaxed),
-                crew.restarts()
-            );
+            traffic(crew.restarts());
         }
         std::thread::sleep(Duration::from_millis(50));
     }
     // The bridge's ports go first: ending the host's shared-memory domain needs every node gone.
     bridge.finish()?;
     let out = crew.finish()?;
+    // The totals last: `bench remote` reads the bytes per observation from this line.
+    traffic(out.restarts);
     eprintln!("[workers] ended after {:.1} s, {} worker restart(s)", out.seconds, out.restarts);
     Ok(match process::termination_signal() {
         Some(sig) => process::signal_exit_code(sig),
