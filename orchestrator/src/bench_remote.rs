@@ -19,7 +19,7 @@ pub struct BenchRemoteArgs {
     #[arg(long, value_delimiter = ',', default_value = "64,224")]
     pub sizes: Vec<u32>,
     /// Codecs of the remote path.
-    #[arg(long, value_delimiter = ',', value_enum, default_value = "lz4,raw")]
+    #[arg(long, value_delimiter = ',', value_enum, default_value = "lz4,zstd,raw")]
     pub codecs: Vec<Codec>,
     /// Seconds per run.
     #[arg(long, default_value_t = 30.0)]

@@ -9,8 +9,8 @@
 //! in those slots, starts its workers as those slots in its own shared-memory domain, and runs a
 //! [`HostBridge`] that stands in for the learner towards them. Between the two bridges:
 //!
-//! - `gesthor/<run>/obs/<slot>`: an observation (codec, grant token, header, payload; LZ4 if
-//!   asked), host → learner;
+//! - `gesthor/<run>/obs/<slot>`: an observation (codec, grant token, header, payload; LZ4 or
+//!   Zstandard if asked), host → learner;
 //! - `gesthor/<run>/act/<slot>`: an action message (token, message), learner → host;
 //! - liveliness tokens `gesthor/<run>/learner` and `gesthor/<run>/host/<token>`: a vanished
 //!   host frees its slots (the learner sees them as missing workers, one batch timeout each
@@ -171,7 +171,7 @@ pub struct JoinGrant {
     pub token: u64,
     /// The run's effective configuration (the host's workers read it).
     pub config_toml: String,
-    /// xxh3 of the dataset's manifest: the host's copy must be the same dataset.
+    /// SHA-256 of the dataset's manifest: the host's copy must be the same dataset.
     pub manifest_digest: String,
     pub proof: String,
 }
@@ -181,7 +181,12 @@ pub struct JoinGrant {
 pub enum Codec {
     Raw = 0,
     Lz4 = 1,
+    /// Zstandard at level 1: smaller than LZ4, slower to make.
+    Zstd = 2,
 }
+
+/// No observation decompresses to more than this (a damaged or hostile size field stops here).
+const MAX_PAYLOAD: usize = 1 << 28;
 
 const HEADER_BYTES: usize = std::mem::size_of::<ObsHeader>();
 const ACT_BYTES: usize = std::mem::size_of::<ActionMsg>();
@@ -204,6 +209,7 @@ pub fn encode_obs(codec: Codec, token: u64, header: &ObsHeader, payload: &[u8]) 
     let body = match codec {
         Codec::Raw => std::borrow::Cow::Borrowed(payload),
         Codec::Lz4 => std::borrow::Cow::Owned(lz4_flex::compress_prepend_size(payload)),
+        Codec::Zstd => std::borrow::Cow::Owned(zstd::bulk::compress(payload, 1).expect("compressing into a Vec")),
     };
     let mut out = Vec::with_capacity(9 + HEADER_BYTES + body.len());
     out.push(codec as u8);
@@ -224,6 +230,7 @@ pub fn decode_obs(bytes: &[u8]) -> Result<(u64, ObsHeader, std::borrow::Cow<'_, 
     let payload = match bytes[0] {
         0 => std::borrow::Cow::Borrowed(body),
         1 => std::borrow::Cow::Owned(lz4_flex::decompress_size_prepended(body).map_err(|e| format!("lz4: {e}"))?),
+        2 => std::borrow::Cow::Owned(zstd::bulk::decompress(body, MAX_PAYLOAD).map_err(|e| format!("zstd: {e}"))?),
         c => return Err(format!("unknown codec {c}")),
     };
     Ok((token, header, payload))
@@ -774,12 +781,14 @@ mod tests {
     fn observations_and_actions_survive_the_wire() {
         let header = ObsHeader { magic: shm_schema::OBS_MAGIC, worker_id: 5, step: 77, ..Default::default() };
         let payload: Vec<u8> = (0..10_000u32).map(|i| (i % 7) as u8).collect();
-        for codec in [Codec::Raw, Codec::Lz4] {
+        for codec in [Codec::Raw, Codec::Lz4, Codec::Zstd] {
             let bytes = encode_obs(codec, 42, &header, &payload);
             let (token, h, p) = decode_obs(&bytes).unwrap();
             assert_eq!((token, h, &p[..]), (42, header, &payload[..]), "{codec:?}");
         }
-        assert!(encode_obs(Codec::Lz4, 1, &header, &payload).len() < payload.len() / 4, "patterned bytes compress");
+        for codec in [Codec::Lz4, Codec::Zstd] {
+            assert!(encode_obs(codec, 1, &header, &payload).len() < payload.len() / 4, "{codec:?} compresses");
+        }
         assert!(decode_obs(&[0; 20]).is_err());
         let m = ActionMsg { worker_id: 5, generation: 65536, step: 77, ..Default::default() };
         assert_eq!(decode_act(&encode_act(9, &m)), Some((9, m)));

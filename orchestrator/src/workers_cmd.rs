@@ -37,7 +37,7 @@ pub struct WorkersArgs {
     /// runs/host-<run id>).
     #[arg(long)]
     pub dir: Option<PathBuf>,
-    /// How observations travel: lz4-compressed or raw.
+    /// How observations travel: LZ4- or Zstandard-compressed, or raw (BENCHMARKS.md compares them).
     #[arg(long, value_enum, default_value_t = Codec::Lz4)]
     pub codec: Codec,
     /// Step synthetic environments (the farm's plumbing only).
