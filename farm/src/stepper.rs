@@ -115,7 +115,7 @@ impl SyntheticStepper {
                 r.gesture_kind = gesture_kind::REFERENCING;
                 r.idle = 0;
                 r.stops = 0;
-                r.target_category = (p % 38) as u32;
+                r.target_category = (p % shm_schema::TARGET_CATEGORIES as u64) as u32;
                 r.target_instances = 1 + (p % 3) as u32;
                 r.distance = 3.0;
                 r.geodesic = 3.5;
@@ -293,6 +293,28 @@ mod tests {
             prev = v.records().to_vec();
         }
         assert!(ends > 5);
+    }
+
+    #[test]
+    fn every_target_is_a_category_the_policy_knows() {
+        // PPO embeds the target category: one out of range failed `up --synthetic` at program 37.
+        let programs: Vec<u64> = (30..120).collect();
+        let mut s = SyntheticStepper::new(0, 4, 16, 16, Some(programs), false);
+        let mut buf = PayloadBuf::new(&s.layout());
+        s.reset(buf.bytes_mut()).unwrap();
+        let mut seen = std::collections::BTreeSet::new();
+        for _ in 0..100_000 {
+            if s.finished() {
+                break;
+            }
+            s.step(&[2, 2, 2, 2], buf.bytes_mut()).unwrap();
+            for r in ObsView::new(ObsShape::new(4, 16, 16), buf.bytes()).unwrap().records() {
+                assert!((r.target_category as usize) < shm_schema::TARGET_CATEGORIES, "program {}", r.program);
+                seen.insert(r.target_category);
+            }
+        }
+        assert!(s.finished());
+        assert_eq!(seen.len(), shm_schema::TARGET_CATEGORIES, "every category comes up");
     }
 
     #[test]
