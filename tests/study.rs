@@ -33,8 +33,12 @@ fn configs(dir: &Path) -> PathBuf {
 }
 
 fn study(configs: &Path, out: &Path, methods: &str) -> Command {
+    study_of(configs, out, methods, 256)
+}
+
+fn study_of(configs: &Path, out: &Path, methods: &str, frames: u64) -> Command {
     let mut c = Command::new(bin("orchestrator"));
-    c.args(["study", "--seeds", "1", "--frames", "256", "--workers", "2", "--checkpoints", "2"])
+    c.args(["study", "--seeds", "1", "--frames", &frames.to_string(), "--workers", "2", "--checkpoints", "2"])
         .args(["--val-programs", "8", "--test-programs", "8", "--methods", methods, "--configs"])
         .arg(configs)
         .arg("--out")
@@ -127,4 +131,38 @@ fn a_killed_study_continues_without_retraining() {
 
 fn mtimes_or_empty(dir: &Path) -> Vec<(PathBuf, SystemTime)> {
     if dir.is_dir() { mtimes(dir) } else { vec![] }
+}
+
+#[test]
+fn a_study_sent_sigterm_stops_its_running_step() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = configs(tmp.path());
+    let out = tmp.path().join("study");
+    // 64 frames an update: this budget is thousands of updates, far more than run before the kill
+    let mut child =
+        study_of(&cfg, &out, "vis_sem", 200_000).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let ckpts = out.join("runs/vis_sem-seed1/checkpoints");
+    let metrics = out.join("runs/vis_sem-seed1/metrics.jsonl");
+    let started = Instant::now();
+    while std::fs::metadata(&metrics).map_or(0, |m| m.len()) == 0 {
+        assert!(started.elapsed() < DEADLINE, "VisSem never finished an update");
+        assert!(child.try_wait().unwrap().is_none(), "the study ended before VisSem's first update");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // the study alone, as `kill PID` does (its step runs in a process group of its own)
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGTERM).unwrap();
+    let o = child.wait_with_output().unwrap();
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{log}");
+    assert!(log.contains("stopped by a signal; run the same command again to continue"), "{log}");
+    assert!(processes_mentioning(&out.display().to_string()).is_empty(), "a step outlived the study");
+    // the step stopped short of its budget (its first periodic checkpoint is half way) and wrote
+    // a checkpoint to resume from
+    let kept = mtimes(&ckpts);
+    let last = kept.last().unwrap().0.file_name().unwrap().to_string_lossy().to_string();
+    let update: u64 = last.trim_start_matches("ckpt-").trim_end_matches(".safetensors").parse().unwrap();
+    assert!(update < 200_000 / 64, "{last}");
+    let up_log = std::fs::read_to_string(out.join("runs/vis_sem-seed1.log")).unwrap();
+    assert!(!up_log.contains("budget reached"), "the step ran to its end:\n{up_log}");
 }

@@ -319,15 +319,33 @@ fn orchestrator(args: &[String], log: &Path) -> anyhow::Result<()> {
     let mut cmd = Command::new(&exe);
     cmd.args(args).stdout(out.try_clone()?).stderr(out);
     // A study killed outright stops its step too (SIGTERM: `up` then writes its checkpoint), so
-    // no orphan keeps writing into the folder the rerun continues. Ctrl-C reaches both anyway
-    // (same process group).
+    // no orphan keeps writing into the folder the rerun continues.
     // SAFETY: runs in the forked child before exec; prctl is an async-signal-safe system call.
     unsafe {
         cmd.pre_exec(|| {
             nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM).map_err(std::io::Error::from)
         });
     }
-    let status = cmd.status().with_context(|| format!("starting {}", exe.display()))?;
+    // The step runs in a process group of its own and gets each termination signal the study
+    // gets, once: a `kill` of the study alone stops the step (it used to run to its end), and a
+    // Ctrl-C, which reaches only the study's group now, still arrives once, as from a terminal
+    // (a second Ctrl-C means "now" to `up`, so it must not arrive twice).
+    cmd.process_group(0);
+    let mut child = cmd.spawn().with_context(|| format!("starting {}", exe.display()))?;
+    let group = nix::unistd::Pid::from_raw(-(child.id() as i32));
+    let mut forwarded = 0;
+    let status = loop {
+        if let Some(status) = child.try_wait()? {
+            break status;
+        }
+        while forwarded < farm::process::termination_count() {
+            if let Some(sig) = farm::process::termination_signal() {
+                let _ = nix::sys::signal::kill(group, sig);
+            }
+            forwarded += 1;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
     if farm::process::termination_count() > 0 {
         anyhow::bail!("stopped by a signal; run the same command again to continue");
     }
