@@ -100,10 +100,10 @@ pub fn config(listen: &[String], connect: &[String]) -> anyhow::Result<zenoh::Co
 /// after they wake: Linux's latency hint for ordinary threads (a custom slice of 0.1 ms,
 /// `sched_attr.sched_runtime`, Linux ≥ 6.12; no privilege needed; older kernels ignore it or
 /// refuse, and then nothing changes). A remote step is a chain of about ten wake-ups (the
-/// bridges and Zenoh's threads on both sides) against two for a local one; on a machine busy
-/// rendering each of them waited out a render thread's slice (BENCHMARKS.md, "More than one
-/// machine"). These threads run for microseconds per message, so the hint costs the workers
-/// nothing. The nice value and the policy stay as they are.
+/// bridges and Zenoh's threads on both sides) against two for a local one, and on cores kept
+/// busy by long slices (a learner's PPO threads) each wake-up can wait one out (BENCHMARKS.md,
+/// "More than one machine"). These threads run for microseconds per message, so the hint costs
+/// the workers nothing. The nice value and the policy stay as they are.
 pub fn short_slices() {
     // struct sched_attr as of Linux 3.14 (SCHED_ATTR_SIZE_VER0).
     #[repr(C)]
@@ -293,7 +293,8 @@ impl Doorbell {
         session: &zenoh::Session,
         key: String,
     ) -> anyhow::Result<(zenoh::pubsub::Subscriber<()>, Receiver<Sample>)> {
-        let (tx, rx) = std::sync::mpsc::channel();
+        // Bounded like Zenoh's own default handler: a flood waits in Zenoh, not in memory.
+        let (tx, rx) = std::sync::mpsc::sync_channel(256);
         let ring = self.ring.clone();
         let sub = session
             .declare_subscriber(key.clone())
