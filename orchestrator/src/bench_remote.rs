@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
@@ -118,19 +118,7 @@ pub fn run(a: BenchRemoteArgs) -> anyhow::Result<()> {
                 .concat(),
                 &out.join(format!("{name}-up.log")),
             )?;
-            // This run's run.json (an --out used before holds an older one).
-            let t = Instant::now();
-            let info = loop {
-                let info = std::fs::read_to_string(run.join("run.json"))
-                    .ok()
-                    .and_then(|s| serde_json::from_str::<crate::run_dir::RunInfo>(&s).ok())
-                    .filter(|i| i.pid == up.id());
-                match info {
-                    Some(i) => break i,
-                    None => anyhow::ensure!(t.elapsed() < Duration::from_secs(60), "the run did not start"),
-                }
-                std::thread::sleep(Duration::from_millis(100));
-            };
+            let info = crate::run_dir::wait_for_info(&run, up.id(), Duration::from_secs(60))?;
             let host_log = out.join(format!("{name}-host.log"));
             let mut host = orchestrator(
                 &[

@@ -125,6 +125,22 @@ impl RunDir {
     }
 }
 
+/// The `run.json` that process `pid` wrote into `run`, once it is there (a folder used before
+/// holds an older one, of another process); an error after `patience`.
+pub fn wait_for_info(run: &Path, pid: u32, patience: std::time::Duration) -> anyhow::Result<RunInfo> {
+    let t = std::time::Instant::now();
+    loop {
+        if let Ok(text) = std::fs::read_to_string(run.join("run.json"))
+            && let Ok(info) = serde_json::from_str::<RunInfo>(&text)
+            && info.pid == pid
+        {
+            return Ok(info);
+        }
+        anyhow::ensure!(t.elapsed() < patience, "the run in {} did not start within {patience:?}", run.display());
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+}
+
 pub fn now_secs() -> u64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0)
 }

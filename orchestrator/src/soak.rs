@@ -242,18 +242,9 @@ impl Soak {
         let log = std::fs::OpenOptions::new().create(true).append(true).open(&self.log)?;
         let child = c.stdin(Stdio::null()).stdout(log.try_clone()?).stderr(log).spawn()?;
         // the run id of this session (run.json is rewritten by every session)
-        let t = Instant::now();
-        loop {
-            if let Ok(text) = std::fs::read_to_string(self.run.join("run.json"))
-                && let Ok(info) = serde_json::from_str::<run_dir::RunInfo>(&text)
-                && info.pid == child.id()
-            {
-                self.run_ids.push(info.run_id);
-                break;
-            }
-            anyhow::ensure!(t.elapsed() < PATIENCE, "the run did not start (see {})", self.log.display());
-            std::thread::sleep(Duration::from_millis(100));
-        }
+        let info = run_dir::wait_for_info(&self.run, child.id(), PATIENCE)
+            .with_context(|| format!("see {}", self.log.display()))?;
+        self.run_ids.push(info.run_id);
         Ok(child)
     }
 

@@ -20,16 +20,16 @@
 //! ```
 
 use std::io::IsTerminal;
-use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Instant;
 
 use anyhow::Context;
 use clap::Args;
 use farm::config::{Method, RunConfig};
 use farm::rooms::{SceneId, SceneType, Split};
+use nix::sys::signal::Signal;
 
+use crate::child;
 use crate::study_report::{self, METHODS, RunResult, StudyMethod};
 
 #[derive(Args, Debug, Clone)]
@@ -314,33 +314,24 @@ fn orchestrator(args: &[String], log: &Path) -> anyhow::Result<()> {
     if let Some(parent) = log.parent() {
         std::fs::create_dir_all(parent)?;
     }
-    let out = std::fs::OpenOptions::new().create(true).append(true).open(log)?;
     let exe = std::env::current_exe().context("finding the orchestrator binary")?;
-    let mut cmd = Command::new(&exe);
-    cmd.args(args).stdout(out.try_clone()?).stderr(out);
-    // A study killed outright stops its step too (SIGTERM: `up` then writes its checkpoint), so
-    // no orphan keeps writing into the folder the rerun continues.
-    // SAFETY: runs in the forked child before exec; prctl is an async-signal-safe system call.
-    unsafe {
-        cmd.pre_exec(|| {
-            nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM).map_err(std::io::Error::from)
-        });
-    }
-    // The step runs in a process group of its own and gets each termination signal the study
-    // gets, once: a `kill` of the study alone stops the step (it used to run to its end), and a
-    // Ctrl-C, which reaches only the study's group now, still arrives once, as from a terminal
-    // (a second Ctrl-C means "now" to `up`, so it must not arrive twice).
-    cmd.process_group(0);
-    let mut child = cmd.spawn().with_context(|| format!("starting {}", exe.display()))?;
-    let group = nix::unistd::Pid::from_raw(-(child.id() as i32));
+    let argv: Vec<std::ffi::OsString> = args.iter().map(Into::into).collect();
+    // Like `up`'s own children: a study killed outright stops its step too (SIGTERM: `up` then
+    // writes its checkpoint), so no orphan keeps writing into the folder the rerun continues;
+    // and the step, in a process group of its own, gets each termination signal the study gets,
+    // once: a `kill` of the study alone stops the step (it used to run to its end), and a Ctrl-C,
+    // which reaches only the study's group, still arrives once, as from a terminal (a second
+    // Ctrl-C means "now" to `up`, so it must not arrive twice).
+    let step =
+        child::spawn(&exe, &argv, &[], log, Signal::SIGTERM).with_context(|| format!("starting {}", exe.display()))?;
     let mut forwarded = 0;
-    let status = loop {
-        if let Some(status) = child.try_wait()? {
-            break status;
+    let ended = loop {
+        if let Some(ended) = child::reap(step.pid) {
+            break ended;
         }
         while forwarded < farm::process::termination_count() {
             if let Some(sig) = farm::process::termination_signal() {
-                let _ = nix::sys::signal::kill(group, sig);
+                child::signal(&step, sig);
             }
             forwarded += 1;
         }
@@ -349,7 +340,7 @@ fn orchestrator(args: &[String], log: &Path) -> anyhow::Result<()> {
     if farm::process::termination_count() > 0 {
         anyhow::bail!("stopped by a signal; run the same command again to continue");
     }
-    anyhow::ensure!(status.success(), "`orchestrator {}` failed ({status}); see {}", args.join(" "), log.display());
+    anyhow::ensure!(ended.success(), "`orchestrator {}` failed ({ended}); see {}", args.join(" "), log.display());
     Ok(())
 }
 
