@@ -17,7 +17,7 @@ mod tests {
 
     use super::*;
 
-    /// A random 16×16 frame set with 2×2 cells (random labels: enough to check reproducibility).
+    /// A random 16×16 frame set with 2×2 cells (random labels: enough to check the report).
     fn synthetic(dir: &std::path::Path, n: usize) -> std::path::PathBuf {
         let header = FrameSetHeader { width: 16, height: 16, grid: 2, classes: CLASSES, seed: 5, held_out: vec![19] };
         let mut set = FrameSet::new(header).unwrap();
@@ -35,16 +35,18 @@ mod tests {
         p
     }
 
+    /// The report names the weights it wrote. That the same seed gives the same weights is
+    /// checked in `tests/encoder.rs`, one process per run: here other tests share torch's global
+    /// generator and thread count, so only "another seed, other weights" holds.
     #[test]
-    fn same_seed_gives_the_same_weights() {
+    fn the_report_describes_the_weights_written() {
         let dir = tempfile::tempdir().unwrap();
         let frames = synthetic(dir.path(), 64);
         let run = |name: &str, seed: u64| {
             let o = PretrainOptions::new(frames.clone(), dir.path().join(name), seed, 1);
             pretrain(&o, tch::Device::Cpu).unwrap()
         };
-        let (a, b, c) = (run("a", 3), run("b", 3), run("c", 4));
-        assert_eq!(a.sha256, b.sha256);
+        let (a, c) = (run("a", 3), run("c", 4));
         assert_ne!(a.sha256, c.sha256);
         assert_eq!(a.held_out_frames, 8);
         assert_eq!(a.held_out_rooms, vec!["FloorPlan19"]);
