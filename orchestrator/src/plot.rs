@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 const W: u32 = 1000;
 const H: u32 = 560;
@@ -16,6 +17,38 @@ const PALETTE: [RGBColor; 7] = [
     RGBColor(164, 0, 0),
     RGBColor(85, 87, 83),
 ];
+
+/// Height of one line of a bar group's name, in pixels.
+const LABEL_LINE_PX: i32 = 18;
+
+/// Splits a label into lines that `fits`, breaking before a `+` or after a space
+/// ("RGB+Semantic+Both" → "RGB+Semantic", "+Both"); a part that fits nowhere gets a line alone.
+fn wrap_label(label: &str, fits: impl Fn(&str) -> bool) -> Vec<String> {
+    let mut parts: Vec<&str> = Vec::new();
+    let mut start = 0;
+    for (i, c) in label.char_indices() {
+        let end = if c == '+' && i > 0 {
+            i
+        } else if c == ' ' {
+            i + 1
+        } else {
+            continue;
+        };
+        if end > start {
+            parts.push(&label[start..end]);
+            start = end;
+        }
+    }
+    parts.push(&label[start..]);
+    let mut lines: Vec<String> = Vec::new();
+    for part in parts.into_iter().filter(|p| !p.is_empty()) {
+        match lines.last_mut() {
+            Some(line) if fits(&format!("{line}{part}").trim_end()) => line.push_str(part),
+            _ => lines.push(part.to_string()),
+        }
+    }
+    lines.into_iter().map(|l| l.trim_end().to_string()).collect()
+}
 
 /// The series' legend in the charts' one style.
 fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(chart: &mut ChartContext<'a, DB, CT>) -> anyhow::Result<()> {
@@ -214,10 +247,13 @@ pub fn grouped_bars(
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 26))
         .margin(20)
-        .x_label_area_size(50)
+        .x_label_area_size(70)
         .y_label_area_size(70)
         .build_cartesian_2d(0.0..slots as f64, 0.0..max)
         .map_err(err)?;
+    let plot_w = chart.plotting_area().dim_in_pixel().0;
+    let group_px = (plot_w as f64 * (nb + 1) as f64 / slots as f64 - 6.0).max(1.0) as u32;
+    let font: TextStyle = ("sans-serif", 16).into_font().into();
     chart
         .configure_mesh()
         .disable_x_mesh()
@@ -247,13 +283,15 @@ pub fn grouped_bars(
             ];
             chart.draw_series(whisker).map_err(err)?;
         }
-        chart
-            .draw_series(std::iter::once(Text::new(
-                name.clone(),
-                (x0 + 0.1, -max * 0.06),
-                ("sans-serif", 16).into_font(),
-            )))
-            .map_err(err)?;
+        // centred under the group's bars, on as many lines as the group's width needs
+        let centre = x0 + nb as f64 / 2.0;
+        let fits = |line: &str| root.estimate_text_size(line, &font).map_or(true, |(w, _)| w <= group_px);
+        // in pixels on the whole image: the chart clamps points below its axis onto the axis
+        let (px, axis) = chart.backend_coord(&(centre, 0.0));
+        for (li, line) in wrap_label(name, fits).into_iter().enumerate() {
+            let at = (px, axis + 6 + LABEL_LINE_PX * li as i32);
+            root.draw(&Text::new(line, at, font.clone().pos(Pos::new(HPos::Center, VPos::Top)))).map_err(err)?;
+        }
     }
     for (bi, b) in buckets.iter().enumerate() {
         let c = PALETTE[bi % PALETTE.len()];
@@ -266,4 +304,22 @@ pub fn grouped_bars(
     legend(&mut chart)?;
     root.present().map_err(err)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn long_labels_break_before_a_plus_or_after_a_space() {
+        let within = |n: usize| move |s: &str| s.chars().count() <= n;
+        assert_eq!(wrap_label("RGB+Semantic+Both", within(12)), ["RGB+Semantic", "+Both"]);
+        assert_eq!(wrap_label("Depth+Semantic+Both", within(10)), ["Depth", "+Semantic", "+Both"]);
+        assert_eq!(wrap_label("Vision Only", within(8)), ["Vision", "Only"]);
+        assert_eq!(wrap_label("+Intervention", within(5)), ["+Intervention"], "one part is never cut");
+        assert_eq!(wrap_label("+Both", within(20)), ["+Both"]);
+        for label in ["RGB+Semantic+Both", "Vision Only", "+Referencing"] {
+            assert_eq!(wrap_label(label, within(3)).concat().replace(' ', ""), label.replace(' ', ""), "nothing lost");
+        }
+    }
 }

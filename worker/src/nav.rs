@@ -32,7 +32,13 @@ pub struct NavGrid {
     pub nz: usize,
     /// The robot fits here.
     free: Vec<bool>,
+    /// Per grid square, by its lower-left point: whether the robot may be somewhere inside
+    /// (a superset of where it can be, for SPL's lower bound; see [`NavGrid::build`]).
+    passable: Vec<bool>,
 }
+
+/// Sub-squares per side tested for a passable grid square.
+const PASSABLE_SUBDIVISIONS: usize = 4;
 
 /// A cell index into the grid.
 pub type Cell = usize;
@@ -47,18 +53,44 @@ impl NavGrid {
         let k1 = (hz / step).floor() as i32;
         let nx = (i1 - i0 + 1).max(0) as usize;
         let nz = (k1 - k0 + 1).max(0) as usize;
-        let mut g = NavGrid { step, i0, k0, nx, nz, free: vec![false; nx * nz] };
+        let mut g = NavGrid { step, i0, k0, nx, nz, free: vec![false; nx * nz], passable: vec![false; nx * nz] };
         for c in 0..nx * nz {
             g.free[c] = physics.robot_fits(g.point(c));
         }
+        // A square is passable when the robot fits at a corner, or when a robot thinner by a
+        // sub-square's half-diagonal fits at the centre of one of its sub-squares: wherever the
+        // robot fits inside the square, that thinner robot fits at the nearest sub-centre. So no
+        // position the robot can reach lies outside the passable squares, even in a gap too
+        // narrow for any grid point.
+        let sub = step / PASSABLE_SUBDIVISIONS as f32;
+        let slack = sub * std::f32::consts::FRAC_1_SQRT_2;
+        for c in (0..nx * nz).filter(|&c| c % nx + 1 < nx && c / nx + 1 < nz) {
+            let corner = g.point(c);
+            g.passable[c] = g.square_corners(c).iter().any(|&k| g.free[k])
+                || (0..PASSABLE_SUBDIVISIONS * PASSABLE_SUBDIVISIONS).any(|i| {
+                    let (u, v) = ((i % PASSABLE_SUBDIVISIONS) as f32 + 0.5, (i / PASSABLE_SUBDIVISIONS) as f32 + 0.5);
+                    physics.thinner_robot_fits(corner + Vector2::new(u * sub, v * sub), slack)
+                });
+        }
         g
+    }
+
+    /// The four grid points of the square whose lower-left point is `c` (which must have a
+    /// right and an upper neighbour).
+    fn square_corners(&self, c: Cell) -> [Cell; 4] {
+        [c, c + 1, c + self.nx, c + self.nx + 1]
     }
 
     /// An `nx`×`nz` grid of `step` from the origin whose point (col, row) is free where `free`
     /// says (grids drawn by hand, for tests).
     pub fn from_mask(step: f32, nx: usize, nz: usize, free: impl Fn(usize, usize) -> bool) -> NavGrid {
         let free = (0..nx * nz).map(|c| free(c % nx, c / nx)).collect();
-        NavGrid { step, i0: 0, k0: 0, nx, nz, free }
+        let mut g = NavGrid { step, i0: 0, k0: 0, nx, nz, free, passable: vec![false; nx * nz] };
+        // without a scene to ask, a square is passable where a corner is free
+        for c in (0..nx * nz).filter(|&c| c % nx + 1 < nx && c / nx + 1 < nz) {
+            g.passable[c] = g.square_corners(c).iter().any(|&k| g.free[k]);
+        }
+        g
     }
 
     pub fn len(&self) -> usize {
@@ -91,25 +123,46 @@ impl NavGrid {
             .then(|| row as usize * self.nx + col as usize)
     }
 
-    /// Whether the grid square holding `p` (between four grid points) has a free corner.
-    pub fn square_has_free_corner(&self, p: Point2<f32>) -> bool {
+    /// The square holding `p` (between four grid points), by its lower-left point.
+    fn square_at(&self, p: Point2<f32>) -> Option<Cell> {
         let col = (p.x / self.step).floor() as i32 - self.i0;
         let row = (p.y / self.step).floor() as i32 - self.k0;
+        (col >= 0 && row >= 0 && (col as usize) + 1 < self.nx && (row as usize) + 1 < self.nz)
+            .then(|| row as usize * self.nx + col as usize)
+    }
+
+    /// Whether `p` lies in a passable grid square, its edges and corners included (a point on
+    /// an edge belongs to both squares beside it, a grid point to all four around it).
+    pub fn square_passable(&self, p: Point2<f32>) -> bool {
+        let e = 1e-4 * self.step;
+        [(-e, -e), (e, -e), (-e, e), (e, e)]
+            .iter()
+            .any(|&(dx, dz)| self.square_at(p + Vector2::new(dx, dz)).is_some_and(|c| self.passable[c]))
+    }
+
+    /// Whether grid point `c` is a corner of a passable square: the places where shortest
+    /// paths through the passable squares can bend.
+    pub fn is_corner_of_passable(&self, c: Cell) -> bool {
+        let (col, row) = (c % self.nx, c / self.nx);
         [(0, 0), (1, 0), (0, 1), (1, 1)].iter().any(|&(dc, dr)| {
-            let (c, r) = (col + dc, row + dr);
-            c >= 0
-                && r >= 0
-                && (c as usize) < self.nx
-                && (r as usize) < self.nz
-                && self.free[r as usize * self.nx + c as usize]
+            col >= dc && row >= dr && col - dc + 1 < self.nx && row - dr + 1 < self.nz && {
+                self.passable[(row - dr) * self.nx + col - dc]
+            }
         })
     }
 
     /// Marks cells within `radius` of `center` as blocked (the person standing there).
     pub fn block_disc(&mut self, center: Point2<f32>, radius: f32) {
+        let inside = |g: &NavGrid, c: Cell| (g.point(c) - center).norm() < radius;
         for c in 0..self.len() {
-            if (self.point(c) - center).norm() < radius {
+            if inside(self, c) {
                 self.free[c] = false;
+            }
+        }
+        // a square all of whose corners are inside lies inside: the robot cannot be there
+        for c in (0..self.len()).filter(|&c| c % self.nx + 1 < self.nx && c / self.nx + 1 < self.nz) {
+            if self.square_corners(c).iter().all(|&k| inside(self, k)) {
+                self.passable[c] = false;
             }
         }
     }

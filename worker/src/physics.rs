@@ -6,7 +6,7 @@
 
 use nalgebra::{Point2, Point3, Vector2, Vector3};
 use rapier3d::geometry::{
-    BroadPhaseBvh, ColliderBuilder, ColliderHandle, ColliderSet, DefaultBroadPhase, Ray, SharedShape,
+    BroadPhaseBvh, Capsule, ColliderBuilder, ColliderHandle, ColliderSet, DefaultBroadPhase, Ray, SharedShape,
 };
 use rapier3d::math::{Pose3, Rot3, Vec3};
 use rapier3d::parry::query::{DefaultQueryDispatcher, ShapeCastOptions};
@@ -141,6 +141,14 @@ impl Physics {
     pub fn robot_fits(&self, xz: Point2<f32>) -> bool {
         let q = self.query();
         q.intersect_shape(self.capsule_pose(xz), self.capsule.as_ref()).next().is_none()
+    }
+
+    /// Whether a robot `slack` thinner than ours fits at (x, z): true wherever ours fits within
+    /// `slack` of the point (the thinner capsule lies inside ours there).
+    pub fn thinner_robot_fits(&self, xz: Point2<f32>, slack: f32) -> bool {
+        let half = (self.robot.height / 2.0 - self.robot.radius).max(0.0);
+        let thinner = Capsule::new_y(half, (self.robot.radius - slack).max(0.0));
+        self.query().intersect_shape(self.capsule_pose(xz), &thinner).next().is_none()
     }
 
     /// Sweeps the robot from `from` by `delta` (x, z). Returns whether the whole motion is free;
