@@ -8,7 +8,7 @@
 //! success disc. Every choice leans short: straight segments replace grid steps, the squares
 //! hold every position the robot can reach (also in gaps narrower than the grid, where no grid
 //! point is free), and the whole disc counts. Squares with a free corner alone were not enough:
-//! 6 of some 23,000 successful episodes of a study squeezed through such gaps, one of them on a
+//! 6 of 10,303 successful evaluation episodes of a study squeezed through such gaps, one on a
 //! path of 2.25 m against an l_i of 6.07 m.
 //! Requiring the target in sight from the end was tried: geometric visibility from grid points
 //! misses some of the rendered frame's sightings at the disc's edge, and 6 of 500 expert
