@@ -57,26 +57,35 @@ impl NavGrid {
         for c in 0..nx * nz {
             g.free[c] = physics.robot_fits(g.point(c));
         }
-        // A square is passable when the robot fits at a corner, or when a robot thinner by a
-        // sub-square's half-diagonal fits at the centre of one of its sub-squares: wherever the
-        // robot fits inside the square, that thinner robot fits at the nearest sub-centre. So no
-        // position the robot can reach lies outside the passable squares, even in a gap too
-        // narrow for any grid point.
+        // Wherever the robot fits inside a square, a robot thinner by a sub-square's
+        // half-diagonal fits at the nearest sub-square centre. So no position the robot can
+        // reach lies outside the passable squares, even in a gap too narrow for any grid point.
         let sub = step / PASSABLE_SUBDIVISIONS as f32;
         let slack = sub * std::f32::consts::FRAC_1_SQRT_2;
-        for c in (0..nx * nz).filter(|&c| c % nx + 1 < nx && c / nx + 1 < nz) {
-            let corner = g.point(c);
-            g.passable[c] = g.square_corners(c).iter().any(|&k| g.free[k])
-                || (0..PASSABLE_SUBDIVISIONS * PASSABLE_SUBDIVISIONS).any(|i| {
-                    let (u, v) = ((i % PASSABLE_SUBDIVISIONS) as f32 + 0.5, (i / PASSABLE_SUBDIVISIONS) as f32 + 0.5);
-                    physics.thinner_robot_fits(corner + Vector2::new(u * sub, v * sub), slack)
-                });
-        }
+        g.mark_passable(|g, c| {
+            (0..PASSABLE_SUBDIVISIONS * PASSABLE_SUBDIVISIONS).any(|i| {
+                let (u, v) = ((i % PASSABLE_SUBDIVISIONS) as f32 + 0.5, (i / PASSABLE_SUBDIVISIONS) as f32 + 0.5);
+                physics.thinner_robot_fits(g.point(c) + Vector2::new(u * sub, v * sub), slack)
+            })
+        });
         g
     }
 
-    /// The four grid points of the square whose lower-left point is `c` (which must have a
-    /// right and an upper neighbour).
+    /// Marks a square passable where the robot fits at one of its corners, or where `inside`
+    /// says it fits somewhere within.
+    fn mark_passable(&mut self, inside: impl Fn(&NavGrid, Cell) -> bool) {
+        for c in self.squares() {
+            self.passable[c] = self.square_corners(c).iter().any(|&k| self.free[k]) || inside(self, c);
+        }
+    }
+
+    /// Every grid square, by its lower-left point.
+    fn squares(&self) -> impl Iterator<Item = Cell> + use<> {
+        let (nx, nz) = (self.nx, self.nz);
+        (0..nx * nz).filter(move |&c| c % nx + 1 < nx && c / nx + 1 < nz)
+    }
+
+    /// The four grid points of the square whose lower-left point is `c`.
     fn square_corners(&self, c: Cell) -> [Cell; 4] {
         [c, c + 1, c + self.nx, c + self.nx + 1]
     }
@@ -87,9 +96,7 @@ impl NavGrid {
         let free = (0..nx * nz).map(|c| free(c % nx, c / nx)).collect();
         let mut g = NavGrid { step, i0: 0, k0: 0, nx, nz, free, passable: vec![false; nx * nz] };
         // without a scene to ask, a square is passable where a corner is free
-        for c in (0..nx * nz).filter(|&c| c % nx + 1 < nx && c / nx + 1 < nz) {
-            g.passable[c] = g.square_corners(c).iter().any(|&k| g.free[k]);
-        }
+        g.mark_passable(|_, _| false);
         g
     }
 
@@ -160,7 +167,7 @@ impl NavGrid {
             }
         }
         // a square all of whose corners are inside lies inside: the robot cannot be there
-        for c in (0..self.len()).filter(|&c| c % self.nx + 1 < self.nx && c / self.nx + 1 < self.nz) {
+        for c in self.squares() {
             if self.square_corners(c).iter().all(|&k| inside(self, k)) {
                 self.passable[c] = false;
             }

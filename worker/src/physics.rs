@@ -146,8 +146,8 @@ impl Physics {
     /// Whether a robot `slack` thinner than ours fits at (x, z): true wherever ours fits within
     /// `slack` of the point (the thinner capsule lies inside ours there).
     pub fn thinner_robot_fits(&self, xz: Point2<f32>, slack: f32) -> bool {
-        let half = (self.robot.height / 2.0 - self.robot.radius).max(0.0);
-        let thinner = Capsule::new_y(half, (self.robot.radius - slack).max(0.0));
+        let ours = self.capsule.as_capsule().expect("the robot is a capsule");
+        let thinner = Capsule { radius: (ours.radius - slack).max(0.0), ..*ours };
         self.query().intersect_shape(self.capsule_pose(xz), &thinner).next().is_none()
     }
 

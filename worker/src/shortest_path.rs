@@ -51,8 +51,8 @@ fn reach(grid: &NavGrid, c: Cell) -> impl Iterator<Item = (Cell, f32)> + '_ {
     })
 }
 
-/// Any-angle (Theta*) distances from `start` to every corner of a passable square it reaches, searched in order
-/// of distance until `stop` says the rest cannot matter.
+/// Any-angle (Theta*) distances from `start` to every corner of a passable square it reaches,
+/// searched in order of distance until `stop` says the rest cannot matter.
 fn theta_star(grid: &NavGrid, start: Cell, mut stop: impl FnMut(Cell, f32) -> bool) -> Vec<f32> {
     let mut g = vec![f32::INFINITY; grid.len()];
     let mut parent = vec![usize::MAX; grid.len()];
