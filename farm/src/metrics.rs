@@ -180,9 +180,100 @@ pub fn scores<'a>(episodes: impl IntoIterator<Item = &'a EpisodeResult>, k: Opti
     Scores { episodes: n, sr: 100.0 * sr / n_f, spl: 100.0 * spl / n_f, dts: dts / n_f }
 }
 
+/// The 95% Wilson score interval of a binomial proportion, in % (`successes` of `n`): the
+/// interval a rate measured on n episodes leaves for the true rate.
+pub fn wilson95(successes: usize, n: usize) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 100.0);
+    }
+    let (z, n_f) = (1.959_964f64, n as f64);
+    let p = successes as f64 / n_f;
+    let centre = (p + z * z / (2.0 * n_f)) / (1.0 + z * z / n_f);
+    let half = z / (1.0 + z * z / n_f) * (p * (1.0 - p) / n_f + z * z / (4.0 * n_f * n_f)).sqrt();
+    (100.0 * (centre - half).max(0.0), 100.0 * (centre + half).min(1.0))
+}
+
+/// How a policy uses its first stop: whether it stops where a stop can succeed (T4.4's
+/// first-stop to unlimited-stops ratio; the dissertation's is 0.16–0.46).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FirstStops {
+    pub episodes: usize,
+    /// Episodes with at least one stop.
+    pub stopped: usize,
+    /// Successful first stops.
+    pub successes: usize,
+    /// First stops within `within` metres of the target (in view or not).
+    pub near: usize,
+    pub within: f64,
+    /// Successful episodes with unlimited stops.
+    pub successes_any: usize,
+    /// Mean step of the first stop, over the episodes that stopped.
+    pub mean_step: f64,
+}
+
+impl FirstStops {
+    pub fn of<'a>(episodes: impl IntoIterator<Item = &'a EpisodeResult>, within: f64) -> FirstStops {
+        let mut f = FirstStops { within, ..Default::default() };
+        let mut steps = 0.0;
+        for e in episodes {
+            f.episodes += 1;
+            f.successes_any += e.success as usize;
+            if let Some(s) = e.stops.first() {
+                f.stopped += 1;
+                f.successes += s.success as usize;
+                f.near += ((s.distance as f64) < within) as usize;
+                steps += s.step as f64;
+            }
+        }
+        f.mean_step = if f.stopped > 0 { steps / f.stopped as f64 } else { 0.0 };
+        f
+    }
+
+    /// Share of first stops within `within` of the target (%).
+    pub fn near_share(&self) -> f64 {
+        if self.stopped == 0 { 0.0 } else { 100.0 * self.near as f64 / self.stopped as f64 }
+    }
+
+    /// SR at the first stop over SR with unlimited stops (0 when nothing succeeds).
+    pub fn ratio(&self) -> f64 {
+        if self.successes_any == 0 { 0.0 } else { self.successes as f64 / self.successes_any as f64 }
+    }
+
+    /// SR at the first stop (%) and its 95% interval.
+    pub fn sr(&self) -> (f64, (f64, f64)) {
+        let sr = if self.episodes == 0 { 0.0 } else { 100.0 * self.successes as f64 / self.episodes as f64 };
+        (sr, wilson95(self.successes, self.episodes))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn wilson_interval_matches_the_textbook() {
+        // 87 of 1,000: 7.11%–10.61% (Wilson, z = 1.96)
+        let (lo, hi) = wilson95(87, 1000);
+        assert!((lo - 7.11).abs() < 0.01 && (hi - 10.61).abs() < 0.01, "{lo} {hi}");
+        let (lo, hi) = wilson95(0, 50);
+        assert_eq!(lo, 0.0);
+        assert!((hi - 7.13).abs() < 0.02, "{hi}");
+    }
+
+    #[test]
+    fn first_stops_count_where_the_first_stop_was() {
+        let eps = [
+            ep(true, 2.0, 3.0, vec![stop(true, 0.8, 3.0)], 0.8),
+            ep(true, 2.0, 5.0, vec![stop(false, 2.5, 1.0), stop(true, 0.9, 5.0)], 0.9),
+            ep(false, 2.0, 1.0, vec![stop(false, 0.7, 1.0)], 0.7),
+            ep(false, 2.0, 1.0, vec![], 3.0),
+        ];
+        let f = FirstStops::of(&eps, 1.0);
+        assert_eq!((f.episodes, f.stopped, f.successes, f.near, f.successes_any), (4, 3, 1, 2, 2));
+        assert!((f.near_share() - 200.0 / 3.0).abs() < 1e-9);
+        assert_eq!(f.ratio(), 0.5);
+        assert_eq!(f.sr().0, 25.0);
+    }
 
     fn ep(success: bool, l: f32, p: f32, stops: Vec<Stop>, final_distance: f32) -> EpisodeResult {
         EpisodeResult {

@@ -11,6 +11,7 @@ use indicatif::MultiProgress;
 
 use rayon::prelude::*;
 use worker::dataset::build::{BuildOptions, build, default_interventions, synthesize};
+use worker::dataset::starts::Starts;
 use worker::dataset::{Dataset, Verify};
 use worker::gesture::{self, Motion, Pointing};
 use worker::program::{Hand, Program};
@@ -56,10 +57,19 @@ pub struct BuildArgs {
     /// (arm-aimed and eye–fingertip-aligned pointing, larger error; README "Gesture realism").
     #[arg(long, default_value = "clean", value_parser = parse_pointing)]
     pub pointing: Pointing,
+    /// Where the robot starts: `dissertation` (mean geodesic distance to the target 1.52 m as
+    /// §3.3.2, starts already successful allowed) or `far` (uniform 0.5–8 m from the success
+    /// region, never successful: datasets before this option, a harder benchmark).
+    #[arg(long, default_value = "dissertation", value_parser = parse_starts)]
+    pub starts: Starts,
 }
 
 fn parse_pointing(s: &str) -> Result<Pointing, String> {
     Pointing::from_name(s).ok_or_else(|| format!("`{s}` is not one of clean, realistic"))
+}
+
+fn parse_starts(s: &str) -> Result<Starts, String> {
+    Starts::from_name(s).ok_or_else(|| format!("`{s}` is not one of dissertation, far"))
 }
 
 #[derive(Args, Debug)]
@@ -91,6 +101,7 @@ fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
         test_per_room: a.test_per_room,
         splits,
         pointing: a.pointing,
+        starts: a.starts,
         ..Default::default()
     };
     let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -156,7 +167,7 @@ fn stats_cmd(a: StatsArgs) -> anyhow::Result<()> {
             by_split.insert(s, programs);
         }
     }
-    let summary = write_stats(&by_split, ds.manifest.build.pointing, &lines, &out)?;
+    let summary = write_stats(&by_split, &ds.manifest.build, &lines, &out)?;
     println!("{summary}");
     println!("figures and summary in {}", out.display());
     Ok(())
@@ -181,7 +192,7 @@ fn aiming_lines(file: &worker::dataset::GondFile, programs: &[Program]) -> Vec<[
 /// program's aiming-line errors (shoulder→wrist, forearm; degrees) per split.
 pub fn write_stats(
     by_split: &BTreeMap<Split, Vec<Program>>,
-    pointing: Pointing,
+    build: &worker::dataset::BuildParams,
     lines: &BTreeMap<Split, Vec<[f32; 2]>>,
     out: &Path,
 ) -> anyhow::Result<String> {
@@ -237,14 +248,15 @@ pub fn write_stats(
         &groups,
     )?;
 
-    // Fig. 3.12: geodesic robot start → success region (what the dataset stores as `geodesic`:
-    // grid cells near the target that see it, `worker::nav`) and Euclidean robot–person distances.
+    // Fig. 3.12: geodesic robot start → target's centre (the dissertation's measure: to a
+    // success-region cell, then straight; `worker::dataset::starts`) and Euclidean robot–person.
     let all: Vec<&Program> = by_split.values().flatten().collect();
-    let geo: Vec<f64> = all.iter().map(|p| p.geodesic as f64).collect();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let geo: Vec<f64> = all.iter().map(|p| p.target_geodesic as f64).collect();
     let rh: Vec<f64> = all.iter().map(|p| p.robot_human_distance as f64).collect();
     plot::histogram(
         &out.join("fig3_12a_geodesic.png"),
-        "Geodesic distance robot start → success region (m)",
+        "Geodesic distance robot start → target (m); the dissertation's mean: 1.52 m",
         "metres",
         &geo,
         0.25,
@@ -257,30 +269,43 @@ pub fn write_stats(
         0.25,
     )?;
 
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let acc: Vec<f64> = all.iter().map(|p| p.gesture_accuracy as f64).collect();
     let right = all.iter().filter(|p| p.hand == Hand::Right).count() as f64 / all.len().max(1) as f64;
-    let mut md = String::from(
-        "# GOND statistics\n\n| split | programs | rooms | multi-instance share | mean geodesic to the success region (m) | mean robot–person (m) |\n|---|---:|---:|---:|---:|---:|\n",
+    let starts = match build.starts {
+        Starts::Dissertation => format!(
+            "`dissertation`: drawn toward the target for a mean geodesic distance to its centre of {:.2} m (§3.3.2: 1.52 m), starts already successful allowed",
+            build.start_mean_geodesic
+        ),
+        Starts::Far => format!(
+            "`far`: uniform {}–{} m (geodesic) from the success region, never already successful",
+            build.start_geodesic[0], build.start_geodesic[1]
+        ),
+    };
+    let mut md = format!(
+        "# GOND statistics\n\nRobot starts {starts}.\n\n| split | programs | rooms | multi-instance share | mean geodesic start → target (m) | mean geodesic to the success region (m) | starts already successful | mean robot–person (m) |\n|---|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for (s, progs) in by_split {
         let rooms: std::collections::BTreeSet<&str> = progs.iter().map(|p| p.scene.as_str()).collect();
+        let t: Vec<f64> = progs.iter().map(|p| p.target_geodesic as f64).collect();
         let g: Vec<f64> = progs.iter().map(|p| p.geodesic as f64).collect();
         let d: Vec<f64> = progs.iter().map(|p| p.robot_human_distance as f64).collect();
+        let successful = progs.iter().filter(|p| p.starts_successful).count() as f64 / progs.len().max(1) as f64;
         let multi = shares.iter().find(|x| x.0 == s.name()).map_or(0.0, |x| x.1);
         md += &format!(
-            "| {} | {} | {} | {:.1}% | {:.2} | {:.2} |\n",
+            "| {} | {} | {} | {:.1}% | {:.2} | {:.2} | {:.1}% | {:.2} |\n",
             s.name(),
             progs.len(),
             rooms.len(),
             100.0 * multi,
+            mean(&t),
             mean(&g),
+            100.0 * successful,
             mean(&d)
         );
     }
     md += &format!(
         "\nReferencing gestures (pointing level `{}`): mean gesture accuracy {:.2} (fraction of frames whose pointing ray passes within {} m of the target), right hand {:.0}%.\n",
-        pointing.name(),
+        build.pointing.name(),
         mean(&acc),
         gesture::DEFAULT_RADIUS,
         100.0 * right

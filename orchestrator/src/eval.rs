@@ -325,6 +325,10 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         dts_threshold: a.dts_threshold,
     };
     let mut md = evaluation.markdown();
+    if baseline && !a.expert {
+        md += "\n";
+        md += &evaluation.calibration().unwrap_or_default();
+    }
     md += "\n## Throughput\n\n| pass | episodes | seconds | episodes/s |\n|---|---:|---:|---:|\n";
     for (m, n, s) in &timing {
         md += &format!("| {m} | {n} | {s:.1} | {:.2} |\n", *n as f64 / s);

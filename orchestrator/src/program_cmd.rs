@@ -291,6 +291,8 @@ fn replay_from_metadata(a: &ReplayArgs, ds: Option<&Dataset>) -> anyhow::Result<
         robot_pos: [start.x, 0.0, start.y],
         robot_yaw,
         geodesic: 0.0,
+        target_geodesic: 0.0,
+        starts_successful: false,
         robot_human_distance: 2.5,
         gesture_accuracy: gesture::accuracy(&motion, human, yaw, target, gesture::DEFAULT_RADIUS),
         hand: worker::program::Hand::Right,

@@ -47,7 +47,8 @@ pub struct StudyArgs {
     /// The study folder (created; an existing one is continued).
     #[arg(long)]
     pub out: PathBuf,
-    /// Only these methods (config file stems), comma-separated; default: every one present.
+    /// Only these methods (config file stems), comma-separated, trained in this order (seed by
+    /// seed); default: every one present, in T4.2's order.
     #[arg(long, value_delimiter = ',')]
     pub methods: Vec<String>,
     /// Also train VisSem, +Referencing and +Intervention once per scene type, in that type's
@@ -143,12 +144,14 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
     }
     let mut runs = Vec::new();
     let mut random = None;
-    for sm in METHODS {
+    // T4.2's order, or the order asked for (the first methods of a long study finish first)
+    let order: Vec<StudyMethod> = match a.methods.is_empty() {
+        true => METHODS.to_vec(),
+        false => a.methods.iter().filter_map(|m| study_report::method(m)).collect(),
+    };
+    for sm in order {
         let stem = sm.stem;
         let path = a.configs.join(format!("{stem}.toml"));
-        if !a.methods.is_empty() && !a.methods.iter().any(|m| m == stem) {
-            continue;
-        }
         if !path.is_file() {
             anyhow::ensure!(a.methods.is_empty(), "--methods {stem}: no {}", path.display());
             continue;
@@ -207,6 +210,9 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
             }
         }
     }
+    // seed by seed: a study stopped part-way has every method at its first seeds (stable: the
+    // methods keep T4.2's order within a seed)
+    runs.sort_by_key(|r| r.seed_index);
     anyhow::ensure!(
         !runs.is_empty() || random.is_some(),
         "{}: no config named after a method of T4.2 or T4.7 ({}.toml)",
@@ -479,7 +485,8 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         a.out.display()
     );
     let mut results = Vec::new();
-    for (run, planned) in runs.iter().zip(steps.chunks(4)) {
+    let random_names: Vec<String> = (1..=random_seeds).map(|k| format!("Random seed {k}")).collect();
+    for (i, (run, planned)) in runs.iter().zip(steps.chunks(4)).enumerate() {
         let name = run.name();
         let trained = run.trained(a.workers);
         let t = Instant::now();
@@ -497,6 +504,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
 
         let (mut ran, mut work) = (false, 0.0);
         let mut best: Option<(f64, PathBuf)> = None;
+        let mut val_curve = Vec::new();
         let t = Instant::now();
         progress.doing(&format!("selecting {name} on val"));
         for (_, ckpt) in farm::checkpoints::list(&farm::checkpoints::dir_of(&run.dir)) {
@@ -511,6 +519,8 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             ran |= e.run(a.workers)?;
             work += e.work();
             let sr1 = study_report::first_stop(&e.out.join("tables.csv"))?.sr;
+            let frames = farm::checkpoints::frames(&ckpt).map_err(|e| anyhow::anyhow!("{}: {e}", ckpt.display()))?;
+            val_curve.push((frames, sr1));
             if best.as_ref().is_none_or(|(b, _)| sr1 >= *b) {
                 best = Some((sr1, ckpt));
             }
@@ -552,7 +562,18 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         )?;
         r.val_tables = Some(run.select_dir(&chosen).join("tables.csv"));
         r.train_tables = Some(fit.out.join("tables.csv"));
+        r.val_curve = val_curve;
+        let update = farm::checkpoints::update_of(&chosen).unwrap_or(0);
+        r.budget = Some(study_report::Budget {
+            frames: farm::checkpoints::frames(&chosen).map_err(|e| anyhow::anyhow!("{}: {e}", chosen.display()))?,
+            adam_steps: update * (run.cfg.ppo.epochs * run.cfg.ppo.minibatches) as u64,
+            frames_per_update: run.frames_per_update(a.workers),
+        });
         results.push(r);
+        // every finished model's tables at once: a study stopped later loses only the model
+        // in progress
+        let pending: Vec<String> = runs[i + 1..].iter().map(Run::name).chain(random_names.iter().cloned()).collect();
+        report(&a, &runs, &results, &pending)?;
     }
     if let Some(cfg) = &random {
         for k in 1..=a.seeds {
@@ -573,12 +594,17 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         }
     }
     progress.finish();
-    let curves: Vec<(String, PathBuf)> =
-        runs.iter().filter(|r| r.scene_type.is_none()).map(|r| (r.method.stem.to_string(), r.dir.clone())).collect();
-    study_report::write(&a.out, &results, &curves)?;
-    crate::study_tables::write(&a.out, &results)?;
+    report(&a, &runs, &results, &[])?;
     eprintln!("[study] tables in {}", a.out.join("T4.2.md").display());
     Ok(())
+}
+
+/// Writes T4.2–T4.7 of the models evaluated so far; `pending` names the runs still to do.
+fn report(a: &StudyArgs, runs: &[Run], results: &[RunResult], pending: &[String]) -> anyhow::Result<()> {
+    let done: Vec<&Run> = runs.iter().filter(|r| r.scene_type.is_none() && r.trained(a.workers)).collect();
+    let curves: Vec<(String, PathBuf)> = done.iter().map(|r| (r.method.stem.to_string(), r.dir.clone())).collect();
+    study_report::write(&a.out, results, &curves, pending)?;
+    crate::study_tables::write(&a.out, results)
 }
 
 #[cfg(test)]
@@ -608,6 +634,14 @@ mod tests {
         let (runs, random) = plan(&args(dir.path())).unwrap();
         assert_eq!(runs.len(), 7 * 2, "T4.2's five learning methods and T4.7's two variants");
         assert!(random.is_some());
+        let order: Vec<(&str, u64)> = runs.iter().map(|r| (r.method.stem, r.seed_index)).collect();
+        assert_eq!(&order[..2], [("vision_only", 1), ("vis_sem", 1)], "seed by seed, in T4.2's order");
+        let mut asked = args(dir.path());
+        asked.methods = vec!["both".into(), "vis_sem".into()];
+        let (runs2, random) = plan(&asked).unwrap();
+        let order: Vec<(&str, u64)> = runs2.iter().map(|r| (r.method.stem, r.seed_index)).collect();
+        assert_eq!(order, [("both", 1), ("vis_sem", 1), ("both", 2), ("vis_sem", 2)], "in the order asked for");
+        assert!(random.is_none());
         let both2 = runs.iter().find(|r| r.method.stem == "both" && r.seed_index == 2).unwrap();
         assert_eq!(both2.cfg.run.seed, 2, "seeds 1 and 2 from the config's seed 1");
         assert_eq!(both2.cfg.run.total_frames, 40_960);

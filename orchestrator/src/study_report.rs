@@ -6,6 +6,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use farm::config::Method;
+use farm::metrics::FirstStops;
 use farm::rooms::SceneType;
 use serde::Serialize;
 
@@ -82,6 +83,20 @@ pub const ORDERINGS: [(&str, &str); 6] = [
     ("intervention", "vis_sem"),
 ];
 
+/// What a selected checkpoint cost to train.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Budget {
+    pub frames: u64,
+    /// Optimizer steps: updates × epochs × minibatches.
+    pub adam_steps: u64,
+    pub frames_per_update: u64,
+}
+
+/// The dissertation's training budget (T4.1, §4.3.2): 5M frames of 20 envs × 128 steps, each
+/// update 4 epochs of 2 minibatches.
+pub const DISSERTATION_BUDGET: Budget =
+    Budget { frames: 5_000_000, adam_steps: 5_000_000 / (20 * 128) * 4 * 2, frames_per_update: 20 * 128 };
+
 /// One evaluated model of the study (a training run's selected checkpoint, or a Random seed),
 /// with the evaluations the ablation tables read.
 #[derive(Clone, Debug, Serialize)]
@@ -100,6 +115,12 @@ pub struct RunResult {
     pub test_tables: PathBuf,
     pub val_tables: Option<PathBuf>,
     pub train_tables: Option<PathBuf>,
+    /// Where the first stops on test were (from the normal pass's episodes).
+    pub first_stops: Option<FirstStops>,
+    /// (frames, SR at the first stop on val) of every checkpoint evaluated for the selection.
+    pub val_curve: Vec<(u64, f64)>,
+    /// The selected checkpoint's training (None for Random).
+    pub budget: Option<Budget>,
 }
 
 impl RunResult {
@@ -113,6 +134,11 @@ impl RunResult {
         test_tables: &Path,
     ) -> anyhow::Result<RunResult> {
         let rows = read_rows(test_tables)?;
+        let episodes = test_tables.with_file_name("normal").join("episodes.jsonl");
+        let first_stops = match episodes.is_file() {
+            true => Some(FirstStops::of(&crate::eval::read_episodes(&episodes)?, 1.0)),
+            false => None,
+        };
         Ok(RunResult {
             stem: stem.into(),
             scene_type,
@@ -124,6 +150,9 @@ impl RunResult {
             test_tables: test_tables.into(),
             val_tables: None,
             train_tables: None,
+            first_stops,
+            val_curve: Vec::new(),
+            budget: None,
         })
     }
 
@@ -206,10 +235,11 @@ pub fn learning_curves(runs: &[(String, PathBuf)]) -> anyhow::Result<Vec<crate::
     Ok(out)
 }
 
-/// Writes `T4.2.md`, `T4.2.csv`, `study.json` and two figures into `out`: SR and SPL at the
-/// first stop with the seeds' spread (`sr_spl.png`), and every method's training success
-/// against frames (`learning_curves.png`, from `runs` as in [`learning_curves`]).
-pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)]) -> anyhow::Result<()> {
+/// Writes `T4.2.md`, `T4.2.csv`, `study.json` and three figures into `out`: SR and SPL at the
+/// first stop with the seeds' spread (`sr_spl.png`), every method's training success against
+/// frames (`learning_curves.png`, from `runs` as in [`learning_curves`]) and each run's val SR
+/// at the first stop against frames (`val_curves.png`). `pending` names the runs still to do.
+pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pending: &[String]) -> anyhow::Result<()> {
     let summaries: Vec<(StudyMethod, Summary)> =
         METHODS.into_iter().filter_map(|m| summary(results, m.stem).map(|s| (m, s))).collect();
     let groups: Vec<(String, Vec<(f64, f64)>)> =
@@ -229,6 +259,22 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)]) -> a
             "frames",
             "success (%)",
             &curves,
+        )?;
+    }
+    let val_curves: Vec<crate::plot::Series> = results
+        .iter()
+        .filter(|r| r.val_curve.len() > 1 && r.scene_type.is_none())
+        .map(|r| {
+            (format!("{} seed {}", r.label(), r.seed), r.val_curve.iter().map(|&(f, sr)| (f as f64, sr)).collect())
+        })
+        .collect();
+    if !val_curves.is_empty() {
+        crate::plot::lines(
+            &out.join("val_curves.png"),
+            "Val, first stop: SR of each evaluated checkpoint",
+            "frames",
+            "SR at the first stop (%)",
+            &val_curves,
         )?;
     }
     let mut md = String::new();
@@ -287,16 +333,85 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)]) -> a
     for r in results {
         let val = if r.val_sr1.is_nan() { "-".into() } else { format!("{:.1}", r.val_sr1) };
         let rooms = r.scene_type.map_or("all", |t| t.name());
+        // inside the study folder, wherever that is
+        let checkpoint = Path::new(&r.checkpoint).strip_prefix(out).map_or(r.checkpoint.clone(), |p| p.display().to_string());
         let _ = writeln!(
             md,
-            "| {} | {rooms} | {} | {} | {val} | {:.1} |",
+            "| {} | {rooms} | {} | {checkpoint} | {val} | {:.1} |",
             r.label(),
             r.seed,
-            r.checkpoint,
             r.test_first.sr
         );
     }
+    let _ = writeln!(
+        md,
+        "\n## When to stop (test, first stop)\n\nA policy that knows where the target is stops near it: the share of \
+         first stops within 1 m of the target (in view or not) and SR at the first stop over SR with unlimited stops \
+         (the dissertation's T4.4 gives 0.16–0.46) say whether it does; a policy that stops like a timer has a low share \
+         and a low ratio. Mean ± std over seeds.\n\n\
+         | method | seeds | first stops within 1 m (%) | SR 1 / SR ∞ | episodes with a stop (%) | mean step of the first stop |\n\
+         |---|---:|---:|---:|---:|---:|"
+    );
+    for m in METHODS {
+        let f: Vec<FirstStops> =
+            results.iter().filter(|r| r.stem == m.stem && r.scene_type.is_none()).filter_map(|r| r.first_stops).collect();
+        if f.is_empty() {
+            continue;
+        }
+        let ms = |g: &dyn Fn(&FirstStops) -> f64| mean_std(&f.iter().map(g).collect::<Vec<_>>());
+        let (near, ratio) = (ms(&|f| f.near_share()), ms(&|f| f.ratio()));
+        let (stopped, step) = (ms(&|f| 100.0 * f.stopped as f64 / f.episodes.max(1) as f64), ms(&|f| f.mean_step));
+        let _ = writeln!(
+            md,
+            "| {} | {} | {:.1} ± {:.1} | {:.2} ± {:.2} | {:.1} ± {:.1} | {:.1} ± {:.1} |",
+            m.label,
+            f.len(),
+            near.0,
+            near.1,
+            ratio.0,
+            ratio.1,
+            stopped.0,
+            stopped.1,
+            step.0,
+            step.1
+        );
+    }
+    let d = DISSERTATION_BUDGET;
+    let _ = writeln!(
+        md,
+        "\n## Training budget of the selected checkpoints\n\nAdam steps = PPO updates × epochs × minibatches. The \
+         dissertation: {} frames, {} frames per update, {} Adam steps (T4.1: 4 epochs × 2 minibatches).\n\n\
+         | method | seed | frames | frames per update | Adam steps | frames / dissertation's | Adam steps / dissertation's |\n\
+         |---|---:|---:|---:|---:|---:|---:|",
+        d.frames, d.frames_per_update, d.adam_steps
+    );
+    for r in results.iter().filter(|r| r.scene_type.is_none()) {
+        let Some(b) = r.budget else { continue };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {:.2} | {:.2} |",
+            r.label(),
+            r.seed,
+            b.frames,
+            b.frames_per_update,
+            b.adam_steps,
+            b.frames as f64 / d.frames as f64,
+            b.adam_steps as f64 / d.adam_steps as f64
+        );
+    }
+    if !pending.is_empty() {
+        let _ = writeln!(
+            md,
+            "\n## Still to do\n\nThese tables hold the models finished so far; the same study command continues with:\n"
+        );
+        for p in pending {
+            let _ = writeln!(md, "- {p}");
+        }
+    }
     let _ = writeln!(md, "\n![SR and SPL](sr_spl.png)\n\n![learning curves](learning_curves.png)");
+    if !val_curves.is_empty() {
+        let _ = writeln!(md, "\n![val SR against frames](val_curves.png)");
+    }
     farm::files::write_atomic(&out.join("T4.2.md"), md.as_bytes())?;
     farm::files::write_atomic(&out.join("T4.2.csv"), csv.as_bytes())?;
     farm::files::write_atomic(&out.join("study.json"), serde_json::to_string_pretty(results)?.as_bytes())?;
@@ -364,11 +479,12 @@ pub(crate) mod tests {
             result(d, "vis_sem", 1, 4.0),
             result(d, "vis_sem", 2, 5.0),
         ];
-        write(d, &results, &[]).unwrap();
+        write(d, &results, &[], &["+Both seed 3".into()]).unwrap();
         assert!(d.join("sr_spl.png").is_file());
         let md = std::fs::read_to_string(d.join("T4.2.md")).unwrap();
         assert!(md.contains("| +Both | 2 | 11.0 ± 1.4 |") && md.contains("49.2 / 28.7 / 1.976"), "{md}");
         assert!(md.contains("| +Both > VisSem | 11.0 ± 1.4 vs 4.5 ± 0.7 | yes |"), "{md}");
+        assert!(md.contains("## Still to do") && md.contains("- +Both seed 3"), "{md}");
         let csv = std::fs::read_to_string(d.join("T4.2.csv")).unwrap();
         assert_eq!(csv.lines().count(), 3);
     }

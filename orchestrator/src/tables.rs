@@ -5,9 +5,12 @@ use std::fmt::Write;
 
 use serde::{Deserialize, Serialize};
 
-use farm::metrics::{EpisodeResult, Scores, scores};
+use farm::metrics::{EpisodeResult, FirstStops, Scores, scores};
 use worker::program::Program;
 use worker::scene::SceneType;
+
+/// Random's SR and SPL at the first stop on test in the dissertation (T4.2, %).
+pub const RANDOM_DISSERTATION: (f64, f64) = (8.7, 7.1);
 
 /// What the policy may see during an evaluation pass.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
@@ -119,6 +122,26 @@ impl Evaluation<'_> {
             }
         }
 
+        if let Some(eps) = self.passes.get(&normal) {
+            let f = FirstStops::of(eps, 1.0);
+            let (sr, (lo, hi)) = f.sr();
+            writeln!(md, "\n## The first stop: where the policy stops\n").unwrap();
+            writeln!(
+                md,
+                "| SR 1 (%) | 95% interval | episodes with a stop | first stops within 1 m of the target | mean step of the first stop | SR 1 / SR ∞ |\n|---:|---:|---:|---:|---:|---:|"
+            )
+            .unwrap();
+            writeln!(
+                md,
+                "| {sr:.1} | {lo:.1}–{hi:.1} | {:.1}% | {:.1}% | {:.1} | {:.2} |",
+                100.0 * f.stopped as f64 / f.episodes.max(1) as f64,
+                f.near_share(),
+                f.mean_step,
+                f.ratio()
+            )
+            .unwrap();
+        }
+
         writeln!(md, "\n## Per scene type (T4.3 / T4.4)\n").unwrap();
         writeln!(md, "| scene type | episodes | SR 1 | SR 2 | SR 3 | SR ∞ | SPL 1 | SPL 2 | SPL 3 | SPL ∞ |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|").unwrap();
         for t in SceneType::ALL {
@@ -168,6 +191,25 @@ impl Evaluation<'_> {
             }
         }
         md
+    }
+
+    /// Random at the first stop beside the dissertation's (T4.2: SR 8.7%, SPL 7.1%): the task's
+    /// calibration, as Random knows nothing but the distances of the starts.
+    pub fn calibration(&self) -> Option<String> {
+        let eps = self.passes.get(&EvalMode::Normal)?;
+        let f = FirstStops::of(eps, 1.0);
+        let (sr, (lo, hi)) = f.sr();
+        let spl = self.scores(EvalMode::Normal, Some(1), |_| true)?.spl;
+        let (d_sr, d_spl) = RANDOM_DISSERTATION;
+        let verdict = if (lo..=hi).contains(&d_sr) { "inside" } else { "outside" };
+        Some(format!(
+            "## Calibration: Random at the first stop against the dissertation's\n\n\
+             | | SR 1 (%) | 95% interval (Wilson) | SPL 1 (%) | episodes |\n|---|---:|---:|---:|---:|\n\
+             | this evaluation | {sr:.1} | {lo:.1}–{hi:.1} | {spl:.1} | {} |\n\
+             | the dissertation (T4.2) | {d_sr:.1} | | {d_spl:.1} | |\n\n\
+             The dissertation's SR is {verdict} this evaluation's 95% interval.\n",
+            f.episodes
+        ))
     }
 
     /// One CSV row per (mode, scene type or "all", instance bucket or "all", stops).
@@ -315,6 +357,8 @@ mod tests {
             robot_pos: [0.0; 3],
             robot_yaw: 0.0,
             geodesic: 2.0,
+            target_geodesic: 2.9,
+            starts_successful: false,
             robot_human_distance: 1.0,
             gesture_accuracy: 0.5,
             hand: Hand::Right,
@@ -362,6 +406,10 @@ mod tests {
             md.contains("| Kitchen | 1 | 100.0") && md.contains("## Blind mode") && md.contains("| 3+ | 1 | 0.0"),
             "{md}"
         );
+        // 2 of 3 first stops succeed, at the target; every success is a first stop
+        assert!(md.contains("| 66.7 | 20.8–93.9 | 100.0% | 66.7% | 9.0 | 1.00 |"), "{md}");
+        let cal = e.calibration().unwrap();
+        assert!(cal.contains("| 66.7 | 20.8–93.9 |") && cal.contains("SR is outside"), "{cal}");
         let csv = e.csv();
         assert!(csv.lines().any(|l| l.starts_with("x,test,blind,all,all,1,3,0.000")), "{csv}");
         // what the study reads back is what was written

@@ -252,12 +252,20 @@ impl PartialOrd for Entry {
 
 impl DistanceField {
     pub fn new(grid: &NavGrid, goals: &[Cell]) -> DistanceField {
+        let sources: Vec<(Cell, f32)> = goals.iter().map(|&g| (g, 0.0)).collect();
+        DistanceField::from_sources(grid, &sources)
+    }
+
+    /// Distance to the cheapest of `sources`, each reached at its own extra cost: the grid
+    /// distance to a source cell plus that cell's cost (e.g. the straight stretch from a cell
+    /// near a target to the target's centre).
+    pub fn from_sources(grid: &NavGrid, sources: &[(Cell, f32)]) -> DistanceField {
         let mut dist = vec![f32::INFINITY; grid.len()];
         let mut heap = BinaryHeap::new();
-        for &g in goals {
-            if grid.is_free(g) {
-                dist[g] = 0.0;
-                heap.push(Entry(0.0, g));
+        for &(g, cost) in sources {
+            if grid.is_free(g) && cost < dist[g] {
+                dist[g] = cost;
+                heap.push(Entry(cost, g));
             }
         }
         while let Some(Entry(d, c)) = heap.pop() {

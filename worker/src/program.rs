@@ -39,6 +39,11 @@ pub struct Program {
     pub robot_yaw: f32,
     /// Geodesic distance from the robot start to the success region (metres).
     pub geodesic: f32,
+    /// Geodesic distance from the robot start to the target's centre: to a cell of the success
+    /// region, then straight (metres; Fig. 3.12a, `dataset::starts::target_field`).
+    pub target_geodesic: f32,
+    /// Whether a Stop at the start already succeeds (within reach, target in view).
+    pub starts_successful: bool,
     /// Euclidean distance between robot start and person (Fig. 3.12b).
     pub robot_human_distance: f32,
     /// Gesture accuracy of the referencing motion toward the target.
@@ -85,7 +90,9 @@ impl Program {
             gesture_accuracy: self.gesture_accuracy,
             hand: matches!(self.hand, Hand::Right) as u8,
             style: self.style,
-            _pad: [0; 6],
+            starts_successful: self.starts_successful as u8,
+            _pad: 0,
+            target_geodesic: self.target_geodesic,
         }
     }
 
@@ -106,6 +113,8 @@ impl Program {
             robot_pos: r.robot_pos,
             robot_yaw: r.robot_yaw,
             geodesic: r.geodesic,
+            target_geodesic: r.target_geodesic,
+            starts_successful: r.starts_successful == 1,
             robot_human_distance: r.robot_human_distance,
             gesture_accuracy: r.gesture_accuracy,
             hand: if r.hand == 1 { Hand::Right } else { Hand::Left },
@@ -136,8 +145,13 @@ pub struct ProgramRecord {
     /// 0 left, 1 right.
     pub hand: u8,
     pub style: u8,
-    pub _pad: [u8; 6],
+    /// 1 when a Stop at the start already succeeds.
+    pub starts_successful: u8,
+    pub _pad: u8,
+    pub target_geodesic: f32,
 }
+
+const _: () = assert!(std::mem::size_of::<ProgramRecord>() == 80);
 
 #[cfg(test)]
 mod tests {
@@ -158,6 +172,8 @@ mod tests {
             robot_pos: [-1.25, 0.0, 0.5],
             robot_yaw: 45.0,
             geodesic: 2.5,
+            target_geodesic: 3.1,
+            starts_successful: true,
             robot_human_distance: 1.7,
             gesture_accuracy: 0.6,
             hand: Hand::Left,

@@ -2,8 +2,8 @@
 //!
 //! Per program: a target category of the room's type and an instance of it that the robot can
 //! succeed at; a person pose from which the target is inside a 90° field of view and not
-//! occluded; a robot start that is reachable and not already successful; the geodesic
-//! distance; a referencing motion toward the target. Everything derives from the build seed
+//! occluded; a reachable robot start drawn as `starts` says (`dataset::starts`); its geodesic
+//! distances; a referencing motion toward the target. Everything derives from the build seed
 //! and (split, room, program number), and rooms are built in parallel but written in order,
 //! so the same seed gives the same bytes whatever the thread count.
 
@@ -17,6 +17,7 @@ use rand::seq::IndexedRandom;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::starts::{self, Starts};
 use super::{BuildParams, GondWriter, Manifest, SplitEntry, write_gond};
 use crate::camera::{Camera, Intrinsics};
 use crate::geometry::{angle_diff_deg, wrap_deg, yaw_of};
@@ -86,6 +87,10 @@ pub struct BuildOptions {
     pub splits: Vec<Split>,
     pub success_distance: f32,
     pub human_distance: [f32; 2],
+    /// How robot starts are drawn; `start_mean_geodesic` serves `dissertation`, `start_geodesic`
+    /// (from the success region) serves `far`.
+    pub starts: Starts,
+    pub start_mean_geodesic: f32,
     pub start_geodesic: [f32; 2],
     /// How cleanly the people point (recorded in the manifest; the synthesiser passed to
     /// [`build`] must match it).
@@ -102,6 +107,8 @@ impl Default for BuildOptions {
             splits: Split::ALL.to_vec(),
             success_distance: 1.0,
             human_distance: [1.0, 4.0],
+            starts: Starts::Dissertation,
+            start_mean_geodesic: starts::DISSERTATION_MEAN,
             start_geodesic: [0.5, 8.0],
             pointing: Pointing::Clean,
         }
@@ -251,36 +258,55 @@ pub fn make_program(
         let Some((human, human_yaw)) = person else { continue };
 
         physics.set_human(Some(human));
-        let (grid, _cells, field) = ctx.goal_field(physics, target, human);
-        // The robot: a reachable start at a varied geodesic distance, not already successful.
-        let starts: Vec<Cell> = grid
-            .free_cells()
-            .filter(|&c| {
-                let d = field.at_cell(c);
-                d.is_finite() && d >= opts.start_geodesic[0] && d <= opts.start_geodesic[1]
-            })
-            .collect();
-        let mut start = None;
-        for _ in 0..20 {
-            let Some(&c) = starts.choose(&mut rng) else { break };
-            let p = grid.point(c);
-            let yaw = rng.random_range(0..24) as f32 * 15.0;
-            let pose = crate::robot::RobotPose { x: p.x, z: p.y, yaw };
-            let near = (p - tc).norm() < ctx.success_distance;
-            let seen = visibility::visible(
-                physics,
-                &pose.camera(&ctx.env),
-                &ctx.k,
-                &t.points,
-                crate::scene::object_id(target),
-            );
-            if !(near && seen) {
-                start = Some((pose, field.at_cell(c)));
-                break;
+        let (grid, region, field) = ctx.goal_field(physics, target, human);
+        let to_centre = starts::target_field(&grid, &region, tc);
+        let seen_from = |pose: &crate::robot::RobotPose| {
+            visibility::visible(physics, &pose.camera(&ctx.env), &ctx.k, &t.points, crate::scene::object_id(target))
+        };
+        let start = match opts.starts {
+            // Weighted toward the target so that the expected distance to its centre is the
+            // dissertation's; a start where a Stop already succeeds is kept.
+            Starts::Dissertation => {
+                let cells: Vec<Cell> = grid.free_cells().filter(|&c| to_centre.at_cell(c).is_finite()).collect();
+                let d: Vec<f32> = cells.iter().map(|&c| to_centre.at_cell(c)).collect();
+                let weights = starts::tilt(&d, opts.start_mean_geodesic);
+                starts::draw(&weights, &mut rng).map(|i| {
+                    let p = grid.point(cells[i]);
+                    let yaw = rng.random_range(0..24) as f32 * 15.0;
+                    crate::robot::RobotPose { x: p.x, z: p.y, yaw }
+                })
             }
-        }
+            // Uniform over a band of distances from the success region, never already successful.
+            Starts::Far => {
+                let cells: Vec<Cell> = grid
+                    .free_cells()
+                    .filter(|&c| {
+                        let d = field.at_cell(c);
+                        d.is_finite() && d >= opts.start_geodesic[0] && d <= opts.start_geodesic[1]
+                    })
+                    .collect();
+                let mut start = None;
+                for _ in 0..20 {
+                    let Some(&c) = cells.choose(&mut rng) else { break };
+                    let p = grid.point(c);
+                    let yaw = rng.random_range(0..24) as f32 * 15.0;
+                    let pose = crate::robot::RobotPose { x: p.x, z: p.y, yaw };
+                    let near = (p - tc).norm() < ctx.success_distance;
+                    if !(near && seen_from(&pose)) {
+                        start = Some(pose);
+                        break;
+                    }
+                }
+                start
+            }
+        };
+        let start = start.map(|pose| {
+            let c = grid.cell_at(pose.xz()).expect("starts are grid points");
+            let successful = (pose.xz() - tc).norm() < ctx.success_distance && seen_from(&pose);
+            (pose, field.at_cell(c), to_centre.at_cell(c), successful)
+        });
         physics.set_human(None);
-        let Some((pose, geodesic)) = start else { continue };
+        let Some((pose, geodesic, target_geodesic, starts_successful)) = start else { continue };
 
         let target3 = t.center;
         let s = synth(seed, Point3::new(human.x, 0.0, human.y), human_yaw, target3);
@@ -298,6 +324,8 @@ pub fn make_program(
             robot_pos: [pose.x, 0.0, pose.z],
             robot_yaw: pose.yaw,
             geodesic,
+            target_geodesic,
+            starts_successful,
             robot_human_distance: (pose.xz() - human).norm(),
             gesture_accuracy: s.accuracy,
             hand: s.hand,
@@ -484,6 +512,8 @@ fn build_into(
             robot_radius: env.robot_radius,
             fov_deg: env.fov_deg,
             human_distance: opts.human_distance,
+            starts: opts.starts,
+            start_mean_geodesic: opts.start_mean_geodesic,
             start_geodesic: opts.start_geodesic,
             pointing: opts.pointing,
         },
@@ -505,9 +535,10 @@ fn build_into(
 }
 
 /// Re-checks a stored program against the simulator: the person sees the target, the robot
-/// start is free and reachable, not already successful, and the geodesic distance recomputes
-/// to the stored value. Returns the first violated constraint.
-pub fn verify_program(scene: &Scene, p: &Program, success_distance: f32) -> Result<(), String> {
+/// start is free and reachable (and, for `far` starts, not already successful), whether it is
+/// already successful and both geodesic distances recompute to the stored values. Returns the
+/// first violated constraint.
+pub fn verify_program(scene: &Scene, p: &Program, success_distance: f32, starts: Starts) -> Result<(), String> {
     let env = EnvConfig::default();
     let id = p.scene_id();
     let ctx = RoomContext::new(id, scene.clone(), &env, success_distance);
@@ -522,7 +553,7 @@ pub fn verify_program(scene: &Scene, p: &Program, success_distance: f32) -> Resu
     }
     let mut physics = Physics::new(&scene.parts(), ctx.physics.robot());
     physics.set_human(Some(p.human_xz()));
-    let (grid, _, field) = ctx.goal_field(&physics, p.target_object, p.human_xz());
+    let (grid, region, field) = ctx.goal_field(&physics, p.target_object, p.human_xz());
     let start = p.robot_start();
     let Some(c) = grid.cell_at(start.xz()) else { return Err("robot start outside the room".into()) };
     if !grid.is_free(c) || (grid.point(c) - start.xz()).norm() > 1e-4 {
@@ -539,10 +570,18 @@ pub fn verify_program(scene: &Scene, p: &Program, success_distance: f32) -> Resu
         return Err(format!("geodesic recomputes to {g}, stored {}", p.geodesic));
     }
     let t = &ctx.targets[&p.target_object];
-    let near = (start.xz() - Point2::new(t.center.x, t.center.z)).norm() < success_distance;
+    let tc = Point2::new(t.center.x, t.center.z);
+    let to_centre = starts::target_field(&grid, &region, tc).at_cell(c);
+    if (to_centre - p.target_geodesic).abs() > 1e-4 {
+        return Err(format!("geodesic to the target's centre recomputes to {to_centre}, stored {}", p.target_geodesic));
+    }
+    let near = (start.xz() - tc).norm() < success_distance;
     let seen =
         visibility::visible(&physics, &start.camera(&env), &ctx.k, &t.points, crate::scene::object_id(p.target_object));
-    if near && seen {
+    if (near && seen) != p.starts_successful {
+        return Err(format!("stored as starting successful: {}, recomputes to {}", p.starts_successful, near && seen));
+    }
+    if near && seen && starts == Starts::Far {
         return Err("robot starts already successful".into());
     }
     let yaw_err = angle_diff_deg(p.human_yaw, yaw_of(Vector2::new(t.center.x, t.center.z) - p.human_xz().coords)).abs();
@@ -582,11 +621,41 @@ mod tests {
         assert_eq!(progs.len(), 60);
         for p in &progs {
             let scene = ds.scene(p.scene_id()).unwrap();
-            verify_program(&scene, p, 1.0).unwrap_or_else(|e| panic!("program {} in {}: {e}", p.id, p.scene));
+            verify_program(&scene, p, 1.0, ds.manifest.build.starts)
+                .unwrap_or_else(|e| panic!("program {} in {}: {e}", p.id, p.scene));
             assert_eq!(ds.program(Split::Val, p.id as usize).as_ref(), Some(p));
             assert_eq!(p.instances as usize, scene.instances(p.target).count());
         }
         assert_eq!(ds.interventions().len(), 20);
+    }
+
+    /// §3.3.2: the default starts average the dissertation's 1.52 m to the target's centre
+    /// (each draw has that expectation; 200 programs leave a sampling error of about 0.07 m),
+    /// some already successful; `far` starts (the harder benchmark) are about twice as far and
+    /// never successful, and both kinds satisfy their constraints.
+    #[test]
+    fn starts_average_the_distance_they_are_built_for() {
+        let mean = |s: Starts| {
+            let d = tempfile::tempdir().unwrap();
+            let opts = BuildOptions { starts: s, val_per_room: 10, ..small(vec![Split::Val]) };
+            build(d.path(), &opts, false, &test_synth, &interventions(), &|_, _, _| {}).unwrap();
+            let ds = Dataset::open(d.path(), Verify::Full).unwrap();
+            assert_eq!(ds.manifest.build.starts, s);
+            let progs = ds.index(Split::Val).unwrap();
+            for p in progs.iter().step_by(7) {
+                let scene = ds.scene(p.scene_id()).unwrap();
+                verify_program(&scene, p, 1.0, s).unwrap_or_else(|e| panic!("program {} in {}: {e}", p.id, p.scene));
+            }
+            let n = progs.len() as f64;
+            let successful = progs.iter().filter(|p| p.starts_successful).count();
+            (progs.iter().map(|p| p.target_geodesic as f64).sum::<f64>() / n, successful)
+        };
+        let (near, successful) = mean(Starts::Dissertation);
+        assert!((near - starts::DISSERTATION_MEAN as f64).abs() < 0.2, "mean {near:.2} m");
+        assert!(successful > 0, "no start is already successful");
+        let (far, successful) = mean(Starts::Far);
+        assert!(far > 2.5, "far starts average {far:.2} m");
+        assert_eq!(successful, 0);
     }
 
     #[test]

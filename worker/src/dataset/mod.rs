@@ -17,6 +17,7 @@
 //! dataset is one error naming the file and what is wrong, never a panic later.
 
 pub mod build;
+pub mod starts;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -29,7 +30,9 @@ use crate::program::{Program, ProgramRecord};
 use crate::scene::{Scene, SceneId, Split};
 
 pub const FORMAT: &str = "gesthor-gond";
-pub const VERSION: u32 = 1;
+/// 2: records carry the start's geodesic distance to the target's centre and whether it is
+/// already successful (in what was padding), and the manifest how starts were drawn.
+pub const VERSION: u32 = 2;
 pub const FRAMES: usize = 100;
 pub const DIMS: usize = 95;
 /// Values in one motion.
@@ -65,7 +68,13 @@ pub struct BuildParams {
     pub fov_deg: f32,
     /// Person stands this far from the target (metres, 2D).
     pub human_distance: [f32; 2],
-    /// Robot starts this far (geodesic) from the success region.
+    /// How robot starts were drawn (`dataset::starts`; manifests before this field: far).
+    #[serde(default = "starts::Starts::before_option")]
+    pub starts: starts::Starts,
+    /// `dissertation` starts: the mean geodesic distance start → target's centre asked for.
+    #[serde(default)]
+    pub start_mean_geodesic: f32,
+    /// `far` starts: this far (geodesic) from the success region.
     pub start_geodesic: [f32; 2],
     /// How cleanly the people point (datasets from before this field: clean).
     #[serde(default)]
