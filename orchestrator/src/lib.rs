@@ -13,6 +13,7 @@ pub mod binaries;
 pub mod child;
 pub mod cli_values;
 pub mod crew;
+#[path = "commands/dataset.rs"]
 pub mod dataset_cmd;
 pub mod encoder_cmd;
 pub mod encoder_frames;
@@ -27,8 +28,11 @@ pub mod remote;
 pub mod render_cmd;
 pub mod run_dir;
 pub mod soak;
+#[path = "commands/study/mod.rs"]
 pub mod study;
+#[path = "commands/study/summary.rs"]
 pub mod study_report;
+#[path = "commands/study/ablations.rs"]
 pub mod study_tables;
 pub mod tables;
 pub mod trajectory;
