@@ -165,7 +165,7 @@ impl Run {
 
     pub fn run_id(&self) -> String {
         let text = std::fs::read_to_string(self.dir.join("run.json")).expect("run.json");
-        let info: orchestrator::run_dir::RunInfo = serde_json::from_str(&text).unwrap();
+        let info: orchestrator::supervise::run_dir::RunInfo = serde_json::from_str(&text).unwrap();
         info.run_id
     }
 

@@ -16,8 +16,8 @@ use farm::config::RunConfig;
 use farm::process;
 use farm::profile::Profile;
 
-use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
-use crate::launch;
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
+use crate::supervise::launch;
 use crate::up;
 
 #[derive(Args, Debug)]
@@ -166,7 +166,7 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     launch::resolve_dataset(&mut cfg, false)?;
     launch::resolve_encoder(&mut cfg)?;
     launch::sweep_dead_runs();
-    let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-train"));
+    let out = a.out.clone().unwrap_or_else(|| crate::supervise::run_dir::default_path("bench-train"));
     let (p, wall) = train(&a, &cfg, &out)?;
     let metrics: Vec<serde_json::Value> = farm::files::read_jsonl(&out.join("run/metrics.jsonl")).unwrap_or_default();
     let mut profile = p.profile.unwrap_or_default();

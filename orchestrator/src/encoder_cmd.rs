@@ -85,7 +85,7 @@ fn scene_source(a: &PretrainArgs) -> anyhow::Result<Box<dyn Fn(SceneId) -> anyho
 }
 
 fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
-    let learner = crate::binaries::sibling_in(a.bin_dir.as_deref(), "learner")?;
+    let learner = crate::supervise::binaries::sibling_in(a.bin_dir.as_deref(), "learner")?;
     let scene_of = scene_source(&a)?;
     let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: threads.max(1) };

@@ -21,8 +21,8 @@ use farm::metrics::{EpisodeResult, scores};
 use worker::program::Program;
 use worker::scene::Split;
 
-use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg};
-use crate::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg};
+use crate::supervise::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
 use crate::progress::Bar;
 use crate::tables::{EvalMode, Evaluation, compare};
 

@@ -25,7 +25,7 @@ use nix::unistd::Pid;
 use rand::Rng;
 use serde::Serialize;
 
-use crate::run_dir;
+use crate::supervise::run_dir;
 
 #[derive(Args, Debug)]
 pub struct SoakArgs {

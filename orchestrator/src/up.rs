@@ -8,10 +8,10 @@ use clap::Args;
 use farm::config::RunConfig;
 use farm::process;
 
-use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
-use crate::launch::{prepare_run, resolve_dataset, resolve_encoder, sweep_dead_runs};
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
+use crate::supervise::launch::{prepare_run, resolve_dataset, resolve_encoder, sweep_dead_runs};
 use crate::progress::Bar;
-use crate::run_dir;
+use crate::supervise::run_dir;
 
 /// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.
 pub const DEFAULT_CONFIG: &str = include_str!("../../configs/tiny/both.toml");

@@ -12,7 +12,7 @@ use clap::Args;
 use farm::config::RunConfig;
 use farm::process;
 
-use crate::crew::{Crew, CrewSpec, CrewState, HostSlots, PolicyArg};
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, HostSlots, PolicyArg};
 use crate::remote::{self, Codec, HostBridge, HostOptions};
 
 #[derive(Args, Debug)]
@@ -64,7 +64,7 @@ pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {
         .or_else(|| std::env::var("GESTHOR_SECRET").ok())
         .context("--secret: the run's secret is needed (or $GESTHOR_SECRET); `up --listen` printed it")?;
     // Shared memory of earlier hosts on this machine that were killed.
-    crate::launch::sweep_dead_runs();
+    crate::supervise::launch::sweep_dead_runs();
     let session = remote::session(&[], std::slice::from_ref(&a.connect))?;
     let host = remote::hostname();
     let asked = Instant::now();

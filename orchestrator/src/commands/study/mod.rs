@@ -29,7 +29,7 @@ use farm::config::{Method, RunConfig};
 use farm::rooms::{SceneId, SceneType, Split};
 use nix::sys::signal::Signal;
 
-use crate::child;
+use crate::supervise::child;
 use crate::study_report::{self, METHODS, RunResult, StudyMethod};
 
 #[derive(Args, Debug, Clone)]
