@@ -15,7 +15,7 @@ use worker::dataset::{Dataset, Verify};
 use worker::scene::Scene;
 
 use crate::encoder_frames::{FrameOptions, render_set};
-use crate::progress::Bar;
+use crate::report::progress::Bar;
 
 #[derive(Subcommand, Debug)]
 pub enum EncoderCmd {

@@ -23,8 +23,8 @@ use worker::scene::Split;
 
 use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg};
 use crate::supervise::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
-use crate::progress::Bar;
-use crate::tables::{EvalMode, Evaluation, compare};
+use crate::report::progress::Bar;
+use crate::report::tables::{EvalMode, Evaluation, compare};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
@@ -335,7 +335,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     farm::files::write_atomic(&out.join("tables.md"), md.as_bytes())?;
     farm::files::write_atomic(&out.join("tables.csv"), evaluation.csv().as_bytes())?;
     let maps = if a.trajectories > 0 {
-        crate::trajectory::draw(&cfg, &ds, split, &evaluation, checkpoint.as_deref(), &out, a.trajectories)?
+        crate::report::trajectory::draw(&cfg, &ds, split, &evaluation, checkpoint.as_deref(), &out, a.trajectories)?
     } else {
         Vec::new()
     };

@@ -15,12 +15,9 @@ pub mod dataset_cmd;
 pub mod encoder_cmd;
 pub mod encoder_frames;
 pub mod eval;
-pub mod fonts;
-pub mod map;
-pub mod plot;
 pub mod program_cmd;
-pub mod progress;
 pub mod remote;
+pub mod report;
 pub mod render_cmd;
 pub mod soak;
 #[path = "commands/study/mod.rs"]
@@ -30,7 +27,5 @@ pub mod study_report;
 #[path = "commands/study/ablations.rs"]
 pub mod study_tables;
 pub mod supervise;
-pub mod tables;
-pub mod trajectory;
 pub mod up;
 pub mod workers_cmd;

@@ -10,7 +10,7 @@ use farm::process;
 
 use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
 use crate::supervise::launch::{prepare_run, resolve_dataset, resolve_encoder, sweep_dead_runs};
-use crate::progress::Bar;
+use crate::report::progress::Bar;
 use crate::supervise::run_dir;
 
 /// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.

@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use farm::rooms::SceneType;
 
 use crate::study_report::{RunResult, mean_std, method};
-use crate::tables::{TableRow, find, read_rows};
+use crate::report::tables::{TableRow, find, read_rows};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Fold {

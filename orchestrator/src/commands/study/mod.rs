@@ -400,7 +400,7 @@ impl Eval<'_> {
 
     /// Its tables are there, with a row of every pass.
     fn complete(&self) -> bool {
-        crate::tables::read_rows(&self.out.join("tables.csv"))
+        crate::report::tables::read_rows(&self.out.join("tables.csv"))
             .is_ok_and(|rows| self.modes.iter().all(|m| rows.iter().any(|r| r.mode == *m)))
     }
 

@@ -9,7 +9,7 @@ use farm::config::Method;
 use farm::rooms::SceneType;
 use serde::Serialize;
 
-use crate::tables::{TableRow, find, read_rows};
+use crate::report::tables::{TableRow, find, read_rows};
 
 /// A model the study trains or evaluates, by config file stem: T4.2's methods, then T4.7's
 /// variants of +Both that see one visual input (+Both itself is T4.7's RGB-D row).
@@ -180,7 +180,7 @@ fn summary(results: &[RunResult], stem: &str) -> Option<Summary> {
 /// Success on training episodes against frames, per method: the mean over the seeds' runs
 /// (update by update; every seed makes the same updates) of a 10-update moving mean, in %.
 /// `runs` are (stem, run directory) of the runs trained in every training room.
-pub fn learning_curves(runs: &[(String, PathBuf)]) -> anyhow::Result<Vec<crate::plot::Series>> {
+pub fn learning_curves(runs: &[(String, PathBuf)]) -> anyhow::Result<Vec<crate::report::plot::Series>> {
     #[derive(serde::Deserialize)]
     struct Row {
         frames: f64,
@@ -214,7 +214,7 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)]) -> a
         METHODS.into_iter().filter_map(|m| summary(results, m.stem).map(|s| (m, s))).collect();
     let groups: Vec<(String, Vec<(f64, f64)>)> =
         summaries.iter().map(|(m, s)| (m.label.to_string(), vec![s.sr, s.spl])).collect();
-    crate::plot::grouped_bars(
+    crate::report::plot::grouped_bars(
         &out.join("sr_spl.png"),
         "Test, first stop: mean ± std over seeds",
         "%",
@@ -223,7 +223,7 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)]) -> a
     )?;
     let curves = learning_curves(runs)?;
     if !curves.is_empty() {
-        crate::plot::lines(
+        crate::report::plot::lines(
             &out.join("learning_curves.png"),
             "Success on training episodes (10-update mean, mean over seeds)",
             "frames",
