@@ -258,7 +258,7 @@ impl Drop for Run {
     }
 }
 
-pub use orchestrator::soak::processes_mentioning;
+pub use orchestrator::commands::soak::processes_mentioning;
 
 /// Files the run left in `/dev/shm` (and iceoryx2's folder).
 pub fn shm_leftovers(run_id: &str) -> Vec<PathBuf> {

@@ -100,7 +100,7 @@ pub struct TopDownMap {
 }
 
 fn font() -> &'static str {
-    crate::report::fonts::ensure()
+    super::fonts::ensure()
 }
 
 /// Linear RGB 0..1 → a display colour (the renderer's gamma 2.2).

@@ -1,8 +1,8 @@
 //! The study (§4.4.1, T4.2–T4.7): every method of a config folder that learns, trained with N
 //! seeds for F frames each; each run's checkpoints evaluated on val and the best by SR at the
 //! first stop evaluated on test (normally and blind) and on train; Random evaluated on test with
-//! the same seeds. `crate::study_report` and `crate::study_tables` put the dissertation's
-//! figures beside ours (mean ± std over the seeds).
+//! the same seeds. `summary` and `ablations` put the dissertation's figures beside ours (mean ±
+//! std over the seeds).
 //!
 //! Every step is a child `orchestrator up` or `orchestrator eval` writing into the study folder,
 //! and a step whose output is complete is never run again: killed at any point, the same
@@ -19,6 +19,9 @@
 //! OUT/T4.2.md … T4.7.md, .csv, study.json, sr_spl.png, learning_curves.png
 //! ```
 
+pub mod ablations;
+pub mod summary;
+
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -30,7 +33,7 @@ use farm::rooms::{SceneId, SceneType, Split};
 use nix::sys::signal::Signal;
 
 use crate::supervise::child;
-use crate::study_report::{self, METHODS, RunResult, StudyMethod};
+use summary::{METHODS, RunResult, StudyMethod};
 
 #[derive(Args, Debug, Clone)]
 pub struct StudyArgs {
@@ -54,7 +57,7 @@ pub struct StudyArgs {
     /// rooms only, as the dissertation does for T4.3/T4.4 (12 more runs per seed).
     #[arg(long)]
     pub per_scene_type: bool,
-    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
+    #[arg(long, default_value_t = 4, value_parser = crate::commands::values::workers)]
     pub workers: usize,
     /// Checkpoints per run to choose from on val (evenly spaced; the last one always).
     #[arg(long, default_value_t = 5)]
@@ -136,7 +139,7 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
     anyhow::ensure!(a.checkpoints > 0, "--checkpoints: at least one");
     for m in &a.methods {
         anyhow::ensure!(
-            study_report::method(m).is_some(),
+            summary::method(m).is_some(),
             "--methods: `{m}` is not one of {}",
             METHODS.map(|m| m.stem).join(", ")
         );
@@ -510,7 +513,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             };
             ran |= e.run(a.workers)?;
             work += e.work();
-            let sr1 = study_report::first_stop(&e.out.join("tables.csv"))?.sr;
+            let sr1 = summary::first_stop(&e.out.join("tables.csv"))?.sr;
             if best.as_ref().is_none_or(|(b, _)| sr1 >= *b) {
                 best = Some((sr1, ckpt));
             }
@@ -575,8 +578,8 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
     progress.finish();
     let curves: Vec<(String, PathBuf)> =
         runs.iter().filter(|r| r.scene_type.is_none()).map(|r| (r.method.stem.to_string(), r.dir.clone())).collect();
-    study_report::write(&a.out, &results, &curves)?;
-    crate::study_tables::write(&a.out, &results)?;
+    summary::write(&a.out, &results, &curves)?;
+    ablations::write(&a.out, &results)?;
     eprintln!("[study] tables in {}", a.out.join("T4.2.md").display());
     Ok(())
 }

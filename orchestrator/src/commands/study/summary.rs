@@ -1,6 +1,6 @@
 //! The study's main table: T4.2 (SR, SPL, DTS at the first stop on test, mean ± std over seeds)
 //! beside the dissertation's figures, which of T4.2's orderings hold on our test split, and the
-//! figures beside it; the ablation tables T4.3–T4.7 are `crate::study_tables`.
+//! figures beside it; the ablation tables T4.3–T4.7 are in `ablations`.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

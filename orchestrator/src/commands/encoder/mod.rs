@@ -1,6 +1,8 @@
 //! `orchestrator encoder pretrain`: renders labelled RGB-D frames from the training rooms
-//! (`encoder_frames`), writes them as one frame-set file (`farm::frame_set`), then runs
+//! (`frames`), writes them as one frame-set file (`farm::frame_set`), then runs
 //! `learner pretrain-encoder` on it, which writes `OUT.safetensors` and `OUT.json`.
+
+pub mod frames;
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -14,8 +16,8 @@ use farm::rooms::SceneId;
 use worker::dataset::{Dataset, Verify};
 use worker::scene::Scene;
 
-use crate::encoder_frames::{FrameOptions, render_set};
 use crate::report::progress::Bar;
+use frames::{FrameOptions, render_set};
 
 #[derive(Subcommand, Debug)]
 pub enum EncoderCmd {

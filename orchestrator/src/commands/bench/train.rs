@@ -16,9 +16,9 @@ use farm::config::RunConfig;
 use farm::process;
 use farm::profile::Profile;
 
+use crate::commands::up;
 use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
 use crate::supervise::launch;
-use crate::up;
 
 #[derive(Args, Debug)]
 pub struct BenchTrainArgs {
@@ -26,7 +26,7 @@ pub struct BenchTrainArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Worker processes.
-    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
+    #[arg(long, default_value_t = 4, value_parser = crate::commands::values::workers)]
     pub workers: usize,
     /// Frames to train for (the run stops at the first update boundary past it).
     #[arg(long, default_value_t = 50_000)]
