@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Structural checks of the GesTHOR-RS workspace (Python 3.11, standard library only).
 
-    python3 scripts/check_structure.py [--root DIR]      # both checks; exit 1 on a violation
+    python3 scripts/check_structure.py [--root DIR]      # every check; exit 1 on a violation
     python3 scripts/check_structure.py --graph CRATE     # the crate's file dependency edges
     python3 scripts/check_structure.py --sizes           # non-test line counts, files over 400 lines
     python3 scripts/check_structure.py --self-test       # the script's own tests, on mini-crates
@@ -28,12 +28,17 @@ Rule 1: no import cycle between the source files of a crate.
     Every strongly connected component of more than one file is reported, with one example of
     what causes each edge inside it.
 
-Rule 2: no source file over 700 non-test lines, except the data tables in SIZE_ALLOWLIST.
+Rule 2: no source file over 700 non-test lines (500 under a folder of MAX_LINES_UNDER, such as
+    orchestrator/src/), except the data tables in SIZE_ALLOWLIST.
     Non-test lines = lines of the file, minus lines of `#[cfg(test)]` items, minus blank lines
     and comment-only lines. Every .rs file under a member's directory is counted (integration
     tests and benches included); a file that is itself a `#[cfg(test)] mod x;` counts 0.
 
-Test code is ignored by both rules: every item under `#[cfg(test)]` (or `#[cfg(all(test, ..))]`):
+Rule 3: under a folder of MAX_FILES_UNDER (orchestrator/src), no folder holds more than 12 .rs
+    files of its own (mod.rs included; files in its subfolders count for those): a role whose
+    files outgrow that becomes a folder of its own.
+
+Test code is ignored by rules 1 and 2: every item under `#[cfg(test)]` (or `#[cfg(all(test, ..))]`):
 `#[cfg(test)] mod tests { .. }`, the files of `#[cfg(test)] mod tests;` (and their submodules),
 a `#[cfg(test)]` fn, impl, const or use, also one inside a fn body. Test code may look
 anywhere. (`#[test]` functions outside such a module are not test code for this script.)
@@ -65,6 +70,17 @@ from pathlib import Path
 
 MAX_LINES = 700
 SIZES_OVER = 400
+
+# Stricter size limits: a folder (relative to the workspace root) -> most non-test lines of each
+# .rs file under it. The longest matching folder wins.
+MAX_LINES_UNDER: dict[str, int] = {
+    'orchestrator/src': 500,
+}
+
+# Folders whose every folder (itself and each below it) holds at most this many .rs files.
+MAX_FILES_UNDER: dict[str, int] = {
+    'orchestrator/src': 12,
+}
 
 # Files allowed over MAX_LINES: data tables only. Path relative to the workspace root -> a
 # one-line reason, e.g.  "worker/src/scene/catalog.rs": "object catalogue: one row per category",
@@ -1023,6 +1039,29 @@ def line_counts(an: Analyzer, p: Path) -> tuple[int, int]:
     return total, len(code)
 
 
+def line_limit(rel: str) -> int:
+    """The most non-test lines the file at `rel` (relative to the workspace root) may hold."""
+    under = [d for d in MAX_LINES_UNDER if rel.startswith(d.rstrip('/') + '/')]
+    return MAX_LINES_UNDER[max(under, key=len)] if under else MAX_LINES
+
+
+def crowded_folders(root: Path) -> list[tuple[str, int, int]]:
+    """(folder, .rs files in it, limit) for each folder over its MAX_FILES_UNDER limit."""
+    out = []
+    for top, limit in sorted(MAX_FILES_UNDER.items()):
+        for dirpath, dirnames, filenames in os.walk(root / top):
+            dirnames[:] = sorted(x for x in dirnames if not x.startswith('.') and x != 'target')
+            n = sum(1 for f in filenames if f.endswith('.rs'))
+            if n > limit:
+                out.append((Path(dirpath).relative_to(root).as_posix(), n, limit))
+    return out
+
+
+def limits_text() -> str:
+    stricter = ''.join(f'; {n} under {d.rstrip("/")}/' for d, n in sorted(MAX_LINES_UNDER.items()))
+    return f'{MAX_LINES}{stricter}'
+
+
 def analyze(root: Path) -> Analyzer:
     an = Analyzer(root)
     an.discover()
@@ -1073,9 +1112,9 @@ def run_checks(root: Path, out=sys.stdout) -> int:
         for p in package_files(an, pkg):
             rel = an.rel(p)
             total, nt = line_counts(an, p)
-            if nt > MAX_LINES and rel not in SIZE_ALLOWLIST:
+            if nt > line_limit(rel) and rel not in SIZE_ALLOWLIST:
                 big.append((rel, nt, total))
-            elif rel in SIZE_ALLOWLIST and nt <= MAX_LINES:
+            elif rel in SIZE_ALLOWLIST and nt <= line_limit(rel):
                 stale.append((rel, nt))
     for rel in SIZE_ALLOWLIST:
         if not (an.root / rel).is_file():
@@ -1091,16 +1130,23 @@ def run_checks(root: Path, out=sys.stdout) -> int:
             for line in lines:
                 w(f'    {line}\n')
     if big:
-        w(f'files over {MAX_LINES} non-test lines ({len(big)}):\n')
+        w(f'files over their limit of non-test lines ({len(big)}):\n')
         for rel, nt, total in sorted(big, key=lambda x: -x[1]):
-            w(f'  {rel}: {nt} non-test lines ({total} in all)\n')
+            w(f'  {rel}: {nt} non-test lines ({total} in all; limit {line_limit(rel)})\n')
+    crowded = crowded_folders(an.root)
+    if crowded:
+        w(f'folders over their limit of source files ({len(crowded)}):\n')
+        for rel, n, limit in crowded:
+            w(f'  {rel}/: {n} .rs files (limit {limit})\n')
     for rel, nt in stale:
         w(f'note: SIZE_ALLOWLIST entry {rel} is {"missing" if nt is None else f"at {nt} lines, under the limit"}; remove it\n')
-    if cycles or big:
-        w(f'FAIL: {len(cycles)} import cycle(s), {len(big)} file(s) over {MAX_LINES} non-test lines\n')
+    if cycles or big or crowded:
+        w(f'FAIL: {len(cycles)} import cycle(s), {len(big)} file(s) over their non-test line limit '
+          f'({limits_text()}), {len(crowded)} folder(s) over their file limit\n')
         return 1
+    folders = ', '.join(f'{n} .rs files per folder under {d}/' for d, n in sorted(MAX_FILES_UNDER.items()))
     w(f'ok: {len(an.packages)} crates, {n_files} files, no import cycles, '
-      f'no file over {MAX_LINES} non-test lines\n')
+      f'no file over its non-test line limit ({limits_text()}), at most {folders}\n')
     return 0
 
 
@@ -1127,9 +1173,9 @@ def print_sizes(root: Path, out=sys.stdout) -> int:
             total, nt = line_counts(an, p)
             if total > SIZES_OVER:
                 rows.append((nt, total, an.rel(p)))
-    out.write(f'{"non-test":>8} {"total":>6}  file (files over {SIZES_OVER} lines; limit {MAX_LINES} non-test)\n')
+    out.write(f'{"non-test":>8} {"total":>6}  file (files over {SIZES_OVER} lines; non-test limit {limits_text()})\n')
     for nt, total, rel in sorted(rows, reverse=True):
-        flag = '  OVER' if nt > MAX_LINES and rel not in SIZE_ALLOWLIST else (
+        flag = '  OVER' if nt > line_limit(rel) and rel not in SIZE_ALLOWLIST else (
             '  allowlisted' if rel in SIZE_ALLOWLIST else '')
         out.write(f'{nt:>8} {total:>6}  {rel}{flag}\n')
     return 0
@@ -1257,7 +1303,28 @@ def self_test() -> int:
               rc == 1 and f'sz/src/big.rs: {MAX_LINES + 1} non-test lines' in buf.getvalue()
               and 'ok.rs' not in buf.getvalue(), buf.getvalue())
 
-        # 6. Clean workspace summary.
+        # 6. A stricter folder: 500 non-test lines per file and 12 .rs files per folder under
+        #    orchestrator/src (the limits of MAX_LINES_UNDER and MAX_FILES_UNDER).
+        ws = base / 'strict'
+        lim = line_limit('orchestrator/src/x.rs')
+        over = ''.join(f'pub const C{k}: u32 = {k};\n' for k in range(lim + 1))
+        at = ''.join(f'pub const C{k}: u32 = {k};\n' for k in range(lim))
+        many = {f'src/many/m{k}.rs': '' for k in range(MAX_FILES_UNDER['orchestrator/src'])}
+        enough = {f'src/enough/e{k}.rs': '' for k in range(MAX_FILES_UNDER['orchestrator/src'] - 1)}
+        _workspace(ws, {'orchestrator': {
+            'src/lib.rs': 'mod over;\nmod at;\nmod many;\nmod enough;\n', 'src/over.rs': over, 'src/at.rs': at,
+            'src/many/mod.rs': '', **many, 'src/enough/mod.rs': '', **enough,
+        }})
+        buf = io.StringIO()
+        rc = run_checks(ws, buf)
+        text = buf.getvalue()
+        check('a stricter folder: its line limit and its file limit per folder',
+              rc == 1 and lim < MAX_LINES and f'orchestrator/src/over.rs: {lim + 1} non-test lines' in text
+              and 'at.rs' not in text
+              and f'orchestrator/src/many/: {MAX_FILES_UNDER["orchestrator/src"] + 1} .rs files' in text
+              and 'enough' not in text and 'orchestrator/src/:' not in text, text)
+
+        # 7. Clean workspace summary.
         ws = base / 'clean'
         _workspace(ws, {'cl': {'src/lib.rs': 'pub mod a;\n', 'src/a.rs': 'pub fn f() {}\n'}})
         buf = io.StringIO()

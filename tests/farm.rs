@@ -204,13 +204,14 @@ fn a_bit_flipped_dataset_is_refused_before_the_run() {
             std::fs::copy(e.path(), copy.join(rel)).unwrap();
         }
     }
-    orchestrator::launch::verify_dataset(&copy).unwrap();
+    orchestrator::supervise::launch::verify_dataset(&copy).unwrap();
     let val = copy.join("val.gond");
     let mut bytes = std::fs::read(&val).unwrap();
     let k = bytes.len() * 2 / 3;
     bytes[k] ^= 0x10;
     std::fs::write(&val, &bytes).unwrap();
-    let err = format!("{:#}", orchestrator::launch::verify_dataset(&copy).err().expect("a flipped bit is found"));
+    let err =
+        format!("{:#}", orchestrator::supervise::launch::verify_dataset(&copy).err().expect("a flipped bit is found"));
     assert!(err.contains("val.gond") && err.contains("corrupted"), "{err}");
     let out_dir = tmp.path().join("eval");
     let out = std::process::Command::new(bin("orchestrator"))
@@ -391,14 +392,15 @@ fn python_reads_one_frame_of_a_live_run() {
 /// and `episodes.jsonl` holds each program exactly once.
 #[test]
 fn evaluation_runs_each_assigned_program_once_and_ends_by_itself() {
-    use orchestrator::crew::{Crew, CrewSpec, PolicyArg};
+    use orchestrator::supervise::crew::{Crew, CrewSpec, PolicyArg};
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
     let cfg_path = tiny_config(tmp.path(), 2);
     let mut cfg = farm::config::RunConfig::load(&cfg_path).unwrap();
-    orchestrator::launch::resolve_dataset(&mut cfg, false).unwrap();
+    orchestrator::supervise::launch::resolve_dataset(&mut cfg, false).unwrap();
     let (dir, config_path) =
-        orchestrator::launch::prepare_run(&tmp.path().join("eval"), &cfg, false, 2, PolicyArg::Expert).unwrap();
+        orchestrator::supervise::launch::prepare_run(&tmp.path().join("eval"), &cfg, false, 2, PolicyArg::Expert)
+            .unwrap();
     let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg, 2, PolicyArg::Expert);
     spec.bin_dir = Some(bin_dir());
     spec.programs = Some(vec![vec![0, 1, 2], vec![3, 4]]);

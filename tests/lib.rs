@@ -165,7 +165,7 @@ impl Run {
 
     pub fn run_id(&self) -> String {
         let text = std::fs::read_to_string(self.dir.join("run.json")).expect("run.json");
-        let info: orchestrator::run_dir::RunInfo = serde_json::from_str(&text).unwrap();
+        let info: orchestrator::supervise::run_dir::RunInfo = serde_json::from_str(&text).unwrap();
         info.run_id
     }
 
@@ -258,7 +258,7 @@ impl Drop for Run {
     }
 }
 
-pub use orchestrator::soak::processes_mentioning;
+pub use orchestrator::commands::soak::processes_mentioning;
 
 /// Files the run left in `/dev/shm` (and iceoryx2's folder).
 pub fn shm_leftovers(run_id: &str) -> Vec<PathBuf> {

@@ -2,35 +2,11 @@
 //! directories, process supervision and the farm (learner + workers), testable apart from the
 //! CLI in `main.rs`.
 //!
-//! A new subcommand is one module here (`pub mod eval;`) and one variant in `main.rs`.
+//! A folder per job: `commands` (one module per subcommand), `supervise` (the processes of a
+//! run), `report` (tables, charts, maps, progress), `remote` (worker hosts over Zenoh). A new
+//! subcommand is one module in `commands` and one variant in `main.rs`.
 
-pub mod bench;
-pub mod bench_farm;
-pub mod bench_remote;
-pub mod bench_sim;
-pub mod bench_train;
-pub mod binaries;
-pub mod child;
-pub mod cli_values;
-pub mod crew;
-pub mod dataset_cmd;
-pub mod encoder_cmd;
-pub mod encoder_frames;
-pub mod eval;
-pub mod fonts;
-pub mod launch;
-pub mod map;
-pub mod plot;
-pub mod program_cmd;
-pub mod progress;
+pub mod commands;
 pub mod remote;
-pub mod render_cmd;
-pub mod run_dir;
-pub mod soak;
-pub mod study;
-pub mod study_report;
-pub mod study_tables;
-pub mod tables;
-pub mod trajectory;
-pub mod up;
-pub mod workers_cmd;
+pub mod report;
+pub mod supervise;

@@ -1,11 +1,11 @@
 //! `orchestrator`: the command line of GesTHOR-RS. Each subcommand is one variant here and one
-//! module of the library; this file only parses and dispatches.
+//! module of the library's `commands`; this file only parses and dispatches.
 
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use orchestrator::{bench, dataset_cmd, encoder_cmd, eval, program_cmd, render_cmd, soak, study, up, workers_cmd};
+use orchestrator::commands::{bench, dataset, encoder, eval, program, render, soak, study, up, workers};
 
 #[derive(Parser)]
 #[command(
@@ -22,21 +22,21 @@ struct Cli {
 enum Command {
     /// Build GOND or draw its statistics.
     #[command(subcommand)]
-    Dataset(dataset_cmd::DatasetCmd),
+    Dataset(dataset::DatasetCmd),
     /// Render what the robot sees in a room, and a top-down map.
-    Render(render_cmd::RenderArgs),
+    Render(render::RenderArgs),
     /// Export a program in the original recorder's folder layout.
     #[command(subcommand)]
-    Program(program_cmd::ProgramCmd),
+    Program(program::ProgramCmd),
     /// Render the person performing a program's gesture (robot view and from above, PNG + GIF).
-    Replay(program_cmd::ReplayArgs),
+    Replay(program::ReplayArgs),
     /// Start a run: the learner and N worker processes, supervised; Ctrl-C stops it cleanly.
     Up(up::UpArgs),
     /// Evaluate a checkpoint (or the Random baseline) on a split: the tables of chapter 4.
     Eval(eval::EvalArgs),
     /// The frozen visual encoder for CPU runs: render labelled frames, pretrain.
     #[command(subcommand)]
-    Encoder(encoder_cmd::EncoderCmd),
+    Encoder(encoder::EncoderCmd),
     /// Throughput benchmarks.
     #[command(subcommand)]
     Bench(bench::BenchCmd),
@@ -47,7 +47,7 @@ enum Command {
     /// checks that no checkpoint, sample or file is lost or left.
     Soak(soak::SoakArgs),
     /// Run workers here for a run whose learner is on another machine (`up --listen`).
-    Workers(workers_cmd::WorkersArgs),
+    Workers(workers::WorkersArgs),
 }
 
 fn main() -> ExitCode {
@@ -61,17 +61,17 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Dataset(c) => dataset_cmd::run(c).map(|_| 0),
-        Command::Render(a) => render_cmd::run(a).map(|_| 0),
-        Command::Program(c) => program_cmd::run(c).map(|_| 0),
-        Command::Replay(a) => program_cmd::replay(a).map(|_| 0),
+        Command::Dataset(c) => dataset::run(c).map(|_| 0),
+        Command::Render(a) => render::run(a).map(|_| 0),
+        Command::Program(c) => program::run(c).map(|_| 0),
+        Command::Replay(a) => program::replay(a).map(|_| 0),
         Command::Up(a) => up::run(a),
         Command::Eval(a) => eval::run(a).map(|_| 0),
-        Command::Encoder(c) => encoder_cmd::run(c).map(|_| 0),
+        Command::Encoder(c) => encoder::run(c).map(|_| 0),
         Command::Bench(c) => bench::run(c).map(|_| 0),
         Command::Study(a) => study::run(a).map(|_| 0),
         Command::Soak(a) => soak::run(a),
-        Command::Workers(a) => workers_cmd::run(a),
+        Command::Workers(a) => workers::run(a),
     };
     match result {
         Ok(code) => ExitCode::from(code.clamp(0, 255) as u8),

@@ -12,8 +12,8 @@ use clap::Args;
 use farm::config::RunConfig;
 use farm::process;
 
-use crate::crew::{Crew, CrewSpec, CrewState, HostSlots, PolicyArg};
 use crate::remote::{self, Codec, HostBridge, HostOptions};
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, HostSlots, PolicyArg};
 
 #[derive(Args, Debug)]
 pub struct WorkersArgs {
@@ -21,7 +21,7 @@ pub struct WorkersArgs {
     #[arg(long)]
     pub connect: String,
     /// Worker processes on this machine.
-    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
+    #[arg(long, default_value_t = 4, value_parser = super::values::workers)]
     pub workers: usize,
     /// The run to join (`up --listen` prints it).
     #[arg(long)]
@@ -44,7 +44,7 @@ pub struct WorkersArgs {
     #[arg(long)]
     pub synthetic: bool,
     /// Seconds to keep asking while the learner is not up yet.
-    #[arg(long, default_value_t = 60.0, value_parser = crate::cli_values::seconds)]
+    #[arg(long, default_value_t = 60.0, value_parser = super::values::seconds)]
     pub wait: f64,
 }
 
@@ -64,7 +64,7 @@ pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {
         .or_else(|| std::env::var("GESTHOR_SECRET").ok())
         .context("--secret: the run's secret is needed (or $GESTHOR_SECRET); `up --listen` printed it")?;
     // Shared memory of earlier hosts on this machine that were killed.
-    crate::launch::sweep_dead_runs();
+    crate::supervise::launch::sweep_dead_runs();
     let session = remote::session(&[], std::slice::from_ref(&a.connect))?;
     let host = remote::hostname();
     let asked = Instant::now();

@@ -21,8 +21,8 @@ use worker::render::{RenderConfig, Renderer, View, ViewOut};
 use worker::robot::{Action, RobotPose};
 use worker::scene::Split;
 
-use crate::map::TopDownMap;
-use crate::tables::{EvalMode, Evaluation};
+use super::map::TopDownMap;
+use super::tables::{EvalMode, Evaluation};
 
 pub fn read(path: &Path) -> anyhow::Result<Vec<Trajectory>> {
     farm::files::read_jsonl(path)

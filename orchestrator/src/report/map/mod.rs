@@ -8,17 +8,24 @@
 //! backend draws without anti-aliasing. The font is compiled in, so machines without system
 //! fonts draw the same picture.
 
+mod footprint;
+mod style;
+
 use std::path::Path;
-use std::sync::OnceLock;
 
 use image::RgbImage;
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
-use worker::geometry::{Part, Shape, heading};
-use worker::render::mesh::Mesh;
+use worker::geometry::{Part, heading};
 use worker::scene::Scene;
+
+use footprint::footprint;
+use style::{
+    BACKGROUND, INK, INTERVENTION, Legend, OTHER, PATH, PERSON, REACHABLE, ROBOT, STOP, TARGET, WALL, display, font,
+    lighten, octagon, scale, triangle,
+};
 
 /// Supersampling factor: drawn at this multiple of the output size, then averaged.
 const SS: i32 = 2;
@@ -31,18 +38,6 @@ const LEGEND_PX: i32 = 190;
 const MIN_PPM: f32 = 10.0;
 const MAX_PPM: f32 = 400.0;
 
-const BACKGROUND: RGBColor = RGBColor(246, 246, 244);
-const WALL: RGBColor = RGBColor(70, 70, 74);
-const INK: RGBColor = RGBColor(30, 30, 34);
-const REACHABLE: RGBColor = RGBColor(150, 156, 170);
-const PATH: RGBColor = RGBColor(122, 38, 160);
-const PERSON: RGBColor = RGBColor(30, 150, 70);
-const ROBOT: RGBColor = RGBColor(25, 95, 215);
-const TARGET: RGBColor = RGBColor(220, 30, 40);
-const OTHER: RGBColor = RGBColor(235, 120, 20);
-const STOP: RGBColor = RGBColor(200, 20, 30);
-const INTERVENTION: RGBColor = RGBColor(245, 170, 0);
-
 /// What plotters' drawing calls return; drawing into a memory buffer does not fail in practice.
 type Drawn = Result<(), Box<dyn std::error::Error>>;
 
@@ -52,34 +47,6 @@ pub enum MapError {
     Encode { path: String, message: String },
     #[error("{path}: cannot write the map: {source}")]
     Write { path: String, source: std::io::Error },
-}
-
-/// What the legend explains; each kind appears once, in the order first drawn.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Legend {
-    Reachable,
-    Path,
-    Person,
-    Robot,
-    Target,
-    OtherInstance,
-    Stop,
-    Intervention,
-}
-
-impl Legend {
-    fn label(self) -> &'static str {
-        match self {
-            Legend::Reachable => "reachable position",
-            Legend::Path => "robot path",
-            Legend::Person => "person",
-            Legend::Robot => "robot",
-            Legend::Target => "target instance",
-            Legend::OtherInstance => "same category",
-            Legend::Stop => "stop",
-            Legend::Intervention => "intervention gesture",
-        }
-    }
 }
 
 /// A top-down picture of one scene that trajectories and markers are drawn onto.
@@ -97,72 +64,6 @@ pub struct TopDownMap {
     objects: Vec<([f32; 2], f32)>,
     legend: Vec<Legend>,
     title: Option<String>,
-}
-
-fn font() -> &'static str {
-    crate::fonts::ensure()
-}
-
-/// Linear RGB 0..1 → a display colour (the renderer's gamma 2.2).
-fn display(c: [f32; 3]) -> RGBColor {
-    let f = |v: f32| (v.clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0 + 0.5) as u8;
-    RGBColor(f(c[0]), f(c[1]), f(c[2]))
-}
-
-fn scale(c: RGBColor, k: f32) -> RGBColor {
-    let f = |v: u8| (v as f32 * k).clamp(0.0, 255.0) as u8;
-    RGBColor(f(c.0), f(c.1), f(c.2))
-}
-
-fn lighten(c: RGBColor, k: f32) -> RGBColor {
-    let f = |v: u8| (v as f32 + (255.0 - v as f32) * k) as u8;
-    RGBColor(f(c.0), f(c.1), f(c.2))
-}
-
-/// Convex hull (counter-clockwise) of 2D points, Andrew's monotone chain.
-fn convex_hull(mut pts: Vec<(f32, f32)>) -> Vec<(f32, f32)> {
-    pts.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
-    pts.dedup();
-    if pts.len() < 3 {
-        return pts;
-    }
-    let cross = |o: (f32, f32), a: (f32, f32), b: (f32, f32)| (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0);
-    let mut hull: Vec<(f32, f32)> = Vec::with_capacity(pts.len() * 2);
-    for pass in 0..2 {
-        let start = hull.len();
-        let iter: Box<dyn Iterator<Item = &(f32, f32)>> =
-            if pass == 0 { Box::new(pts.iter()) } else { Box::new(pts.iter().rev()) };
-        for &p in iter {
-            while hull.len() >= start + 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0 {
-                hull.pop();
-            }
-            hull.push(p);
-        }
-        hull.pop();
-    }
-    hull
-}
-
-/// Unit-mesh vertex positions per shape, used to find a part's footprint.
-fn shape_outline(shape: Shape) -> &'static [[f32; 3]] {
-    static OUTLINES: OnceLock<Vec<Vec<[f32; 3]>>> = OnceLock::new();
-    let all = OUTLINES.get_or_init(|| {
-        Shape::ALL.iter().map(|&s| Mesh::unit(s).vertices.iter().map(|v| v.position).collect()).collect()
-    });
-    let i = Shape::ALL.iter().position(|&s| s == shape).expect("every shape is in Shape::ALL");
-    &all[i]
-}
-
-/// The part's outline seen from above: the convex hull of its mesh projected on x–z.
-fn footprint(p: &Part) -> Vec<(f32, f32)> {
-    let pts = shape_outline(p.shape)
-        .iter()
-        .map(|v| {
-            let w = p.center + p.rotation * Vector3::from(*v).component_mul(&p.half_extents);
-            (w.x, w.z)
-        })
-        .collect();
-    convex_hull(pts)
 }
 
 impl TopDownMap {
@@ -618,20 +519,6 @@ impl TopDownMap {
     }
 }
 
-fn octagon(c: (i32, i32), r: i32) -> Vec<(i32, i32)> {
-    (0..8)
-        .map(|k| {
-            let a = std::f32::consts::TAU * (k as f32 + 0.5) / 8.0;
-            (c.0 + (r as f32 * a.cos()).round() as i32, c.1 + (r as f32 * a.sin()).round() as i32)
-        })
-        .collect()
-}
-
-fn triangle(c: (i32, i32), r: i32) -> Vec<(i32, i32)> {
-    let h = (r as f32 * 0.87).round() as i32;
-    vec![(c.0, c.1 - r), (c.0 + h, c.1 + r / 2), (c.0 - h, c.1 + r / 2)]
-}
-
 /// Averages `k`×`k` blocks of an RGB buffer.
 fn downsample(pixels: &[u8], (w, h): (u32, u32), k: u32) -> RgbImage {
     let (ow, oh) = (w / k, h / k);
@@ -668,22 +555,6 @@ mod tests {
     use super::*;
     use worker::render::benchmark_room;
     use worker::scene::Category;
-
-    #[test]
-    fn convex_hull_of_a_square_with_inner_points() {
-        let h = convex_hull(vec![(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (0.5, 0.5), (0.2, 0.7)]);
-        assert_eq!(h.len(), 4);
-    }
-
-    #[test]
-    fn footprint_of_a_turned_box_is_turned() {
-        let p = Part::new(Shape::Box, Point3::new(1.0, 0.5, 2.0), Vector3::new(1.0, 0.5, 0.1), [1.0; 3])
-            .with_rotation(worker::geometry::yaw_rotation(90.0));
-        let f = footprint(&p);
-        let (xs, zs): (Vec<f32>, Vec<f32>) = f.iter().copied().unzip();
-        let span = |v: &[f32]| v.iter().cloned().fold(f32::MIN, f32::max) - v.iter().cloned().fold(f32::MAX, f32::min);
-        assert!((span(&xs) - 0.2).abs() < 1e-4 && (span(&zs) - 2.0).abs() < 1e-4);
-    }
 
     #[test]
     fn map_png_shows_the_room_and_its_objects() {

@@ -1,8 +1,8 @@
 //! The study (§4.4.1, T4.2–T4.7): every method of a config folder that learns, trained with N
 //! seeds for F frames each; each run's checkpoints evaluated on val and the best by SR at the
 //! first stop evaluated on test (normally and blind) and on train; Random evaluated on test with
-//! the same seeds. `crate::study_report` and `crate::study_tables` put the dissertation's
-//! figures beside ours (mean ± std over the seeds).
+//! the same seeds. `summary` and `ablations` put the dissertation's figures beside ours (mean ±
+//! std over the seeds).
 //!
 //! Every step is a child `orchestrator up` or `orchestrator eval` writing into the study folder,
 //! and a step whose output is complete is never run again: killed at any point, the same
@@ -19,6 +19,9 @@
 //! OUT/T4.2.md … T4.7.md, .csv, study.json, sr_spl.png, learning_curves.png
 //! ```
 
+pub mod ablations;
+pub mod summary;
+
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -29,8 +32,8 @@ use farm::config::{Method, RunConfig};
 use farm::rooms::{SceneId, SceneType, Split};
 use nix::sys::signal::Signal;
 
-use crate::child;
-use crate::study_report::{self, METHODS, RunResult, StudyMethod};
+use crate::supervise::child;
+use summary::{METHODS, RunResult, StudyMethod};
 
 #[derive(Args, Debug, Clone)]
 pub struct StudyArgs {
@@ -55,7 +58,7 @@ pub struct StudyArgs {
     /// rooms only, as the dissertation does for T4.3/T4.4 (12 more runs per seed).
     #[arg(long)]
     pub per_scene_type: bool,
-    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
+    #[arg(long, default_value_t = 4, value_parser = crate::commands::values::workers)]
     pub workers: usize,
     /// Checkpoints per run to choose from on val (evenly spaced; the last one always).
     #[arg(long, default_value_t = 5)]
@@ -137,7 +140,7 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
     anyhow::ensure!(a.checkpoints > 0, "--checkpoints: at least one");
     for m in &a.methods {
         anyhow::ensure!(
-            study_report::method(m).is_some(),
+            summary::method(m).is_some(),
             "--methods: `{m}` is not one of {}",
             METHODS.map(|m| m.stem).join(", ")
         );
@@ -147,7 +150,7 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
     // T4.2's order, or the order asked for (the first methods of a long study finish first)
     let order: Vec<StudyMethod> = match a.methods.is_empty() {
         true => METHODS.to_vec(),
-        false => a.methods.iter().filter_map(|m| study_report::method(m)).collect(),
+        false => a.methods.iter().filter_map(|m| summary::method(m)).collect(),
     };
     for sm in order {
         let stem = sm.stem;
@@ -406,7 +409,7 @@ impl Eval<'_> {
 
     /// Its tables are there, with a row of every pass.
     fn complete(&self) -> bool {
-        crate::tables::read_rows(&self.out.join("tables.csv"))
+        crate::report::tables::read_rows(&self.out.join("tables.csv"))
             .is_ok_and(|rows| self.modes.iter().all(|m| rows.iter().any(|r| r.mode == *m)))
     }
 
@@ -518,7 +521,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             };
             ran |= e.run(a.workers)?;
             work += e.work();
-            let sr1 = study_report::first_stop(&e.out.join("tables.csv"))?.sr;
+            let sr1 = summary::first_stop(&e.out.join("tables.csv"))?.sr;
             let frames = farm::checkpoints::frames(&ckpt).map_err(|e| anyhow::anyhow!("{}: {e}", ckpt.display()))?;
             val_curve.push((frames, sr1));
             if best.as_ref().is_none_or(|(b, _)| sr1 >= *b) {
@@ -564,7 +567,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         r.train_tables = Some(fit.out.join("tables.csv"));
         r.val_curve = val_curve;
         let update = farm::checkpoints::update_of(&chosen).unwrap_or(0);
-        r.budget = Some(study_report::Budget {
+        r.budget = Some(summary::Budget {
             frames: farm::checkpoints::frames(&chosen).map_err(|e| anyhow::anyhow!("{}: {e}", chosen.display()))?,
             adam_steps: update * (run.cfg.ppo.epochs * run.cfg.ppo.minibatches) as u64,
             frames_per_update: run.frames_per_update(a.workers),
@@ -603,8 +606,8 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
 fn report(a: &StudyArgs, runs: &[Run], results: &[RunResult], pending: &[String]) -> anyhow::Result<()> {
     let done: Vec<&Run> = runs.iter().filter(|r| r.scene_type.is_none() && r.trained(a.workers)).collect();
     let curves: Vec<(String, PathBuf)> = done.iter().map(|r| (r.method.stem.to_string(), r.dir.clone())).collect();
-    study_report::write(&a.out, results, &curves, pending)?;
-    crate::study_tables::write(&a.out, results)
+    summary::write(&a.out, results, &curves, pending)?;
+    ablations::write(&a.out, results)
 }
 
 #[cfg(test)]

@@ -1,6 +1,6 @@
 //! The study's main table: T4.2 (SR, SPL, DTS at the first stop on test, mean ± std over seeds)
 //! beside the dissertation's figures, which of T4.2's orderings hold on our test split, and the
-//! figures beside it; the ablation tables T4.3–T4.7 are `crate::study_tables`.
+//! figures beside it; the ablation tables T4.3–T4.7 are in `ablations`.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -10,7 +10,7 @@ use farm::metrics::FirstStops;
 use farm::rooms::SceneType;
 use serde::Serialize;
 
-use crate::tables::{TableRow, find, read_rows};
+use crate::report::tables::{TableRow, find, read_rows};
 
 /// A model the study trains or evaluates, by config file stem: T4.2's methods, then T4.7's
 /// variants of +Both that see one visual input (+Both itself is T4.7's RGB-D row).
@@ -136,7 +136,7 @@ impl RunResult {
         let rows = read_rows(test_tables)?;
         let episodes = test_tables.with_file_name("normal").join("episodes.jsonl");
         let first_stops = match episodes.is_file() {
-            true => Some(FirstStops::of(&crate::eval::read_episodes(&episodes)?, 1.0)),
+            true => Some(FirstStops::of(&crate::commands::eval::read_episodes(&episodes)?, 1.0)),
             false => None,
         };
         Ok(RunResult {
@@ -209,7 +209,7 @@ fn summary(results: &[RunResult], stem: &str) -> Option<Summary> {
 /// Success on training episodes against frames, per method: the mean over the seeds' runs
 /// (update by update; every seed makes the same updates) of a 10-update moving mean, in %.
 /// `runs` are (stem, run directory) of the runs trained in every training room.
-pub fn learning_curves(runs: &[(String, PathBuf)]) -> anyhow::Result<Vec<crate::plot::Series>> {
+pub fn learning_curves(runs: &[(String, PathBuf)]) -> anyhow::Result<Vec<crate::report::plot::Series>> {
     #[derive(serde::Deserialize)]
     struct Row {
         frames: f64,
@@ -244,7 +244,7 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
         METHODS.into_iter().filter_map(|m| summary(results, m.stem).map(|s| (m, s))).collect();
     let groups: Vec<(String, Vec<(f64, f64)>)> =
         summaries.iter().map(|(m, s)| (m.label.to_string(), vec![s.sr, s.spl])).collect();
-    crate::plot::grouped_bars(
+    crate::report::plot::grouped_bars(
         &out.join("sr_spl.png"),
         "Test, first stop: mean ± std over seeds",
         "%",
@@ -253,7 +253,7 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
     )?;
     let curves = learning_curves(runs)?;
     if !curves.is_empty() {
-        crate::plot::lines(
+        crate::report::plot::lines(
             &out.join("learning_curves.png"),
             "Success on training episodes (10-update mean, mean over seeds)",
             "frames",
@@ -261,7 +261,7 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
             &curves,
         )?;
     }
-    let val_curves: Vec<crate::plot::Series> = results
+    let val_curves: Vec<crate::report::plot::Series> = results
         .iter()
         .filter(|r| r.val_curve.len() > 1 && r.scene_type.is_none())
         .map(|r| {
@@ -269,7 +269,7 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
         })
         .collect();
     if !val_curves.is_empty() {
-        crate::plot::lines(
+        crate::report::plot::lines(
             &out.join("val_curves.png"),
             "Val, first stop: SR of each evaluated checkpoint",
             "frames",

@@ -71,7 +71,7 @@ fn s(v: &[&str]) -> Vec<String> {
 }
 
 pub fn run(a: BenchRemoteArgs) -> anyhow::Result<()> {
-    let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-remote"));
+    let out = a.out.clone().unwrap_or_else(|| crate::supervise::run_dir::default_path("bench-remote"));
     std::fs::create_dir_all(&out)?;
     let secs = format!("{}", a.seconds);
     let mut md = format!(
@@ -118,7 +118,7 @@ pub fn run(a: BenchRemoteArgs) -> anyhow::Result<()> {
                 .concat(),
                 &out.join(format!("{name}-up.log")),
             )?;
-            let info = crate::run_dir::wait_for_info(&run, up.id(), Duration::from_secs(60))?;
+            let info = crate::supervise::run_dir::wait_for_info(&run, up.id(), Duration::from_secs(60))?;
             let host_log = out.join(format!("{name}-host.log"));
             let mut host = orchestrator(
                 &[

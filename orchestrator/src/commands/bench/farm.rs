@@ -17,10 +17,10 @@ use farm::config::RunConfig;
 use farm::process;
 use nix::unistd::Pid;
 
-use crate::binaries;
-use crate::child;
-use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
-use crate::launch;
+use crate::supervise::binaries;
+use crate::supervise::child;
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
+use crate::supervise::launch;
 
 /// The bench's configuration when none is given: the dissertation's 224×224 RGB-D frames.
 pub const BENCH_CONFIG: &str = r#"# Embedded configuration of `orchestrator bench farm`: 224x224 RGB-D, 4 envs per worker.
@@ -308,7 +308,7 @@ pub fn run(a: BenchFarmArgs) -> anyhow::Result<()> {
     };
     launch::resolve_dataset(&mut cfg, a.synthetic)?;
     launch::sweep_dead_runs();
-    let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-farm"));
+    let out = a.out.clone().unwrap_or_else(|| crate::supervise::run_dir::default_path("bench-farm"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let config_path = out.join("config.toml");
     farm::files::write_atomic(&config_path, cfg.to_toml().as_bytes())?;

@@ -17,8 +17,8 @@ use worker::gesture::{self, Motion, Pointing};
 use worker::program::{Hand, Program};
 use worker::scene::{Category, SceneType, Split};
 
-use crate::plot;
-use crate::progress::Bar;
+use crate::report::plot;
+use crate::report::progress::Bar;
 
 #[derive(Subcommand, Debug)]
 pub enum DatasetCmd {

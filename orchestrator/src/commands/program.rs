@@ -227,7 +227,7 @@ pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
         above_img.save(a.out.join("frames").join(format!("above_{n:03}.png")))?;
         gif_frames.push(side_by_side(&robot_img, &above_img));
     }
-    crate::trajectory::write_gif(&a.out.join("replay.gif"), &gif_frames, 1000 * a.every.max(1) as u32 / 30)?;
+    crate::report::trajectory::write_gif(&a.out.join("replay.gif"), &gif_frames, 1000 * a.every.max(1) as u32 / 30)?;
     std::fs::write(
         a.out.join("README.txt"),
         format!("{label}\nleft: the robot's start view; right: from above\n{} frames\n", frames.len()),

@@ -1,11 +1,16 @@
 //! `orchestrator bench ...`: throughput reports. One variant per benchmark.
 
+pub mod farm;
+pub mod remote;
+pub mod sim;
+pub mod train;
+
 use clap::Subcommand;
 
-use crate::bench_farm::{self, BenchFarmArgs};
-use crate::bench_remote::BenchRemoteArgs;
-use crate::bench_sim::{self, SimArgs};
-use crate::bench_train::{self, BenchTrainArgs};
+use farm::BenchFarmArgs;
+use remote::BenchRemoteArgs;
+use sim::SimArgs;
+use train::BenchTrainArgs;
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCmd {
@@ -25,11 +30,11 @@ pub enum BenchCmd {
 pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
     match cmd {
         BenchCmd::Farm(a) if a.remote => {
-            crate::bench_remote::run(BenchRemoteArgs { seconds: a.seconds, out: a.out, ..Default::default() })
+            remote::run(BenchRemoteArgs { seconds: a.seconds, out: a.out, ..Default::default() })
         }
-        BenchCmd::Farm(a) => bench_farm::run(a),
-        BenchCmd::Sim(a) => bench_sim::run(a),
-        BenchCmd::Train(a) => bench_train::run(a),
-        BenchCmd::Remote(a) => crate::bench_remote::run(a),
+        BenchCmd::Farm(a) => farm::run(a),
+        BenchCmd::Sim(a) => sim::run(a),
+        BenchCmd::Train(a) => train::run(a),
+        BenchCmd::Remote(a) => remote::run(a),
     }
 }

@@ -1,6 +1,8 @@
 //! `orchestrator encoder pretrain`: renders labelled RGB-D frames from the training rooms
-//! (`encoder_frames`), writes them as one frame-set file (`farm::frame_set`), then runs
+//! (`frames`), writes them as one frame-set file (`farm::frame_set`), then runs
 //! `learner pretrain-encoder` on it, which writes `OUT.safetensors` and `OUT.json`.
+
+pub mod frames;
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -14,8 +16,8 @@ use farm::rooms::SceneId;
 use worker::dataset::{Dataset, Verify};
 use worker::scene::Scene;
 
-use crate::encoder_frames::{FrameOptions, render_set};
-use crate::progress::Bar;
+use crate::report::progress::Bar;
+use frames::{FrameOptions, render_set};
 
 #[derive(Subcommand, Debug)]
 pub enum EncoderCmd {
@@ -85,7 +87,7 @@ fn scene_source(a: &PretrainArgs) -> anyhow::Result<Box<dyn Fn(SceneId) -> anyho
 }
 
 fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
-    let learner = crate::binaries::sibling_in(a.bin_dir.as_deref(), "learner")?;
+    let learner = crate::supervise::binaries::sibling_in(a.bin_dir.as_deref(), "learner")?;
     let scene_of = scene_source(&a)?;
     let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: threads.max(1) };

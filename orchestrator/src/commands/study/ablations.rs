@@ -14,8 +14,8 @@ use std::path::{Path, PathBuf};
 
 use farm::rooms::SceneType;
 
-use crate::study_report::{RunResult, mean_std, method};
-use crate::tables::{TableRow, find, read_rows};
+use super::summary::{RunResult, mean_std, method};
+use crate::report::tables::{TableRow, find, read_rows};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Fold {
@@ -360,7 +360,7 @@ pub fn write(out: &Path, results: &[RunResult]) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::study_report::tests::result;
+    use crate::commands::study::summary::tests::result;
 
     #[test]
     fn ablation_tables_hold_ours_beside_the_dissertation_and_name_their_models() {

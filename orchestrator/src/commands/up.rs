@@ -8,18 +8,18 @@ use clap::Args;
 use farm::config::RunConfig;
 use farm::process;
 
-use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
-use crate::launch::{prepare_run, resolve_dataset, resolve_encoder, sweep_dead_runs};
-use crate::progress::Bar;
-use crate::run_dir;
+use crate::report::progress::Bar;
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
+use crate::supervise::launch::{prepare_run, resolve_dataset, resolve_encoder, sweep_dead_runs};
+use crate::supervise::run_dir;
 
 /// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.
-pub const DEFAULT_CONFIG: &str = include_str!("../../configs/tiny/both.toml");
+pub const DEFAULT_CONFIG: &str = include_str!("../../../configs/tiny/both.toml");
 
 #[derive(Args, Debug)]
 pub struct UpArgs {
     /// Worker processes (each steps the config's `env.envs_per_worker` environments).
-    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
+    #[arg(long, default_value_t = 4, value_parser = super::values::workers)]
     pub workers: usize,
     /// Run configuration (TOML); the embedded CPU default of +Both when omitted.
     #[arg(long)]
@@ -36,7 +36,7 @@ pub struct UpArgs {
     #[arg(long, conflicts_with = "seconds")]
     pub frames: Option<u64>,
     /// Stop after this many seconds.
-    #[arg(long, value_parser = crate::cli_values::seconds)]
+    #[arg(long, value_parser = super::values::seconds)]
     pub seconds: Option<f64>,
     /// Fail on any lost, duplicated or malformed message between workers and learner.
     #[arg(long)]
@@ -49,7 +49,7 @@ pub struct UpArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
     /// Seconds between the learner's progress records.
-    #[arg(long, default_value_t = 2.0, value_parser = crate::cli_values::seconds)]
+    #[arg(long, default_value_t = 2.0, value_parser = super::values::seconds)]
     pub report_every: f64,
     /// Accept worker hosts on this Zenoh endpoint (e.g. tcp/0.0.0.0:7447); they join with
     /// `orchestrator workers --connect`.
@@ -308,7 +308,7 @@ fn listen(
         (None, Err(_)) => crate::remote::random_hex(16),
     };
     farm::files::write_atomic(&secret_file, secret.as_bytes())?;
-    let digest = if a.synthetic { String::new() } else { crate::workers_cmd::manifest_digest(&cfg.run.dataset)? };
+    let digest = if a.synthetic { String::new() } else { super::workers::manifest_digest(&cfg.run.dataset)? };
     let (e, w, h) = (cfg.env.envs_per_worker as u32, cfg.env.width, cfg.env.height);
     let bridge = crate::remote::LearnerBridge::start(crate::remote::ListenOptions {
         endpoint: endpoint.into(),

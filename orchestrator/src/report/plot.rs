@@ -67,7 +67,7 @@ fn err<E: std::fmt::Display>(e: E) -> anyhow::Error {
 
 /// Vertical bars with value labels.
 pub fn bars(path: &Path, title: &str, y_label: &str, data: &[(String, f64)]) -> anyhow::Result<()> {
-    crate::fonts::ensure();
+    super::fonts::ensure();
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
     let max = data.iter().map(|d| d.1).fold(1.0, f64::max) * 1.15;
@@ -110,7 +110,7 @@ pub fn bars(path: &Path, title: &str, y_label: &str, data: &[(String, f64)]) -> 
 
 /// Horizontal bars (many categories).
 pub fn hbars(path: &Path, title: &str, x_label: &str, data: &[(String, f64)]) -> anyhow::Result<()> {
-    crate::fonts::ensure();
+    super::fonts::ensure();
     let h = (80 + data.len() as u32 * 22).max(300);
     let root = BitMapBackend::new(path, (W, h)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
@@ -150,7 +150,7 @@ pub fn hbars(path: &Path, title: &str, x_label: &str, data: &[(String, f64)]) ->
 
 /// Histogram with a fixed bin width and the mean marked.
 pub fn histogram(path: &Path, title: &str, x_label: &str, values: &[f64], bin: f64) -> anyhow::Result<()> {
-    crate::fonts::ensure();
+    super::fonts::ensure();
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
     let hi = values.iter().copied().fold(bin, f64::max);
@@ -193,7 +193,7 @@ pub type Series = (String, Vec<(f64, f64)>);
 
 /// Line chart of several series over a shared x axis.
 pub fn lines(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series]) -> anyhow::Result<()> {
-    crate::fonts::ensure();
+    super::fonts::ensure();
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
     let pts = series.iter().flat_map(|s| s.1.iter());
@@ -238,7 +238,7 @@ pub fn grouped_bars(
     buckets: &[&str],
     groups: &[(String, Vec<(f64, f64)>)],
 ) -> anyhow::Result<()> {
-    crate::fonts::ensure();
+    super::fonts::ensure();
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
     let max = groups.iter().flat_map(|g| g.1.iter().map(|(m, e)| m + e)).fold(1.0, f64::max) * 1.15;

@@ -21,10 +21,10 @@ use farm::metrics::{EpisodeResult, scores};
 use worker::program::Program;
 use worker::scene::Split;
 
-use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg};
-use crate::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
-use crate::progress::Bar;
-use crate::tables::{EvalMode, Evaluation, compare};
+use crate::report::progress::Bar;
+use crate::report::tables::{EvalMode, Evaluation, compare};
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg};
+use crate::supervise::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
@@ -46,7 +46,7 @@ pub struct EvalArgs {
     /// Fold to evaluate on.
     #[arg(long, default_value = "test")]
     pub split: String,
-    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
+    #[arg(long, default_value_t = 4, value_parser = super::values::workers)]
     pub workers: usize,
     /// Run configuration when there is no run directory to take it from (Random baseline).
     #[arg(long)]
@@ -185,7 +185,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             RunConfig::load(&r.join("config.toml")).with_context(|| format!("{}: the run's config", r.display()))?
         }
         (None, Some(c)) => RunConfig::load(c)?,
-        (None, None) => crate::up::load_config(None)?,
+        (None, None) => super::up::load_config(None)?,
     };
     let mut cfg = cfg.with_overrides(&a.set)?;
     let baseline = checkpoint.is_none();
@@ -339,7 +339,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     farm::files::write_atomic(&out.join("tables.md"), md.as_bytes())?;
     farm::files::write_atomic(&out.join("tables.csv"), evaluation.csv().as_bytes())?;
     let maps = if a.trajectories > 0 {
-        crate::trajectory::draw(&cfg, &ds, split, &evaluation, checkpoint.as_deref(), &out, a.trajectories)?
+        crate::report::trajectory::draw(&cfg, &ds, split, &evaluation, checkpoint.as_deref(), &out, a.trajectories)?
     } else {
         Vec::new()
     };

@@ -16,9 +16,9 @@ use farm::config::RunConfig;
 use farm::process;
 use farm::profile::Profile;
 
-use crate::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
-use crate::launch;
-use crate::up;
+use crate::commands::up;
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
+use crate::supervise::launch;
 
 #[derive(Args, Debug)]
 pub struct BenchTrainArgs {
@@ -26,7 +26,7 @@ pub struct BenchTrainArgs {
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Worker processes.
-    #[arg(long, default_value_t = 4, value_parser = crate::cli_values::workers)]
+    #[arg(long, default_value_t = 4, value_parser = crate::commands::values::workers)]
     pub workers: usize,
     /// Frames to train for (the run stops at the first update boundary past it).
     #[arg(long, default_value_t = 50_000)]
@@ -166,7 +166,7 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     launch::resolve_dataset(&mut cfg, false)?;
     launch::resolve_encoder(&mut cfg)?;
     launch::sweep_dead_runs();
-    let out = a.out.clone().unwrap_or_else(|| crate::run_dir::default_path("bench-train"));
+    let out = a.out.clone().unwrap_or_else(|| crate::supervise::run_dir::default_path("bench-train"));
     let (p, wall) = train(&a, &cfg, &out)?;
     let metrics: Vec<serde_json::Value> = farm::files::read_jsonl(&out.join("run/metrics.jsonl")).unwrap_or_default();
     let mut profile = p.profile.unwrap_or_default();

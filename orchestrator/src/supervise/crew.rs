@@ -23,8 +23,8 @@ use nix::sys::signal::Signal;
 use nix::unistd::Pid;
 use serde::Deserialize;
 
-use crate::binaries;
-use crate::child::{self, Child, Ended};
+use super::binaries;
+use super::child::{self, Child, Ended};
 
 /// The policy the learner serves.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]

@@ -15,7 +15,7 @@ use worker::physics::{Physics, RobotBody};
 use worker::render::{RenderConfig, Renderer, View, ViewOut};
 use worker::scene::{Scene, SceneId};
 
-use crate::map::TopDownMap;
+use crate::report::map::TopDownMap;
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {

@@ -11,8 +11,8 @@ use farm::config::{Encoder, RunConfig};
 use worker::dataset::Dataset;
 use worker::scene::Split;
 
-use crate::crew::PolicyArg;
-use crate::run_dir::RunDir;
+use super::crew::PolicyArg;
+use super::run_dir::RunDir;
 
 /// Makes the dataset path absolute (children may run elsewhere), checks it is a dataset and
 /// verifies it; the opened dataset, unless `synthetic` (no dataset is read then).

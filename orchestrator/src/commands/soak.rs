@@ -25,7 +25,7 @@ use nix::unistd::Pid;
 use rand::Rng;
 use serde::Serialize;
 
-use crate::run_dir;
+use crate::supervise::run_dir;
 
 #[derive(Args, Debug)]
 pub struct SoakArgs {
@@ -38,7 +38,7 @@ pub struct SoakArgs {
     /// Seed of the fault schedule.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    #[arg(long, default_value_t = 2, value_parser = crate::cli_values::workers)]
+    #[arg(long, default_value_t = 2, value_parser = super::values::workers)]
     pub workers: usize,
     /// Run configuration (default: a small PPO network on 32×32 frames of the dataset in
     /// data/gond, a checkpoint every 2 updates).

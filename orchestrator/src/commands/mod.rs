@@ -1,0 +1,15 @@
+//! The subcommands of `orchestrator`, one module each (a subcommand with parts of its own is a
+//! folder: `bench`, `encoder`, `study`). Each holds its clap arguments and a `run` that
+//! `main.rs` dispatches to; `values` checks the command-line values they share.
+
+pub mod bench;
+pub mod dataset;
+pub mod encoder;
+pub mod eval;
+pub mod program;
+pub mod render;
+pub mod soak;
+pub mod study;
+pub mod up;
+pub mod values;
+pub mod workers;
