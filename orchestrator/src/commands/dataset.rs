@@ -62,6 +62,10 @@ pub struct BuildArgs {
     /// region, never successful: datasets before this option, a harder benchmark).
     #[arg(long, default_value = "dissertation", value_parser = parse_starts)]
     pub starts: Starts,
+    /// `dissertation` starts: the power k of the distance d in their weight d^k·exp(−β·d) (larger:
+    /// fewer starts right at the target, at the same mean).
+    #[arg(long, default_value_t = worker::dataset::starts::CALIBRATED_SHAPE)]
+    pub start_shape: f32,
 }
 
 fn parse_pointing(s: &str) -> Result<Pointing, String> {
@@ -102,6 +106,7 @@ fn build_cmd(a: BuildArgs) -> anyhow::Result<()> {
         splits,
         pointing: a.pointing,
         starts: a.starts,
+        start_shape: a.start_shape,
         ..Default::default()
     };
     let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -273,8 +278,8 @@ pub fn write_stats(
     let right = all.iter().filter(|p| p.hand == Hand::Right).count() as f64 / all.len().max(1) as f64;
     let starts = match build.starts {
         Starts::Dissertation => format!(
-            "`dissertation`: drawn toward the target for a mean geodesic distance to its centre of {:.2} m (§3.3.2: 1.52 m), starts already successful allowed",
-            build.start_mean_geodesic
+            "`dissertation`: weighted d^{}·exp(−β·d) by their geodesic distance d to the target's centre, β solved per program for a mean of {:.2} m (§3.3.2: 1.52 m), starts already successful allowed",
+            build.start_shape, build.start_mean_geodesic
         ),
         Starts::Far => format!(
             "`far`: uniform {}–{} m (geodesic) from the success region, never already successful",

@@ -91,6 +91,8 @@ pub struct BuildOptions {
     /// (from the success region) serves `far`.
     pub starts: Starts,
     pub start_mean_geodesic: f32,
+    /// `dissertation` starts: the power of the distance in their weight (`starts::tilt`).
+    pub start_shape: f32,
     pub start_geodesic: [f32; 2],
     /// How cleanly the people point (recorded in the manifest; the synthesiser passed to
     /// [`build`] must match it).
@@ -109,6 +111,7 @@ impl Default for BuildOptions {
             human_distance: [1.0, 4.0],
             starts: Starts::Dissertation,
             start_mean_geodesic: starts::DISSERTATION_MEAN,
+            start_shape: starts::CALIBRATED_SHAPE,
             start_geodesic: [0.5, 8.0],
             pointing: Pointing::Clean,
         }
@@ -269,7 +272,7 @@ pub fn make_program(
             Starts::Dissertation => {
                 let cells: Vec<Cell> = grid.free_cells().filter(|&c| to_centre.at_cell(c).is_finite()).collect();
                 let d: Vec<f32> = cells.iter().map(|&c| to_centre.at_cell(c)).collect();
-                let weights = starts::tilt(&d, opts.start_mean_geodesic);
+                let weights = starts::tilt(&d, opts.start_mean_geodesic, opts.start_shape);
                 starts::draw(&weights, &mut rng).map(|i| {
                     let p = grid.point(cells[i]);
                     let yaw = rng.random_range(0..24) as f32 * 15.0;
@@ -514,6 +517,7 @@ fn build_into(
             human_distance: opts.human_distance,
             starts: opts.starts,
             start_mean_geodesic: opts.start_mean_geodesic,
+            start_shape: opts.start_shape,
             start_geodesic: opts.start_geodesic,
             pointing: opts.pointing,
         },

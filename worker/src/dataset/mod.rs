@@ -74,6 +74,9 @@ pub struct BuildParams {
     /// `dissertation` starts: the mean geodesic distance start → target's centre asked for.
     #[serde(default)]
     pub start_mean_geodesic: f32,
+    /// `dissertation` starts: the power of the distance in their weight (`starts::tilt`).
+    #[serde(default)]
+    pub start_shape: f32,
     /// `far` starts: this far (geodesic) from the success region.
     pub start_geodesic: [f32; 2],
     /// How cleanly the people point (datasets from before this field: clean).

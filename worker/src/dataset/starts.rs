@@ -5,12 +5,15 @@
 //! Two distributions are built:
 //!
 //! - [`Starts::Dissertation`] (the default): among every free grid point from which the target
-//!   can be reached, the point is drawn with weight `exp(−β·d)`, `d` its geodesic distance to
-//!   the target's centre, with `β` solved per program so that the expected `d` is 1.52 m. Of
-//!   all distributions over a room's free points with that mean it is the one of maximum
-//!   entropy (no preference beyond the stated mean); on open floor, where the number of points
-//!   at distance `d` grows like `d`, it is a Gamma(2) in `d`: few starts at the target, a mode
-//!   near 0.8 m, a tail to the room's far side. Starts inside the success region are kept.
+//!   can be reached, the point is drawn with weight `d^k·exp(−β·d)`, `d` its geodesic distance
+//!   to the target's centre, with `β` solved per program so that the expected `d` is 1.52 m.
+//!   Of all distributions over a room's free points with that mean and a given mean of `ln d`
+//!   it is the one of maximum entropy (no preference beyond those two statistics); on open
+//!   floor, where the number of points at distance `d` grows like `d`, it is a Gamma(k + 2) in
+//!   `d`. The dissertation's second statistic of its starts is what Random achieves on them
+//!   (T4.2: SR 8.7% at the first stop), so `k` is calibrated on val with Random
+//!   ([`CALIBRATED_SHAPE`]): `k` = 0 leaves too many starts at the target (Random 10.3% on val),
+//!   `k` = 2 gives 9.1%, mode near 1.1 m. Starts inside the success region are kept.
 //! - [`Starts::Far`]: uniform over the points 0.5–8 m (geodesic) from the success region,
 //!   never already successful — every dataset before this option; about twice as far (mean
 //!   ≈ 3 m to the target's centre), a harder benchmark.
@@ -26,6 +29,11 @@ use crate::nav::{Cell, DistanceField, NavGrid};
 
 /// The dissertation's mean geodesic distance robot start → target (§3.3.2).
 pub const DISSERTATION_MEAN: f32 = 1.52;
+
+/// The power of the distance in `dissertation` starts' weights (see the module's text): Random
+/// on val at the first stop, 5,000 programs, at powers 0 / 1 / 2 / 3: SR 10.3 / 9.8 / 9.1 / 8.3%,
+/// SPL 7.7 / 7.5 / 6.7 / 6.1% (the dissertation's Random on test: 8.7 / 7.1%).
+pub const CALIBRATED_SHAPE: f32 = 2.0;
 
 /// How a dataset's robot starts are drawn (recorded in its manifest).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -66,15 +74,18 @@ pub fn target_field(grid: &NavGrid, region: &[Cell], centre: Point2<f32>) -> Dis
     DistanceField::from_sources(grid, &sources)
 }
 
-/// Weights `exp(−β·d)` over `d` whose weighted mean is `mean`: the maximum-entropy
-/// distribution over these distances with that mean. A `mean` below the smallest or above the
-/// largest distance gives (nearly) all weight to the nearest or farthest ones.
-pub fn tilt(d: &[f32], mean: f32) -> Vec<f64> {
-    let (lo, hi) = d.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| (l.min(x as f64), h.max(x as f64)));
-    // shifted so that the exponent never overflows, whatever the sign of β
+/// Weights `d^shape · exp(−β·d)` over `d` (all > 0) whose weighted mean is `mean`: the
+/// maximum-entropy distribution over these distances with that mean (`shape` 0) or with that
+/// mean and a given mean log-distance (`shape` > 0 thins the nearest starts). A `mean` below the
+/// smallest or above the largest distance gives (nearly) all weight to the nearest or farthest
+/// ones.
+pub fn tilt(d: &[f32], mean: f32, shape: f32) -> Vec<f64> {
+    let log_d: Vec<f64> = d.iter().map(|&x| shape as f64 * (x as f64).max(1e-3).ln()).collect();
+    // exponents shifted by their largest value, so that none overflows whatever the sign of β
     let weights = |beta: f64| -> Vec<f64> {
-        let base = if beta >= 0.0 { lo } else { hi };
-        d.iter().map(|&x| (-beta * (x as f64 - base)).exp()).collect()
+        let e: Vec<f64> = d.iter().zip(&log_d).map(|(&x, l)| l - beta * x as f64).collect();
+        let top = e.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        e.iter().map(|x| (x - top).exp()).collect()
     };
     let mean_at = |beta: f64| {
         let w = weights(beta);
@@ -82,7 +93,7 @@ pub fn tilt(d: &[f32], mean: f32) -> Vec<f64> {
         w.iter().zip(d).map(|(w, &x)| w * x as f64).sum::<f64>() / total
     };
     // the tilted mean falls monotonically as β rises: bisect on it
-    let (mut a, mut b) = (-50.0f64, 50.0f64);
+    let (mut a, mut b) = (-500.0f64, 500.0f64);
     for _ in 0..100 {
         let m = 0.5 * (a + b);
         if mean_at(m) > mean as f64 { a = m } else { b = m }
@@ -121,14 +132,16 @@ mod tests {
         /// Between the smallest and the largest distance, any mean is met exactly.
         #[test]
         fn the_tilted_mean_is_the_asked_mean(
-            d in prop::collection::vec(0.0f32..12.0, 2..400),
+            d in prop::collection::vec(0.1f32..12.0, 2..400),
             t in 0.05f32..0.95,
         ) {
             let (lo, hi) = d.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &x| (l.min(x), h.max(x)));
             prop_assume!(hi - lo > 0.5);
             let mean = lo + t * (hi - lo);
-            let w = tilt(&d, mean);
+            let w = tilt(&d, mean, 0.0);
             prop_assert!(w.iter().all(|w| w.is_finite() && *w >= 0.0));
+            prop_assert!((expected(&d, &w) - mean as f64).abs() < 1e-3, "{} vs {mean}", expected(&d, &w));
+            let w = tilt(&d, mean, 2.0);
             prop_assert!((expected(&d, &w) - mean as f64).abs() < 1e-3, "{} vs {mean}", expected(&d, &w));
         }
 
@@ -137,7 +150,7 @@ mod tests {
         #[test]
         fn weights_fall_with_distance_below_the_plain_mean(d in prop::collection::vec(0.0f32..12.0, 2..200)) {
             let plain = d.iter().map(|&x| x as f64).sum::<f64>() / d.len() as f64;
-            let w = tilt(&d, (plain * 0.6) as f32);
+            let w = tilt(&d, (plain * 0.6) as f32, 0.0);
             for i in 0..d.len() {
                 for j in 0..d.len() {
                     if d[i] < d[j] {
@@ -151,8 +164,19 @@ mod tests {
     #[test]
     fn out_of_range_means_go_to_the_extremes() {
         let d = [1.0, 2.0, 3.0];
-        assert!((expected(&d, &tilt(&d, 0.2)) - 1.0).abs() < 1e-6);
-        assert!((expected(&d, &tilt(&d, 9.0)) - 3.0).abs() < 1e-6);
+        assert!((expected(&d, &tilt(&d, 0.2, 0.0)) - 1.0).abs() < 1e-6);
+        assert!((expected(&d, &tilt(&d, 9.0, 0.0)) - 3.0).abs() < 1e-6);
+        assert!((expected(&d, &tilt(&d, 0.2, 3.0)) - 1.0).abs() < 1e-6);
+    }
+
+    /// At the same mean, a larger shape leaves less weight on the nearest distances.
+    #[test]
+    fn a_larger_shape_thins_the_nearest_starts() {
+        let d: Vec<f32> = (1..=60).map(|i| i as f32 * 0.1).collect();
+        let near = |w: &[f64]| w[..5].iter().sum::<f64>() / w.iter().sum::<f64>();
+        let (w0, w2) = (tilt(&d, 1.5, 0.0), tilt(&d, 1.5, 2.0));
+        assert!((expected(&d, &w2) - 1.5).abs() < 1e-6);
+        assert!(near(&w2) < near(&w0) / 2.0, "{} vs {}", near(&w2), near(&w0));
     }
 
     #[test]
