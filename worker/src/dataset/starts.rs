@@ -1,8 +1,8 @@
 //! Where a program's robot starts (§3.3.2, Fig 3.12a).
 //!
-//! The dissertation gives one statistic of its starts: the geodesic distance robot start →
-//! target averages **1.52 m**. It states no rule against starting where a Stop already succeeds.
-//! Two distributions are built:
+//! The dissertation states the mean of its starts' geodesic distance robot start → target,
+//! **1.52 m**, and no rule against starting where a Stop already succeeds. Two distributions are
+//! built:
 //!
 //! - [`Starts::Dissertation`] (the default): among every free grid point from which the target
 //!   can be reached, the point is drawn with weight `d^k·exp(−β·d)`, `d` its geodesic distance
@@ -15,8 +15,8 @@
 //!   ([`CALIBRATED_SHAPE`]): `k` = 0 leaves too many starts at the target (Random 10.3% on val),
 //!   `k` = 2 gives 9.1%, mode near 1.1 m. Starts inside the success region are kept.
 //! - [`Starts::Far`]: uniform over the points 0.5–8 m (geodesic) from the success region,
-//!   never already successful — every dataset before this option; about twice as far (mean
-//!   ≈ 3 m to the target's centre), a harder benchmark.
+//!   never already successful — every dataset before this option; more than twice as far (mean
+//!   3.5 m to the target's centre), a harder benchmark.
 //!
 //! The geodesic distance to the target's centre is the grid path to a cell of the success
 //! region plus the straight stretch from that cell to the centre ([`target_field`]).
