@@ -309,7 +309,12 @@ impl Dataset {
         if manifest.format != FORMAT || manifest.version != VERSION {
             return Err(bad(
                 &mpath,
-                format!("format {} v{}, this build reads {FORMAT} v{VERSION}", manifest.format, manifest.version),
+                format!(
+                    "format {} v{}, this build reads {FORMAT} v{VERSION}; build it again with `orchestrator dataset build --out {} --force`",
+                    manifest.format,
+                    manifest.version,
+                    dir.display()
+                ),
             ));
         }
         let mut splits = BTreeMap::new();
