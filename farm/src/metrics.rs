@@ -234,6 +234,11 @@ impl FirstStops {
         if self.stopped == 0 { 0.0 } else { 100.0 * self.near as f64 / self.stopped as f64 }
     }
 
+    /// Share of episodes with at least one stop (%).
+    pub fn stopped_share(&self) -> f64 {
+        100.0 * self.stopped as f64 / self.episodes.max(1) as f64
+    }
+
     /// SR at the first stop over SR with unlimited stops (0 when nothing succeeds).
     pub fn ratio(&self) -> f64 {
         if self.successes_any == 0 { 0.0 } else { self.successes as f64 / self.successes_any as f64 }

@@ -134,7 +134,7 @@ impl Evaluation<'_> {
             writeln!(
                 md,
                 "| {sr:.1} | {lo:.1}–{hi:.1} | {:.1}% | {:.1}% | {:.1} | {:.2} |",
-                100.0 * f.stopped as f64 / f.episodes.max(1) as f64,
+                f.stopped_share(),
                 f.near_share(),
                 f.mean_step,
                 f.ratio()

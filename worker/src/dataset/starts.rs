@@ -87,11 +87,7 @@ pub fn tilt(d: &[f32], mean: f32, shape: f32) -> Vec<f64> {
         let top = e.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         e.iter().map(|x| (x - top).exp()).collect()
     };
-    let mean_at = |beta: f64| {
-        let w = weights(beta);
-        let total: f64 = w.iter().sum();
-        w.iter().zip(d).map(|(w, &x)| w * x as f64).sum::<f64>() / total
-    };
+    let mean_at = |beta: f64| expected(d, &weights(beta));
     // the tilted mean falls monotonically as β rises: bisect on it
     let (mut a, mut b) = (-500.0f64, 500.0f64);
     for _ in 0..100 {

@@ -506,7 +506,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         );
 
         let (mut ran, mut work) = (false, 0.0);
-        let mut best: Option<(f64, PathBuf)> = None;
+        let mut best: Option<(f64, PathBuf, u64)> = None;
         let mut val_curve = Vec::new();
         let t = Instant::now();
         progress.doing(&format!("selecting {name} on val"));
@@ -524,11 +524,11 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             let sr1 = summary::first_stop(&e.out.join("tables.csv"))?.sr;
             let frames = farm::checkpoints::frames(&ckpt).map_err(|e| anyhow::anyhow!("{}: {e}", ckpt.display()))?;
             val_curve.push((frames, sr1));
-            if best.as_ref().is_none_or(|(b, _)| sr1 >= *b) {
-                best = Some((sr1, ckpt));
+            if best.as_ref().is_none_or(|(b, _, _)| sr1 >= *b) {
+                best = Some((sr1, ckpt, frames));
             }
         }
-        let (val_sr1, chosen) = best.with_context(|| format!("{}: no checkpoint", run.dir.display()))?;
+        let (val_sr1, chosen, chosen_frames) = best.with_context(|| format!("{}: no checkpoint", run.dir.display()))?;
         progress.step(Kind::Eval, work, ran.then(|| t.elapsed().as_secs_f64()), &format!("selected {name} on val"));
 
         // the test and train evaluations are of the selected checkpoint: redone when val chose another
@@ -568,7 +568,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         r.val_curve = val_curve;
         let update = farm::checkpoints::update_of(&chosen).unwrap_or(0);
         r.budget = Some(summary::Budget {
-            frames: farm::checkpoints::frames(&chosen).map_err(|e| anyhow::anyhow!("{}: {e}", chosen.display()))?,
+            frames: chosen_frames,
             adam_steps: update * (run.cfg.ppo.epochs * run.cfg.ppo.minibatches) as u64,
             frames_per_update: run.frames_per_update(a.workers),
         });

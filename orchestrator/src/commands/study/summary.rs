@@ -360,7 +360,7 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
         }
         let ms = |g: &dyn Fn(&FirstStops) -> f64| mean_std(&f.iter().map(g).collect::<Vec<_>>());
         let (near, ratio) = (ms(&|f| f.near_share()), ms(&|f| f.ratio()));
-        let (stopped, step) = (ms(&|f| 100.0 * f.stopped as f64 / f.episodes.max(1) as f64), ms(&|f| f.mean_step));
+        let (stopped, step) = (ms(&|f| f.stopped_share()), ms(&|f| f.mean_step));
         let _ = writeln!(
             md,
             "| {} | {} | {:.1} ± {:.1} | {:.2} ± {:.2} | {:.1} ± {:.1} | {:.1} ± {:.1} |",
