@@ -192,6 +192,18 @@ impl Run {
         }
     }
 
+    /// Waits until the orchestrator's output contains `text`; panics with diagnostics.
+    pub fn wait_output(&mut self, timeout: Duration, text: &str) {
+        let start = Instant::now();
+        while !self.output().contains(text) {
+            if let Some(s) = self.try_wait() {
+                panic!("the run ended ({s}) before saying `{text}`\n{}", self.diagnostics());
+            }
+            assert!(start.elapsed() < timeout, "no `{text}` within {timeout:?}\n{}", self.diagnostics());
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
     pub fn try_wait(&mut self) -> Option<ExitStatus> {
         if self.status.is_none()
             && let Some(c) = &mut self.child

@@ -53,8 +53,9 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A peer session as the bridges configure it, opened from this thread (so without the hint
-/// unless `--hint` set it).
+/// A peer session as the bridges configure it over plain TCP (`--insecure`), opened from this
+/// thread (so without the hint unless `--hint` set it).
 fn open(listen: &[String], connect: &[String]) -> anyhow::Result<zenoh::Session> {
-    zenoh::open(orchestrator::remote::config(listen, connect)?).wait().map_err(anyhow::Error::msg)
+    let insecure = orchestrator::remote::Security::Insecure;
+    zenoh::open(orchestrator::remote::config(listen, connect, &insecure)?).wait().map_err(anyhow::Error::msg)
 }

@@ -4,8 +4,9 @@
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use tracing_subscriber::Layer;
 
-use orchestrator::commands::{bench, dataset, encoder, eval, program, render, soak, study, up, workers};
+use orchestrator::commands::{bench, dataset, encoder, eval, hosts, program, render, soak, study, up, workers};
 
 #[derive(Parser)]
 #[command(
@@ -48,17 +49,23 @@ enum Command {
     Soak(soak::SoakArgs),
     /// Run workers here for a run whose learner is on another machine (`up --listen`).
     Workers(workers::WorkersArgs),
+    /// Who may join a run over TLS: issue a worker host's bundle, revoke it, list them.
+    #[command(subcommand)]
+    Hosts(hosts::HostsCmd),
 }
 
 fn main() -> ExitCode {
     worker::render::quiet_headless_display();
-    // Library and driver logs (wgpu, naga, Vulkan loader) reach the terminal only when asked for.
-    if std::env::var_os("RUST_LOG").is_some() {
-        tracing_subscriber::fmt()
-            .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+    // Library and driver logs (wgpu, naga, Vulkan loader) reach the terminal only when asked
+    // for; why a TLS link was refused is read from Zenoh's logs always.
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let logs = std::env::var_os("RUST_LOG").is_some().then(|| {
+        tracing_subscriber::fmt::layer()
             .with_writer(std::io::stderr)
-            .init();
-    }
+            .with_filter(tracing_subscriber::EnvFilter::from_default_env())
+    });
+    tracing_subscriber::registry().with(logs).with(orchestrator::remote::refusals::layer()).init();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Dataset(c) => dataset::run(c).map(|_| 0),
@@ -72,6 +79,7 @@ fn main() -> ExitCode {
         Command::Study(a) => study::run(a).map(|_| 0),
         Command::Soak(a) => soak::run(a),
         Command::Workers(a) => workers::run(a),
+        Command::Hosts(c) => hosts::run(c).map(|_| 0),
     };
     match result {
         Ok(code) => ExitCode::from(code.clamp(0, 255) as u8),

@@ -6,6 +6,7 @@ pub mod bench;
 pub mod dataset;
 pub mod encoder;
 pub mod eval;
+pub mod hosts;
 pub mod program;
 pub mod render;
 pub mod soak;

@@ -51,10 +51,15 @@ pub struct UpArgs {
     /// Seconds between the learner's progress records.
     #[arg(long, default_value_t = 2.0, value_parser = super::values::seconds)]
     pub report_every: f64,
-    /// Accept worker hosts on this Zenoh endpoint (e.g. tcp/0.0.0.0:7447); they join with
+    /// Accept worker hosts on this Zenoh endpoint, TLS with certificates on both sides (e.g.
+    /// tls/0.0.0.0:7447); each host joins with a bundle from `orchestrator hosts issue` and
     /// `orchestrator workers --connect`.
     #[arg(long, requires = "remote_workers")]
     pub listen: Option<String>,
+    /// Allow --listen tcp/...: plain TCP, readable and writable by anyone who reaches the port
+    /// (loopback experiments).
+    #[arg(long, requires = "listen")]
+    pub insecure: bool,
     /// Learner slots kept for worker hosts (after the local --workers).
     #[arg(long, default_value_t = 0, requires = "listen")]
     pub remote_workers: usize,
@@ -74,6 +79,9 @@ pub fn load_config(path: Option<&Path>) -> anyhow::Result<RunConfig> {
 }
 
 pub fn run(a: UpArgs) -> anyhow::Result<i32> {
+    if let Some(endpoint) = &a.listen {
+        crate::remote::check_endpoint(endpoint, a.insecure, "--listen")?;
+    }
     process::install_termination_handler()?;
     let resume = a.resume.is_some();
     let (run_path, mut cfg) = match &a.resume {
@@ -310,8 +318,15 @@ fn listen(
     farm::files::write_atomic(&secret_file, secret.as_bytes())?;
     let digest = if a.synthetic { String::new() } else { super::workers::manifest_digest(&cfg.run.dataset)? };
     let (e, w, h) = (cfg.env.envs_per_worker as u32, cfg.env.width, cfg.env.height);
+    let tls = endpoint.starts_with("tls/");
+    if tls {
+        crate::remote::refusals::print_refusals();
+        crate::remote::certs::learner_files(run, run_id)?;
+        farm::files::write_atomic(&run.join("tls/endpoint"), endpoint.as_bytes())?;
+    }
     let bridge = crate::remote::LearnerBridge::start(crate::remote::ListenOptions {
         endpoint: endpoint.into(),
+        tls_run: tls.then(|| run.to_path_buf()),
         run_id: run_id.into(),
         secret: secret.clone(),
         first_slot: a.workers as u32,
@@ -322,10 +337,20 @@ fn listen(
         width: w,
         height: h,
     })?;
-    eprintln!(
-        "[up] {} learner slot(s) wait for worker hosts on {endpoint}; on each host:\n[up]   orchestrator workers --connect {endpoint} --run-id {run_id} --secret {secret} --workers N",
-        a.remote_workers
-    );
+    if tls {
+        let (issued, _) = crate::remote::certs::hosts(run)?;
+        eprintln!(
+            "[up] {} learner slot(s) wait for worker hosts on {endpoint} (TLS; hosts with a bundle: {}); for each host:\n[up]   orchestrator hosts issue --run {} NAME    (then copy the bundle as it says)",
+            a.remote_workers,
+            if issued.is_empty() { "none yet".into() } else { issued.join(", ") },
+            run.display()
+        );
+    } else {
+        eprintln!(
+            "[up] {} learner slot(s) wait for worker hosts on {endpoint}; on each host:\n[up]   orchestrator workers --connect {endpoint} --insecure --run-id {run_id} --secret {secret} --workers N",
+            a.remote_workers
+        );
+    }
     Ok(bridge)
 }
 

@@ -17,16 +17,23 @@ use crate::supervise::crew::{Crew, CrewSpec, CrewState, HostSlots, PolicyArg};
 
 #[derive(Args, Debug)]
 pub struct WorkersArgs {
-    /// The learner host's endpoint, as `up --listen` printed it (e.g. tcp/10.0.0.5:7447).
+    /// The learner host's endpoint (e.g. tls/10.0.0.5:7447).
     #[arg(long)]
     pub connect: String,
+    /// This host's bundle from `orchestrator hosts issue` (its certificate, the learner's CA,
+    /// the run id and secret).
+    #[arg(long, value_name = "DIR")]
+    pub certs: Option<PathBuf>,
+    /// Allow --connect tcp/...: plain TCP, no certificates (loopback experiments).
+    #[arg(long)]
+    pub insecure: bool,
     /// Worker processes on this machine.
     #[arg(long, default_value_t = 4, value_parser = super::values::workers)]
     pub workers: usize,
-    /// The run to join (`up --listen` prints it).
+    /// The run to join (default: the bundle's; `up --listen` prints it).
     #[arg(long)]
-    pub run_id: String,
-    /// The run's secret (`up --listen` prints it; default: $GESTHOR_SECRET).
+    pub run_id: Option<String>,
+    /// The run's secret (default: the bundle's, else $GESTHOR_SECRET; `up --listen` prints it).
     #[arg(long)]
     pub secret: Option<String>,
     /// The dataset on this machine (default: the path in the run's config); it must be the
@@ -56,28 +63,68 @@ pub fn manifest_digest(dataset: &std::path::Path) -> anyhow::Result<String> {
     Ok(farm::files::sha256_hex(&bytes))
 }
 
-pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {
-    process::install_termination_handler()?;
+pub fn run(mut a: WorkersArgs) -> anyhow::Result<i32> {
+    remote::check_endpoint(&a.connect, a.insecure, "--connect")?;
+    let (security, bundle) = match (&a.certs, a.connect.starts_with("tls/")) {
+        (Some(dir), true) => {
+            let (files, join) = remote::certs::host_files(dir)?;
+            (remote::Security::Tls { files, access: None }, Some(join))
+        }
+        (None, true) => anyhow::bail!(
+            "--connect {}: TLS needs this host's bundle (--certs DIR); `orchestrator hosts issue` makes it on the learner's host",
+            a.connect
+        ),
+        (_, false) => (remote::Security::Insecure, None),
+    };
+    if let Some(b) = &bundle {
+        anyhow::ensure!(
+            a.run_id.as_ref().is_none_or(|r| *r == b.run_id),
+            "--run-id {}: the bundle is for run {}",
+            a.run_id.as_deref().unwrap_or_default(),
+            b.run_id
+        );
+        a.run_id = Some(b.run_id.clone());
+    }
+    let run_id = a.run_id.clone().context("--run-id: the run to join is needed (`up --listen` printed it)")?;
     let secret = a
         .secret
         .clone()
+        .or_else(|| bundle.as_ref().map(|b| b.secret.clone()))
         .or_else(|| std::env::var("GESTHOR_SECRET").ok())
         .context("--secret: the run's secret is needed (or $GESTHOR_SECRET); `up --listen` printed it")?;
-    // Shared memory of earlier hosts on this machine that were killed.
-    crate::supervise::launch::sweep_dead_runs();
-    let session = remote::session(&[], std::slice::from_ref(&a.connect))?;
-    let host = remote::hostname();
+    process::install_termination_handler()?;
+    let session = remote::session(&[], std::slice::from_ref(&a.connect), &security)?;
+    let host = bundle.as_ref().map(|b| b.name.clone()).unwrap_or_else(remote::hostname);
     let asked = Instant::now();
     let grant = loop {
-        match remote::join(&session, &a.run_id, &secret, a.workers as u32, &host) {
+        match remote::join(&session, &run_id, &secret, a.workers as u32, &host) {
             Ok(g) => break g,
-            Err(e) if e.to_string().contains("no learner answered") && asked.elapsed().as_secs_f64() < a.wait => {
+            Err(e) if e.to_string().contains("no learner answered") => {
+                if let Some(why) = remote::refusals::last_refusal() {
+                    anyhow::bail!(
+                        "joining run {run_id} at {}: the TLS link was refused ({why}): this host's certificate is not trusted there (revoked, or issued for another run)",
+                        a.connect
+                    );
+                }
+                anyhow::ensure!(
+                    asked.elapsed().as_secs_f64() < a.wait,
+                    "joining run {run_id} at {}: no learner answered for {:.0} s (is `up --listen` running there?)",
+                    a.connect,
+                    a.wait
+                );
                 if process::termination_signal().is_some() {
                     return Ok(130);
                 }
                 std::thread::sleep(Duration::from_secs(1));
             }
-            Err(e) => return Err(e.context(format!("joining run {} at {}", a.run_id, a.connect))),
+            // slots of a host that just died are freed a few seconds after it vanished
+            Err(e) if e.to_string().contains("remote slots are free") && asked.elapsed().as_secs_f64() < a.wait => {
+                if process::termination_signal().is_some() {
+                    return Ok(130);
+                }
+                std::thread::sleep(Duration::from_secs(1));
+            }
+            Err(e) => return Err(e.context(format!("joining run {run_id} at {}", a.connect))),
         }
     };
     let mut cfg = RunConfig::from_toml(&grant.config_toml, "(the learner's config)")?;
@@ -93,16 +140,19 @@ pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {
         );
         worker::dataset::Dataset::open(&cfg.run.dataset, worker::dataset::Verify::Full)?;
     }
-    let dir = a.dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("host-{}", a.run_id)));
+    // Shared memory of earlier hosts on this machine that were killed (after the join: a
+    // refused host says one line).
+    crate::supervise::launch::sweep_dead_runs();
+    let dir = a.dir.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("host-{}", run_id)));
     std::fs::create_dir_all(dir.join("logs"))?;
     let config_path = dir.join("config.toml");
     farm::files::write_atomic(&config_path, cfg.to_toml().as_bytes())?;
     // This host's own shared-memory domain, apart from any other run or host on the machine.
-    let local_run_id = format!("{}-h{:06x}", a.run_id, grant.token & 0xff_ffff);
+    let local_run_id = format!("{}-h{:06x}", run_id, grant.token & 0xff_ffff);
     let slots = grant.first_slot..grant.first_slot + a.workers as u32;
     eprintln!(
         "[workers] joined run {} at {}: {} workers as learner slots {}..{}, generations from {}",
-        a.run_id,
+        run_id,
         a.connect,
         a.workers,
         slots.start,
@@ -113,7 +163,7 @@ pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {
     let bridge = HostBridge::start(
         session,
         HostOptions {
-            run_id: a.run_id.clone(),
+            run_id: run_id.clone(),
             local_run_id: local_run_id.clone(),
             grant,
             workers: a.workers as u32,

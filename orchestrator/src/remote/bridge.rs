@@ -127,11 +127,11 @@ impl BridgeThread {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::remote::session;
+    use crate::remote::{Security, session};
 
     #[test]
     fn a_zenoh_message_wakes_a_bridge_waiting_on_its_wait_set() {
-        let session = session(&[], &[]).unwrap();
+        let session = session(&[], &[], &Security::Insecure).unwrap();
         let bell = Doorbell::new().unwrap();
         let (_sub, rx) = bell.subscribe(&session, "gesthor/test/bell".into()).unwrap();
         let ws = wait_set().unwrap();

@@ -3,6 +3,7 @@
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
 use farm::learner_ports::LearnerPorts;
 use zenoh::Wait;
@@ -11,7 +12,15 @@ use zenoh::sample::SampleKind;
 
 use super::bridge::{BridgeCounts, BridgeThread, Doorbell, wait, wait_set};
 use super::join::JoinGrant;
-use super::wire::{Codec, decode_act, encode_obs, host_key, learner_key, obs_key, slot_of};
+use super::wire::{Codec, act_key_all, decode_act, encode_obs, host_key, learner_key, obs_key, reopen_key, slot_of};
+
+/// How long a host waits for a learner that said it reopens its listener: longer than the
+/// learner's own grace for hosts to come back (`learner_bridge::REJOIN_GRACE`).
+const REOPEN_GRACE: Duration = Duration::from_secs(30);
+/// How long a host waits for a learner whose presence vanished unannounced before it asks
+/// whether the learner is there (Zenoh may replace a host's first link by a second one it was
+/// opening at the same time), and ends if not.
+const LINK_GRACE: Duration = Duration::from_secs(5);
 
 /// The worker host's side: stands in for the learner towards its local workers.
 pub struct HostOptions {
@@ -73,6 +82,14 @@ impl HostBridge {
     }
 }
 
+/// Whether the learner's liveliness token answers a query now.
+fn learner_alive(session: &zenoh::Session, run_id: &str) -> bool {
+    let Ok(replies) = session.liveliness().get(learner_key(run_id)).timeout(Duration::from_secs(2)).wait() else {
+        return false;
+    };
+    std::iter::from_fn(|| replies.recv().ok()).any(|r| r.result().is_ok())
+}
+
 fn host_side(
     session: zenoh::Session,
     o: HostOptions,
@@ -88,7 +105,20 @@ fn host_side(
     let learner =
         session.liveliness().declare_subscriber(learner_key(&o.run_id)).wait().map_err(zerr("learner liveliness"))?;
     let bell = Doorbell::new()?;
-    let (_acts, acts) = bell.subscribe(&session, format!("gesthor/{}/act/*", o.run_id))?;
+    let (_acts, acts) = bell.subscribe(&session, act_key_all(&o.run_id))?;
+    let (_reopen, reopen) = bell.subscribe(&session, reopen_key(&o.run_id))?;
+    // Since when the learner is away, how long it may be (longer after it said it reopens its
+    // listener with new trust), and since when it is back.
+    let mut away: Option<(Instant, Duration)> = None;
+    let mut back: Option<Instant> = None;
+    let mut told = false;
+    let n = o.workers as usize;
+    // Per slot: the last observation sent (its generation, step and bytes) and whether an
+    // answer came; the newest answer delivered.
+    let mut last_obs: Vec<Option<(u32, u64, Vec<u8>)>> = vec![None; n];
+    let mut answered = vec![true; n];
+    let mut last_act: Vec<Option<(u32, u64)>> = vec![None; n];
+    let mut resent = Instant::now();
     // Wakes on an answer from the learner (the bell) or an observation of a local worker.
     let ws = wait_set()?;
     let _bell = ws.attach_notification(&bell.door).map_err(|e| anyhow::anyhow!("watching the bell: {e:?}"))?;
@@ -100,31 +130,81 @@ fn host_side(
         wait(&ws)?;
         bell.answer();
         let _ = ports.observation_events().try_wait(|_| {});
+        while reopen.try_recv().is_ok() {
+            told = true;
+        }
         while let Ok(Some(s)) = learner.try_recv() {
-            if s.kind() == SampleKind::Delete {
+            match (s.kind(), told) {
+                (SampleKind::Delete, true) => away = Some((Instant::now(), REOPEN_GRACE)),
+                (SampleKind::Delete, false) => away = Some((Instant::now(), LINK_GRACE)),
+                // back: messages in flight may have been lost with the link
+                (SampleKind::Put, _) => (away, back, told) = (None, Some(Instant::now()), false),
+            }
+        }
+        if let Some((t, grace)) = away
+            && t.elapsed() > grace
+        {
+            away = None;
+            // A link Zenoh replaced can report the learner gone while it is there: ask.
+            if learner_alive(&session, &o.run_id) {
+                back = Some(Instant::now());
+            } else {
+                if grace == REOPEN_GRACE {
+                    eprintln!(
+                        "[workers] the learner's host did not take this host back within {} s of reopening its listener (its certificate revoked?)",
+                        REOPEN_GRACE.as_secs()
+                    );
+                }
                 gone.store(true, Ordering::Relaxed);
             }
         }
-        for k in 0..o.workers as usize {
+        let put = |k: usize, bytes: Vec<u8>| {
+            session
+                .put(obs_key(&o.run_id, first + k as u32), bytes)
+                .congestion_control(CongestionControl::Block)
+                // not batched: every step waits for this message
+                .express(true)
+                .wait()
+                .map_err(zerr("sending an observation"))
+        };
+        for k in 0..n {
             while let Some(m) = ports.receive(k)? {
                 let bytes = encode_obs(o.codec, token, m.header(), m.payload());
-                let n = bytes.len();
-                session
-                    .put(obs_key(&o.run_id, first + k as u32), bytes)
-                    .congestion_control(CongestionControl::Block)
-                    // not batched: every step waits for this message
-                    .express(true)
-                    .wait()
-                    .map_err(zerr("sending an observation"))?;
+                let len = bytes.len();
+                put(k, bytes.clone())?;
+                last_obs[k] = Some((m.header().generation, m.header().step, bytes));
+                answered[k] = false;
                 counts.observations.fetch_add(1, Ordering::Relaxed);
-                counts.bytes.fetch_add(n as u64, Ordering::Relaxed);
+                counts.bytes.fetch_add(len as u64, Ordering::Relaxed);
+            }
+        }
+        // Messages in flight when a link dropped are lost: after the learner is back, a slot still
+        // waiting sends its last observation again (each second, for ten), and the learner
+        // forwards it if it never came, or answers it again if its answer was what got lost.
+        if let Some(t) = back {
+            if t.elapsed() > Duration::from_secs(10) {
+                back = None;
+            } else if t.elapsed() > Duration::from_millis(500) && resent.elapsed() > Duration::from_secs(1) {
+                resent = Instant::now();
+                for k in (0..n).filter(|&k| !answered[k]) {
+                    if let Some((_, _, bytes)) = &last_obs[k] {
+                        put(k, bytes.clone())?;
+                    }
+                }
             }
         }
         while let Ok(s) = acts.try_recv() {
             let slot = slot_of(s.key_expr().as_str());
             match (slot, decode_act(&s.payload().to_bytes())) {
                 (Some(k), Some((t, m))) if t == token && (first..first + o.workers).contains(&k) => {
-                    ports.send((k - first) as usize, m)?;
+                    let i = (k - first) as usize;
+                    // an answer sent again after a reopen that had already come
+                    if last_act[i].is_some_and(|(g, step)| g == m.generation && m.step <= step) {
+                        continue;
+                    }
+                    last_act[i] = Some((m.generation, m.step));
+                    answered[i] = last_obs[i].as_ref().is_none_or(|(g, step, _)| *g == m.generation && *step <= m.step);
+                    ports.send(i, m)?;
                     counts.actions.fetch_add(1, Ordering::Relaxed);
                 }
                 (Some(k), _) if !(first..first + o.workers).contains(&k) => {} // another host's slot

@@ -2,9 +2,10 @@
 //! remote slot's worker in the run's shared memory, forwards remote observations to the learner
 //! and the learner's actions back.
 
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use farm::transport::{WorkerOptions, WorkerPorts};
@@ -15,12 +16,15 @@ use zenoh::sample::SampleKind;
 
 use super::bridge::{BridgeCounts, BridgeThread, Doorbell, wait, wait_set};
 use super::join::{JOIN_KEY, JoinGrant, JoinRequest, proof, random_hex};
-use super::session::session;
-use super::wire::{act_key, decode_obs, encode_act, learner_key, slot_of};
+use super::session::{Security, session};
+use super::wire::{act_key, decode_obs, encode_act, host_key_all, learner_key, obs_key_all, reopen_key, slot_of};
+use super::{access, certs};
 
 /// The learner host's side of a multi-host run.
 pub struct ListenOptions {
     pub endpoint: String,
+    /// The run folder of a run over TLS (its `tls/`, `certs`); `None`: plain TCP (`--insecure`).
+    pub tls_run: Option<PathBuf>,
     pub run_id: String,
     pub secret: String,
     /// The learner's slots reserved for worker hosts.
@@ -42,12 +46,18 @@ pub struct LearnerBridge {
 
 impl LearnerBridge {
     pub fn start(o: ListenOptions) -> anyhow::Result<LearnerBridge> {
-        let session = session(std::slice::from_ref(&o.endpoint), &[])?;
         let counts = Arc::new(BridgeCounts::default());
+        // The first session opens here, so a listener that cannot start is this call's error.
+        let (opened, ready) = std::sync::mpsc::channel();
         let thread = BridgeThread::spawn("learner bridge", {
             let counts = counts.clone();
-            move |stop| learner_side(session, o, stop, &counts)
+            move |stop| learner_side(o, stop, &counts, opened)
         })?;
+        match ready.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => anyhow::bail!("{e}"),
+            Err(_) => return Err(thread.finish().err().unwrap_or_else(|| anyhow::anyhow!("the learner bridge ended"))),
+        }
         Ok(LearnerBridge { thread, counts })
     }
 
@@ -92,27 +102,107 @@ impl Holders {
         n
     }
 
+    /// The tokens holding slots now.
+    fn tokens(&self) -> Vec<u64> {
+        let mut t: Vec<u64> = self.held.iter().flatten().copied().collect();
+        t.sort_unstable();
+        t.dedup();
+        t
+    }
+
     fn holder(&self, slot: u32) -> Option<u64> {
         self.held.get(slot.checked_sub(self.first_slot)? as usize).copied().flatten()
     }
 }
 
-fn learner_side(
+/// The learner's Zenoh side: opened at the start, and again whenever the hosts it trusts change
+/// (Zenoh reads its TLS trust and access rules when a session opens).
+struct Listener {
     session: zenoh::Session,
+    _alive: zenoh::liveliness::LivelinessToken,
+    joins: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<zenoh::query::Query>>,
+    hosts: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+    _obs: zenoh::pubsub::Subscriber<()>,
+    obs: std::sync::mpsc::Receiver<zenoh::sample::Sample>,
+    /// The trust file's text it opened with (TLS runs).
+    trust: Option<String>,
+}
+
+impl Listener {
+    fn open(o: &ListenOptions, bell: &Doorbell) -> anyhow::Result<Listener> {
+        let zerr = |what: &'static str| move |e: zenoh::Error| anyhow::anyhow!("{what}: {e}");
+        let (security, trust) = match &o.tls_run {
+            Some(run) => {
+                let files = certs::learner_files(run, &o.run_id)?;
+                let trust = std::fs::read_to_string(&files.trusted)?;
+                let access = Some(access::learner_rules(&o.run_id, &files.peer_names));
+                (Security::Tls { files, access }, Some(trust))
+            }
+            None => (Security::Insecure, None),
+        };
+        let session = session(std::slice::from_ref(&o.endpoint), &[], &security)?;
+        if let (Some(run), Some(t)) = (&o.tls_run, &trust) {
+            certs::mark_applied(run, t)?;
+        }
+        let _alive =
+            session.liveliness().declare_token(learner_key(&o.run_id)).wait().map_err(zerr("liveliness token"))?;
+        let joins = session.declare_queryable(JOIN_KEY).wait().map_err(zerr("join queryable"))?;
+        let hosts =
+            session.liveliness().declare_subscriber(host_key_all(&o.run_id)).wait().map_err(zerr("host liveliness"))?;
+        let (_obs, obs) = bell.subscribe(&session, obs_key_all(&o.run_id))?;
+        Ok(Listener { session, _alive, joins, hosts, _obs, obs, trust })
+    }
+
+    /// Whether the run's trust file no longer says what this listener opened with.
+    fn trust_changed(&self, o: &ListenOptions) -> bool {
+        match (&self.trust, &o.tls_run) {
+            (Some(t), Some(run)) => {
+                std::fs::read_to_string(run.join("tls/trusted-hosts.pem")).is_ok_and(|now| now != *t)
+            }
+            _ => false,
+        }
+    }
+
+    /// The hosts whose liveliness tokens this listener sees now.
+    fn hosts_alive(&self, run_id: &str) -> Vec<u64> {
+        let Ok(replies) = self.session.liveliness().get(host_key_all(run_id)).timeout(Duration::from_secs(2)).wait()
+        else {
+            return Vec::new();
+        };
+        std::iter::from_fn(|| replies.recv().ok())
+            .filter_map(|r| r.result().ok().map(|s| s.key_expr().as_str().to_string()))
+            .filter_map(|k| u64::from_str_radix(k.rsplit('/').next()?, 16).ok())
+            .collect()
+    }
+}
+
+/// How long hosts have to come back after the listener reopened before their slots are freed.
+const REJOIN_GRACE: Duration = Duration::from_secs(15);
+/// How long a host's presence may vanish before the learner asks whether it is there (Zenoh
+/// may replace a host's first link by a second one it was opening at the same time) and frees
+/// its slots if not.
+const LINK_GRACE: Duration = Duration::from_secs(3);
+
+fn learner_side(
     o: ListenOptions,
     stop: &AtomicBool,
     counts: &BridgeCounts,
+    opened: std::sync::mpsc::Sender<Result<(), String>>,
 ) -> anyhow::Result<()> {
     let zerr = |what: &'static str| move |e: zenoh::Error| anyhow::anyhow!("{what}: {e}");
-    let _alive = session.liveliness().declare_token(learner_key(&o.run_id)).wait().map_err(zerr("liveliness token"))?;
-    let joins = session.declare_queryable(JOIN_KEY).wait().map_err(zerr("join queryable"))?;
-    let hosts = session
-        .liveliness()
-        .declare_subscriber(format!("gesthor/{}/host/*", o.run_id))
-        .wait()
-        .map_err(zerr("host liveliness"))?;
     let bell = Doorbell::new()?;
-    let (_obs, obs) = bell.subscribe(&session, format!("gesthor/{}/obs/*", o.run_id))?;
+    let mut l = match Listener::open(&o, &bell) {
+        Ok(l) => {
+            let _ = opened.send(Ok(()));
+            l
+        }
+        Err(e) => {
+            let _ = opened.send(Err(format!("{e:#}")));
+            return Ok(());
+        }
+    };
+    let mut trust_checked = Instant::now();
+    let mut reopened: Option<Instant> = None;
     // One stand-in worker per remote slot, in the learner's shared memory. Its ports need the
     // learner's obs_ready, made when the learner starts: ask again each second until then (or
     // until the run ends, should the learner never start).
@@ -141,10 +231,53 @@ fn learner_side(
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| anyhow::anyhow!("watching the learner's answers: {e:?}"))?;
     let mut holders = Holders { first_slot: o.first_slot, held: vec![None; o.slots as usize], joins: 0 };
+    // Hosts whose presence vanished, since when: a link Zenoh replaces comes back at once.
+    let mut leaving: Vec<(u64, Instant)> = Vec::new();
+    // Per remote slot: the newest observation forwarded (generation, step) and the last answer
+    // sent, for a host that sends an observation again after a reopen (`host_bridge`).
+    let mut forwarded: Vec<Option<(u32, u64)>> = vec![None; o.slots as usize];
+    let mut answers: Vec<Option<Vec<u8>>> = vec![None; o.slots as usize];
+    let send_act = |session: &zenoh::Session, k: u32, bytes: Vec<u8>| {
+        session
+            .put(act_key(&o.run_id, k), bytes)
+            .congestion_control(CongestionControl::Block)
+            // not batched: every step waits for this message
+            .express(true)
+            .wait()
+            .map_err(zerr("sending actions"))
+    };
     while !stop.load(Ordering::Relaxed) {
         wait(&ws)?;
         bell.answer();
-        while let Ok(Some(q)) = joins.try_recv() {
+        if trust_checked.elapsed() > Duration::from_secs(1) {
+            trust_checked = Instant::now();
+            if l.trust_changed(&o) {
+                // Hosts wait for the learner to come back instead of ending their workers.
+                let _ = l.session.put(reopen_key(&o.run_id), Vec::<u8>::new()).express(true).wait();
+                // closing drops what is still queued: let the notice leave first
+                std::thread::sleep(Duration::from_millis(300));
+                let _ = l.session.close().wait();
+                l = Listener::open(&o, &bell)?;
+                reopened = Some(Instant::now());
+                let (trusted, revoked) = certs::hosts(o.tls_run.as_deref().expect("a TLS run"))?;
+                eprintln!(
+                    "[up] reopened the TLS listener; trusted hosts now: {} (revoked: {})",
+                    if trusted.is_empty() { "none".into() } else { trusted.join(", ") },
+                    if revoked.is_empty() { "none".into() } else { revoked.join(", ") },
+                );
+            }
+        }
+        if reopened.is_some_and(|t| t.elapsed() > REJOIN_GRACE) {
+            reopened = None;
+            let alive = l.hosts_alive(&o.run_id);
+            for t in holders.tokens() {
+                if !alive.contains(&t) {
+                    let n = holders.release(t);
+                    eprintln!("[up] a worker host did not come back after the reopen: {n} remote slot(s) free");
+                }
+            }
+        }
+        while let Ok(Some(q)) = l.joins.try_recv() {
             let payload = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
             match grant(&o, &mut holders, &payload) {
                 Ok((g, req)) => {
@@ -163,16 +296,25 @@ fn learner_side(
                 }
             }
         }
-        while let Ok(Some(s)) = hosts.try_recv() {
+        while let Ok(Some(s)) = l.hosts.try_recv() {
             let token = s.key_expr().as_str().rsplit('/').next().and_then(|t| u64::from_str_radix(t, 16).ok());
-            if let (SampleKind::Delete, Some(t)) = (s.kind(), token) {
-                let n = holders.release(t);
-                if n > 0 {
-                    eprintln!("[up] a worker host left: {n} remote slot(s) free until a host joins again");
-                }
+            match (s.kind(), token) {
+                (SampleKind::Delete, Some(t)) => leaving.push((t, Instant::now())),
+                (SampleKind::Put, Some(t)) => leaving.retain(|(l, _)| *l != t),
+                _ => {}
             }
         }
-        while let Ok(s) = obs.try_recv() {
+        let expired: Vec<u64> =
+            leaving.extract_if(.., |(_, since)| since.elapsed() > LINK_GRACE).map(|(t, _)| t).collect();
+        // A link Zenoh replaced can report a host gone while it is there: ask.
+        let alive = if expired.is_empty() { Vec::new() } else { l.hosts_alive(&o.run_id) };
+        for t in expired.into_iter().filter(|t| !alive.contains(t)) {
+            let n = holders.release(t);
+            if n > 0 {
+                eprintln!("[up] a worker host left: {n} remote slot(s) free until a host joins again");
+            }
+        }
+        while let Ok(s) = l.obs.try_recv() {
             let bytes = s.payload().to_bytes();
             match (slot_of(s.key_expr().as_str()), decode_obs(&bytes)) {
                 (Some(k), Ok((token, header, payload)))
@@ -180,7 +322,16 @@ fn learner_side(
                         && header.worker_id == k
                         && payload.len() == o.layout.total_len as usize =>
                 {
-                    ports[(k - o.first_slot) as usize].forward(&header, &payload)?;
+                    let i = (k - o.first_slot) as usize;
+                    if forwarded[i].is_some_and(|(g, step)| g == header.generation && header.step <= step) {
+                        // sent again after a reopen: the learner has it; its answer may be lost
+                        if let Some(a) = &answers[i] {
+                            send_act(&l.session, k, a.clone())?;
+                        }
+                        continue;
+                    }
+                    forwarded[i] = Some((header.generation, header.step));
+                    ports[i].forward(&header, &payload)?;
                     counts.observations.fetch_add(1, Ordering::Relaxed);
                     counts.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                 }
@@ -194,13 +345,9 @@ fn learner_side(
             let _ = p.action_events().try_wait(|_| {});
             while let Some(m) = p.try_action()? {
                 if let Some(token) = holders.holder(k) {
-                    session
-                        .put(act_key(&o.run_id, k), encode_act(token, &m))
-                        .congestion_control(CongestionControl::Block)
-                        // not batched: every step waits for this message
-                        .express(true)
-                        .wait()
-                        .map_err(zerr("sending actions"))?;
+                    let bytes = encode_act(token, &m);
+                    answers[i] = Some(bytes.clone());
+                    send_act(&l.session, k, bytes)?;
                     counts.actions.fetch_add(1, Ordering::Relaxed);
                 }
             }
@@ -255,6 +402,7 @@ mod tests {
     fn a_join_needs_the_run_and_its_secret() {
         let o = ListenOptions {
             endpoint: String::new(),
+            tls_run: None,
             run_id: "r1".into(),
             secret: "s3cret".into(),
             first_slot: 2,

@@ -16,19 +16,28 @@
 //!   host frees its slots (the learner sees them as missing workers, one batch timeout each
 //!   round), a vanished learner ends the host's workers.
 //!
-//! A join proves knowledge of the run's secret (SHA-256 over the secret, the run id and a
-//! nonce), and so does the grant; a host of another run or with another secret is refused with
-//! a line on both sides. Messages carry the grant's token: a host whose slots were given to
-//! another is ignored. The traffic itself is not encrypted (Zenoh's TLS transport would be).
+//! Links are TLS with a certificate on each side (`certs`): the learner trusts the hosts whose
+//! bundles were issued for the run and not revoked, hosts trust the run's learner, and Zenoh's
+//! access control (`access`) lets hosts send only observations, joins and their presence. A
+//! peer without such a certificate does not get past the handshake. Plain TCP only with
+//! `--insecure`. Issuing or revoking a host makes the learner reopen its listener with the new
+//! trust (`gesthor/<run>/reopen` tells the hosts to wait for it). On top, a join proves
+//! knowledge of the run's secret (SHA-256 over the secret, the run id and a nonce), and so does
+//! the grant; messages carry the grant's token: a host whose slots were given to another is
+//! ignored.
 //!
-//! By concept: `session` (the Zenoh peer), `wire` (keys and bytes), `join` (asking for slots and
-//! proving the secret), `bridge` (the thread, wait set and doorbell both bridges use), and the
-//! two sides, `learner_bridge` and `host_bridge`.
+//! By concept: `session` (the Zenoh peer), `certs` (who may join), `access` (what each may
+//! send), `wire` (keys and bytes), `join` (asking for slots and proving the secret), `bridge`
+//! (the thread, wait set and doorbell both bridges use), and the two sides, `learner_bridge`
+//! and `host_bridge`.
 
+mod access;
 mod bridge;
+pub mod certs;
 mod host_bridge;
 mod join;
 mod learner_bridge;
+pub mod refusals;
 mod session;
 mod wire;
 
@@ -36,5 +45,5 @@ pub use bridge::BridgeCounts;
 pub use host_bridge::{HostBridge, HostOptions};
 pub use join::{JoinGrant, JoinRequest, join, random_hex};
 pub use learner_bridge::{LearnerBridge, ListenOptions};
-pub use session::{DEFAULT_PORT, config, hostname, session, short_slices};
+pub use session::{DEFAULT_PORT, Security, check_endpoint, config, hostname, session, short_slices};
 pub use wire::{Codec, decode_obs, encode_obs};

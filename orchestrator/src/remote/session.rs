@@ -1,15 +1,47 @@
-//! The Zenoh session of either side: a peer on the given endpoints only, and the scheduler hint
-//! its threads and the bridges run with.
+//! The Zenoh session of either side: a peer on the given endpoints only, over TLS with
+//! certificates on both sides unless `--insecure`, and the scheduler hint its threads and the
+//! bridges run with.
 
 use zenoh::Wait;
+
+use super::certs::TlsFiles;
+
+/// How a session's links are secured.
+#[derive(Clone, Debug)]
+pub enum Security {
+    /// Plain TCP (`--insecure`): whoever reaches the port can read and write the run.
+    Insecure,
+    /// TLS only, both sides showing a certificate the other trusts; `access` is Zenoh's
+    /// `access_control` section (the learner's, [`super::access::learner_rules`]).
+    Tls { files: TlsFiles, access: Option<serde_json::Value> },
+}
+
+/// The endpoint's protocol is the one `security` speaks: `tls/` for certificates, `tcp/` only
+/// with `--insecure` (and then one warning line).
+pub fn check_endpoint(endpoint: &str, insecure: bool, flag: &str) -> anyhow::Result<()> {
+    match (endpoint.split_once('/').map(|(p, _)| p), insecure) {
+        (Some("tls"), _) => Ok(()),
+        (Some("tcp"), true) => {
+            eprintln!(
+                "warning: {flag} {endpoint} is plain TCP: anyone who reaches the port can read this run's frames and send it actions (loopback experiments only)"
+            );
+            Ok(())
+        }
+        (Some("tcp"), false) => anyhow::bail!(
+            "{flag} {endpoint}: plain TCP is refused; use tls/{} (certificates on both sides), or --insecure for a loopback experiment",
+            endpoint.split_once('/').map(|(_, a)| a).unwrap_or("HOST:PORT")
+        ),
+        _ => anyhow::bail!("{flag} {endpoint}: expected tls/HOST:PORT (or tcp/HOST:PORT with --insecure)"),
+    }
+}
 
 /// Zenoh's usual port.
 pub const DEFAULT_PORT: u16 = 7447;
 
 /// A Zenoh peer that listens on or connects to the given endpoints only: no multicast
 /// scouting, so nothing joins that was not pointed at.
-pub fn session(listen: &[String], connect: &[String]) -> anyhow::Result<zenoh::Session> {
-    let c = config(listen, connect)?;
+pub fn session(listen: &[String], connect: &[String], security: &Security) -> anyhow::Result<zenoh::Session> {
+    let c = config(listen, connect, security)?;
     // Zenoh's runtime threads start here and inherit the hint of the thread that opens it.
     std::thread::scope(|s| {
         s.spawn(|| {
@@ -23,7 +55,7 @@ pub fn session(listen: &[String], connect: &[String]) -> anyhow::Result<zenoh::S
 }
 
 /// The configuration of [`session`].
-pub fn config(listen: &[String], connect: &[String]) -> anyhow::Result<zenoh::Config> {
+pub fn config(listen: &[String], connect: &[String], security: &Security) -> anyhow::Result<zenoh::Config> {
     let mut c = zenoh::Config::default();
     let list = |v: &[String]| serde_json::to_string(v).expect("strings serialise");
     let set = |c: &mut zenoh::Config, k: &str, v: &str| {
@@ -33,6 +65,25 @@ pub fn config(listen: &[String], connect: &[String]) -> anyhow::Result<zenoh::Co
     set(&mut c, "scouting/multicast/enabled", "false")?;
     set(&mut c, "listen/endpoints", &list(listen))?;
     set(&mut c, "connect/endpoints", &list(connect))?;
+    if let Security::Tls { files, access } = security {
+        let path = |p: &std::path::Path| serde_json::to_string(&p.to_string_lossy()).expect("strings serialise");
+        set(&mut c, "transport/link/protocols", r#"["tls"]"#)?;
+        set(&mut c, "transport/link/tls/root_ca_certificate", &path(&files.trusted))?;
+        for side in ["listen", "connect"] {
+            set(&mut c, &format!("transport/link/tls/{side}_certificate"), &path(&files.certificate))?;
+            set(&mut c, &format!("transport/link/tls/{side}_private_key"), &path(&files.key))?;
+        }
+        set(&mut c, "transport/link/tls/enable_mtls", "true")?;
+        // A link that connected as the learner closed its listener hangs until this passes:
+        // retry sooner than Zenoh's 10 s.
+        set(&mut c, "transport/unicast/open_timeout", "5000")?;
+        // Each side trusts one CA that signed exactly one certificate, the other side's: the
+        // chain names the peer; the address a host dials need not be in the learner's.
+        set(&mut c, "transport/link/tls/verify_name_on_connect", "false")?;
+        if let Some(acl) = access {
+            set(&mut c, "access_control", &acl.to_string())?;
+        }
+    }
     Ok(c)
 }
 

@@ -17,6 +17,20 @@ pub(super) fn learner_key(run: &str) -> String {
 pub(super) fn host_key(run: &str, token: u64) -> String {
     format!("gesthor/{run}/host/{token:016x}")
 }
+/// Every slot's observations, actions or host of a run.
+pub(super) fn obs_key_all(run: &str) -> String {
+    format!("gesthor/{run}/obs/*")
+}
+pub(super) fn act_key_all(run: &str) -> String {
+    format!("gesthor/{run}/act/*")
+}
+pub(super) fn host_key_all(run: &str) -> String {
+    format!("gesthor/{run}/host/*")
+}
+/// The learner says it is about to reopen its listener (hosts wait for it to come back).
+pub(super) fn reopen_key(run: &str) -> String {
+    format!("gesthor/{run}/reopen")
+}
 /// The slot at the end of an obs/act key.
 pub(super) fn slot_of(key: &str) -> Option<u32> {
     key.rsplit('/').next()?.parse().ok()

@@ -1,7 +1,7 @@
 //! `orchestrator bench remote`: a worker host over Zenoh on loopback against local workers.
-//! For each frame size and codec: `up` with one local worker and one remote slot
-//! (`--listen 127.0.0.1`) and `orchestrator workers` joining it, against `up` with two local
-//! workers; the Random policy, which answers each worker as soon as it sends, so a worker's
+//! For each frame size, codec and link (TLS with certificates, plain TCP): `up` with one local
+//! worker and one remote slot (`--listen tls|tcp/127.0.0.1`) and `orchestrator workers` joining
+//! it, against `up` with two local workers; the Random policy, which answers each worker as soon as it sends, so a worker's
 //! frames/s shows what its path costs it.
 
 use std::path::{Path, PathBuf};
@@ -21,6 +21,9 @@ pub struct BenchRemoteArgs {
     /// Codecs of the remote path.
     #[arg(long, value_delimiter = ',', value_enum, default_value = "lz4,zstd,raw")]
     pub codecs: Vec<Codec>,
+    /// Links of the remote path: TLS with certificates on both sides, and plain TCP.
+    #[arg(long, value_delimiter = ',', value_enum, default_value = "tls,tcp")]
+    pub links: Vec<Link>,
     /// Seconds per run.
     #[arg(long, default_value_t = 30.0)]
     pub seconds: f64,
@@ -54,6 +57,23 @@ fn worker_fps(run: &Path) -> anyhow::Result<Vec<(u64, f64)>> {
         serde_json::from_str(&std::fs::read_to_string(&p).with_context(|| p.display().to_string())?)?;
     let secs = s["seconds"].as_f64().unwrap_or(1.0);
     Ok(s["workers"].as_array().into_iter().flatten().map(|w| (w["frames"].as_u64().unwrap_or(0), secs)).collect())
+}
+
+/// How the remote worker's host reaches the learner's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Link {
+    Tls,
+    Tcp,
+}
+
+/// Issues the bench host's bundle once `up` has made the run's certificates.
+fn issue_bundle(run: &Path, out: &Path) -> anyhow::Result<()> {
+    let t = std::time::Instant::now();
+    while !run.join("tls/learner-ca.pem").exists() || !run.join("secret").exists() {
+        anyhow::ensure!(t.elapsed() < Duration::from_secs(60), "{}: no TLS certificates after 60 s", run.display());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    crate::remote::certs::issue(run, "bench", out)
 }
 
 fn orchestrator(args: &[String], log: &Path) -> anyhow::Result<std::process::Child> {
@@ -103,36 +123,37 @@ pub fn run(a: BenchRemoteArgs) -> anyhow::Result<()> {
         let local = worker_fps(&base)?;
         let local_fps = local.iter().map(|(f, t)| *f as f64 / t).sum::<f64>() / local.len().max(1) as f64;
         md += &format!("| {size}² | local only | {local_fps:.0} | | | | |\n");
-        for &codec in &a.codecs {
-            let name = format!("{size}-{codec:?}").to_lowercase();
+        for (&codec, &link) in a.codecs.iter().flat_map(|c| a.links.iter().map(move |l| (c, l))) {
+            let name = format!("{size}-{codec:?}-{link:?}").to_lowercase();
             let run = out.join(&name);
             let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-            let endpoint = format!("tcp/127.0.0.1:{port}");
-            eprintln!("[bench] {size}×{size}: a local and a remote worker, {codec:?} ...");
+            let endpoint = format!("{}/127.0.0.1:{port}", format!("{link:?}").to_lowercase());
+            eprintln!("[bench] {size}×{size}: a local and a remote worker, {codec:?} over {link:?} ...");
+            let insecure = if link == Link::Tcp { vec!["--insecure".to_string()] } else { vec![] };
             let mut up = orchestrator(
                 &[
                     s(&["up", "--workers", "1", "--remote-workers", "1", "--secret", "bench", "--policy", "random"]),
                     s(&["--listen", &endpoint, "--seconds", &secs, "--config"]),
                     vec![cfg.display().to_string(), "--run-dir".into(), run.display().to_string()],
+                    insecure.clone(),
                 ]
                 .concat(),
                 &out.join(format!("{name}-up.log")),
             )?;
             let info = crate::supervise::run_dir::wait_for_info(&run, up.id(), Duration::from_secs(60))?;
+            let credentials = match link {
+                Link::Tls => {
+                    let bundle = out.join(format!("{name}-bundle"));
+                    issue_bundle(&run, &bundle)?;
+                    vec!["--certs".to_string(), bundle.display().to_string()]
+                }
+                Link::Tcp => [insecure, s(&["--run-id", &info.run_id, "--secret", "bench"])].concat(),
+            };
             let host_log = out.join(format!("{name}-host.log"));
             let mut host = orchestrator(
                 &[
-                    s(&[
-                        "workers",
-                        "--connect",
-                        &endpoint,
-                        "--run-id",
-                        &info.run_id,
-                        "--secret",
-                        "bench",
-                        "--workers",
-                        "1",
-                    ]),
+                    s(&["workers", "--connect", &endpoint, "--workers", "1"]),
+                    credentials,
                     s(&["--codec", &format!("{codec:?}").to_lowercase(), "--dir"]),
                     vec![out.join(format!("{name}-host")).display().to_string()],
                 ]
@@ -155,7 +176,7 @@ pub fn run(a: BenchRemoteArgs) -> anyhow::Result<()> {
                 last("ended after").split_whitespace().nth(3).and_then(|x| x.parse::<f64>().ok()).unwrap_or(f64::NAN);
             let (lf, rf) = (fps[0].0 as f64 / fps[0].1, fps[1].0 as f64 / host_secs);
             md += &format!(
-                "| {size}² | local + remote, {codec:?} | {lf:.0} | {rf:.0} | {:.0}% | {:.0} | {:.1} |\n",
+                "| {size}² | local + remote, {codec:?}, {link:?} | {lf:.0} | {rf:.0} | {:.0}% | {:.0} | {:.1} |\n",
                 100.0 * rf / lf,
                 mb * 1e6 / obs,
                 mb / host_secs

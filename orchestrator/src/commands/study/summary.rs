@@ -334,14 +334,10 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
         let val = if r.val_sr1.is_nan() { "-".into() } else { format!("{:.1}", r.val_sr1) };
         let rooms = r.scene_type.map_or("all", |t| t.name());
         // inside the study folder, wherever that is
-        let checkpoint = Path::new(&r.checkpoint).strip_prefix(out).map_or(r.checkpoint.clone(), |p| p.display().to_string());
-        let _ = writeln!(
-            md,
-            "| {} | {rooms} | {} | {checkpoint} | {val} | {:.1} |",
-            r.label(),
-            r.seed,
-            r.test_first.sr
-        );
+        let checkpoint =
+            Path::new(&r.checkpoint).strip_prefix(out).map_or(r.checkpoint.clone(), |p| p.display().to_string());
+        let _ =
+            writeln!(md, "| {} | {rooms} | {} | {checkpoint} | {val} | {:.1} |", r.label(), r.seed, r.test_first.sr);
     }
     let _ = writeln!(
         md,
@@ -353,8 +349,11 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
          |---|---:|---:|---:|---:|---:|"
     );
     for m in METHODS {
-        let f: Vec<FirstStops> =
-            results.iter().filter(|r| r.stem == m.stem && r.scene_type.is_none()).filter_map(|r| r.first_stops).collect();
+        let f: Vec<FirstStops> = results
+            .iter()
+            .filter(|r| r.stem == m.stem && r.scene_type.is_none())
+            .filter_map(|r| r.first_stops)
+            .collect();
         if f.is_empty() {
             continue;
         }
