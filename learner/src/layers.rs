@@ -284,13 +284,16 @@ mod tests {
     #[test]
     fn bf16_trunk_copy_tracks_the_f32_weights() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let f = FrozenTrunk::new(&vs, true);
-        tch::no_grad(|| {
-            for (k, mut v) in vs.variables() {
-                if k.starts_with("resnet.") && k.ends_with("running_var") {
-                    v.copy_(&(Tensor::rand_like(&v) + 0.5));
+        // every draw from torch's one generator under `seeded`: tests run side by side
+        let f = crate::device::seeded(7, || FrozenTrunk::new(&vs, true));
+        crate::device::seeded(8, || {
+            tch::no_grad(|| {
+                for (k, mut v) in vs.variables() {
+                    if k.starts_with("resnet.") && k.ends_with("running_var") {
+                        v.copy_(&(Tensor::rand_like(&v) + 0.5));
+                    }
                 }
-            }
+            })
         });
         f.refresh(&vs);
         let x = crate::device::seeded(6, || Tensor::rand([2, 3, 32, 32], (Kind::Float, Device::Cpu)));

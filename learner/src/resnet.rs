@@ -190,7 +190,8 @@ pub fn load_torchvision(vs: &nn::VarStore, prefix: &str, path: &Path) -> Result<
 /// a check to make before a long run. Returns a one-line summary.
 pub fn check_weights(path: &Path) -> Result<String, WeightsError> {
     let vs = nn::VarStore::new(Device::Cpu);
-    let net = Resnet18::new(&vs.root());
+    // its draws are overwritten; `seeded` keeps them from another thread's sequence
+    let net = crate::device::seeded(0, || Resnet18::new(&vs.root()));
     let n = load_torchvision(&vs, "", path)?;
     let x = imagenet_normalize(&Tensor::full([1, 3, 224, 224], 0.5, (Kind::Float, Device::Cpu)));
     let y = tch::no_grad(|| net.forward(&x));
@@ -231,20 +232,23 @@ mod tests {
         let a = nn::VarStore::new(Device::Cpu);
         let net_a = crate::device::seeded(3, || Resnet18::new(&a.root()));
         let mut named: Vec<(String, Tensor)> = Vec::new();
-        tch::no_grad(|| {
-            for (k, v) in a.variables() {
-                // non-trivial batch-norm statistics and weights, so a wrong mapping shows
-                let mut v = v;
-                if k.ends_with("running_var") {
-                    v.copy_(&(Tensor::rand_like(&v) + 0.5));
-                } else if k.contains("bn") || k.contains("downsample.1") {
-                    v.copy_(&(Tensor::randn_like(&v) * 0.1 + if k.ends_with("weight") { 1.0 } else { 0.0 }));
+        // every draw from torch's one generator under `seeded`: tests run side by side
+        crate::device::seeded(9, || {
+            tch::no_grad(|| {
+                for (k, v) in a.variables() {
+                    // non-trivial batch-norm statistics and weights, so a wrong mapping shows
+                    let mut v = v;
+                    if k.ends_with("running_var") {
+                        v.copy_(&(Tensor::rand_like(&v) + 0.5));
+                    } else if k.contains("bn") || k.contains("downsample.1") {
+                        v.copy_(&(Tensor::randn_like(&v) * 0.1 + if k.ends_with("weight") { 1.0 } else { 0.0 }));
+                    }
+                    named.push((k.clone(), v.copy()));
+                    if k.ends_with("running_var") {
+                        named.push((k.replace("running_var", "num_batches_tracked"), Tensor::from(7i64)));
+                    }
                 }
-                named.push((k.clone(), v.copy()));
-                if k.ends_with("running_var") {
-                    named.push((k.replace("running_var", "num_batches_tracked"), Tensor::from(7i64)));
-                }
-            }
+            })
         });
         named.push(("fc.weight".into(), Tensor::zeros([1000, 512], (Kind::Float, Device::Cpu))));
         named.push(("fc.bias".into(), Tensor::zeros([1000], (Kind::Float, Device::Cpu))));
@@ -262,7 +266,7 @@ mod tests {
         assert!(ya.abs().sum(Kind::Float).double_value(&[]) > 0.0);
         for f in [&file, &pth] {
             let b = nn::VarStore::new(Device::Cpu);
-            let net_b = Resnet18::new(&(b.root() / "enc"));
+            let net_b = crate::device::seeded(10, || Resnet18::new(&(b.root() / "enc")));
             let n = load_torchvision(&b, "enc.", f).unwrap();
             // 20 convolutions + 20 batch norms × (weight, bias, running mean, running var)
             assert_eq!(n, 100);
