@@ -100,7 +100,7 @@ fn worker_hosts_join_over_tls_die_come_back_and_are_revoked() {
     // another run's bundle: its own learner, its own host
     let other = t.join("other-run");
     std::fs::create_dir_all(&other).unwrap();
-    std::fs::write(other.join("run.json"), format!(r#"{{"run_id": "{}"}}"#, run.run_id())).unwrap();
+    std::fs::copy(run_dir.join("run.json"), other.join("run.json")).unwrap();
     std::fs::write(other.join("secret"), std::fs::read_to_string(run_dir.join("secret")).unwrap()).unwrap();
     orchestrator::remote::certs::learner_files(&other, &run.run_id()).unwrap();
     orchestrator::remote::certs::issue(&other, "one", &t.join("other")).unwrap();

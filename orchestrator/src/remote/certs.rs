@@ -208,16 +208,6 @@ fn check_name(name: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The run id of a run folder (its `run.json`).
-fn run_id_of(run: &Path) -> anyhow::Result<String> {
-    let p = run.join("run.json");
-    let v: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&p).with_context(|| format!("{}: not a run folder (no run.json)", run.display()))?,
-    )
-    .with_context(|| format!("{}: not JSON", p.display()))?;
-    v["run_id"].as_str().map(str::to_string).with_context(|| format!("{}: no `run_id`", p.display()))
-}
-
 /// Issues host `name`'s bundle into `out` (a new owner-only folder); the learner trusts it from
 /// now on (a listening learner has reopened its listener when this returns).
 pub fn issue(run: &Path, name: &str, out: &Path) -> anyhow::Result<()> {
@@ -233,7 +223,7 @@ pub fn issue(run: &Path, name: &str, out: &Path) -> anyhow::Result<()> {
     anyhow::ensure!(!revoked.iter().any(|n| n == name), "host `{name}` was revoked in this run; choose another name");
     anyhow::ensure!(!issued.iter().any(|n| n == name), "host `{name}` already has a bundle in this run");
     anyhow::ensure!(!out.exists(), "{}: exists; nothing was overwritten (choose another --out)", out.display());
-    let run_id = run_id_of(run)?;
+    let run_id = crate::supervise::run_dir::read_info(run)?.run_id;
     let secret = std::fs::read_to_string(run.join("secret"))
         .with_context(|| format!("{}: no secret", run.display()))?
         .trim()
@@ -296,7 +286,15 @@ mod tests {
 
     fn run_folder() -> tempfile::TempDir {
         let t = tempfile::tempdir().unwrap();
-        std::fs::write(t.path().join("run.json"), r#"{"run_id": "r7"}"#).unwrap();
+        let info = crate::supervise::run_dir::RunInfo {
+            run_id: "r7".into(),
+            pid: 1,
+            started: 0,
+            workers: 1,
+            policy: "ppo".into(),
+            command: vec![],
+        };
+        std::fs::write(t.path().join("run.json"), serde_json::to_vec(&info).unwrap()).unwrap();
         std::fs::write(t.path().join("secret"), "s3").unwrap();
         t
     }

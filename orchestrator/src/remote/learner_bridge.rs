@@ -17,7 +17,9 @@ use zenoh::sample::SampleKind;
 use super::bridge::{BridgeCounts, BridgeThread, Doorbell, wait, wait_set};
 use super::join::{JOIN_KEY, JoinGrant, JoinRequest, proof, random_hex};
 use super::session::{Security, session};
-use super::wire::{act_key, decode_obs, encode_act, host_key_all, learner_key, obs_key_all, reopen_key, slot_of};
+use super::wire::{
+    act_key, decode_obs, encode_act, host_key_all, learner_key, obs_key_all, reopen_key, slot_of, token_of,
+};
 use super::{access, certs};
 
 /// The learner host's side of a multi-host run.
@@ -124,8 +126,8 @@ struct Listener {
     hosts: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
     _obs: zenoh::pubsub::Subscriber<()>,
     obs: std::sync::mpsc::Receiver<zenoh::sample::Sample>,
-    /// The trust file's text it opened with (TLS runs).
-    trust: Option<String>,
+    /// The trust file and the text it opened with (TLS runs).
+    trust: Option<(PathBuf, String)>,
 }
 
 impl Listener {
@@ -134,15 +136,15 @@ impl Listener {
         let (security, trust) = match &o.tls_run {
             Some(run) => {
                 let files = certs::learner_files(run, &o.run_id)?;
-                let trust = std::fs::read_to_string(&files.trusted)?;
+                let trust = (files.trusted.clone(), std::fs::read_to_string(&files.trusted)?);
                 let access = Some(access::learner_rules(&o.run_id, &files.peer_names));
                 (Security::Tls { files, access }, Some(trust))
             }
             None => (Security::Insecure, None),
         };
         let session = session(std::slice::from_ref(&o.endpoint), &[], &security)?;
-        if let (Some(run), Some(t)) = (&o.tls_run, &trust) {
-            certs::mark_applied(run, t)?;
+        if let (Some(run), Some((_, text))) = (&o.tls_run, &trust) {
+            certs::mark_applied(run, text)?;
         }
         let _alive =
             session.liveliness().declare_token(learner_key(&o.run_id)).wait().map_err(zerr("liveliness token"))?;
@@ -154,13 +156,8 @@ impl Listener {
     }
 
     /// Whether the run's trust file no longer says what this listener opened with.
-    fn trust_changed(&self, o: &ListenOptions) -> bool {
-        match (&self.trust, &o.tls_run) {
-            (Some(t), Some(run)) => {
-                std::fs::read_to_string(run.join("tls/trusted-hosts.pem")).is_ok_and(|now| now != *t)
-            }
-            _ => false,
-        }
+    fn trust_changed(&self) -> bool {
+        self.trust.as_ref().is_some_and(|(path, text)| std::fs::read_to_string(path).is_ok_and(|now| now != *text))
     }
 
     /// The hosts whose liveliness tokens this listener sees now.
@@ -171,7 +168,7 @@ impl Listener {
         };
         std::iter::from_fn(|| replies.recv().ok())
             .filter_map(|r| r.result().ok().map(|s| s.key_expr().as_str().to_string()))
-            .filter_map(|k| u64::from_str_radix(k.rsplit('/').next()?, 16).ok())
+            .filter_map(|k| token_of(&k))
             .collect()
     }
 }
@@ -251,7 +248,7 @@ fn learner_side(
         bell.answer();
         if trust_checked.elapsed() > Duration::from_secs(1) {
             trust_checked = Instant::now();
-            if l.trust_changed(&o) {
+            if l.trust_changed() {
                 // Hosts wait for the learner to come back instead of ending their workers.
                 let _ = l.session.put(reopen_key(&o.run_id), Vec::<u8>::new()).express(true).wait();
                 // closing drops what is still queued: let the notice leave first
@@ -297,7 +294,7 @@ fn learner_side(
             }
         }
         while let Ok(Some(s)) = l.hosts.try_recv() {
-            let token = s.key_expr().as_str().rsplit('/').next().and_then(|t| u64::from_str_radix(t, 16).ok());
+            let token = token_of(s.key_expr().as_str());
             match (s.kind(), token) {
                 (SampleKind::Delete, Some(t)) => leaving.push((t, Instant::now())),
                 (SampleKind::Put, Some(t)) => leaving.retain(|(l, _)| *l != t),

@@ -35,6 +35,10 @@ pub(super) fn reopen_key(run: &str) -> String {
 pub(super) fn slot_of(key: &str) -> Option<u32> {
     key.rsplit('/').next()?.parse().ok()
 }
+/// The grant token at the end of a host key.
+pub(super) fn token_of(key: &str) -> Option<u64> {
+    u64::from_str_radix(key.rsplit('/').next()?, 16).ok()
+}
 
 /// Encoding of an observation on the wire.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]

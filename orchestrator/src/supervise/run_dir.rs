@@ -125,6 +125,14 @@ impl RunDir {
     }
 }
 
+/// The `run.json` of run folder `run`.
+pub fn read_info(run: &Path) -> anyhow::Result<RunInfo> {
+    let p = run.join("run.json");
+    let text =
+        std::fs::read_to_string(&p).with_context(|| format!("{}: not a run folder (no run.json)", run.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{}: not a run.json of this version", p.display()))
+}
+
 /// The `run.json` that process `pid` wrote into `run`, once it is there (a folder used before
 /// holds an older one, of another process); an error after `patience`.
 pub fn wait_for_info(run: &Path, pid: u32, patience: std::time::Duration) -> anyhow::Result<RunInfo> {
