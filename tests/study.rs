@@ -1,6 +1,7 @@
 //! `orchestrator study` end to end on a tiny study (a few hundred frames per run): it writes
 //! T4.2 with every method, and a study killed mid-run continues under the same command without
-//! training again what was finished or starting a resumable run over.
+//! training again what was finished or starting a resumable run over; a published study continues
+//! from its records on a machine without its folder.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -165,4 +166,61 @@ fn a_study_sent_sigterm_stops_its_running_step() {
     assert!(update < 200_000 / 64, "{last}");
     let up_log = std::fs::read_to_string(out.join("runs/vis_sem-seed1.log")).unwrap();
     assert!(!up_log.contains("budget reached"), "the step ran to its end:\n{up_log}");
+}
+
+#[test]
+fn a_published_study_continues_from_its_records_without_its_folder() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = configs(tmp.path());
+    let docs = tmp.path().join("docs");
+    let publish = |c: &mut Command| {
+        c.arg("--publish").arg(&docs);
+    };
+
+    // +Both and Random on "this machine", published
+    let first = tmp.path().join("here");
+    let mut c = study(&cfg, &first, "both,random");
+    publish(&mut c);
+    let o = c.output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table = std::fs::read_to_string(docs.join("T4.2.md")).unwrap();
+    assert_eq!(table, std::fs::read_to_string(first.join("T4.2.md")).unwrap(), "the same tables in both folders");
+    for f in ["records/both-seed1/record.json", "records/both-seed1/test.csv", "records/both-seed1/curve.jsonl"] {
+        assert!(docs.join(f).is_file(), "no {f}");
+    }
+    // the published results name the records, inside the folder, not the run folders
+    let results = std::fs::read_to_string(docs.join("study.json")).unwrap();
+    assert!(
+        results.contains("\"records/both-seed1/test.csv\"") && !results.contains(&*first.to_string_lossy()),
+        "{results}"
+    );
+
+    // "another machine": the run folders are gone; VisSem is added
+    std::fs::remove_dir_all(&first).unwrap();
+    let second = tmp.path().join("there");
+    let mut c = study(&cfg, &second, "both,vis_sem,random");
+    publish(&mut c);
+    let o = c.output().unwrap();
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{log}");
+    assert!(log.contains("+Both seed 1: recorded in"), "{log}");
+    assert!(!second.join("runs/both-seed1").exists(), "+Both was trained again:\n{log}");
+    assert!(second.join("runs/vis_sem-seed1/checkpoints").is_dir(), "VisSem was not trained:\n{log}");
+    let table = std::fs::read_to_string(docs.join("T4.2.md")).unwrap();
+    for row in ["| +Both | 1 |", "| VisSem | 1 |", "| Random | 1 |", "| +Both > VisSem |"] {
+        assert!(table.contains(row), "no `{row}` in\n{table}");
+    }
+    // the ablation tables read the recorded model's tables
+    assert!(std::fs::read_to_string(docs.join("T4.6.md")).unwrap().contains("| +Both |"));
+
+    // a study of another budget is refused by the record, which is left as it was
+    let record = std::fs::read_to_string(docs.join("records/both-seed1/record.json")).unwrap();
+    let mut c = study_of(&cfg, &tmp.path().join("longer"), "both", 512);
+    publish(&mut c);
+    let o = c.output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(err.contains("both-seed1/record.json") && err.contains("field `config`"), "{err}");
+    assert_eq!(std::fs::read_to_string(docs.join("records/both-seed1/record.json")).unwrap(), record);
 }

@@ -37,7 +37,7 @@ impl Fold {
         match self {
             Fold::Train => r.train_tables.as_ref(),
             Fold::Val => r.val_tables.as_ref(),
-            Fold::Test => Some(&r.test_tables),
+            Fold::Test => r.test_tables.as_ref(),
         }
     }
 }
@@ -107,7 +107,7 @@ impl<'a> Loaded<'a> {
     fn new(results: &'a [RunResult]) -> anyhow::Result<Loaded<'a>> {
         let mut rows = HashMap::new();
         for r in results {
-            for p in [Some(&r.test_tables), r.val_tables.as_ref(), r.train_tables.as_ref()].into_iter().flatten() {
+            for p in [r.test_tables.as_ref(), r.val_tables.as_ref(), r.train_tables.as_ref()].into_iter().flatten() {
                 if !rows.contains_key(p) {
                     rows.insert(p.clone(), read_rows(p)?);
                 }

@@ -18,11 +18,16 @@
 //! OUT/random/seed<k>/tables.csv   Random on test
 //! OUT/T4.2.md … T4.7.md, .csv, study.json, sr_spl.png, learning_curves.png
 //! ```
+//!
+//! With `--publish DIR` (e.g. docs/study) the tables and figures go into DIR as well, with each
+//! finished model's record (`records`): a model recorded there is not trained again, so the
+//! study continues from a clone on a machine without OUT.
 
 pub mod ablations;
+mod progress;
+pub mod records;
 pub mod summary;
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -33,6 +38,7 @@ use farm::rooms::{SceneId, SceneType, Split};
 use nix::sys::signal::Signal;
 
 use crate::supervise::child;
+use progress::{Kind, Progress};
 use summary::{METHODS, RunResult, StudyMethod};
 
 #[derive(Args, Debug, Clone)]
@@ -78,6 +84,11 @@ pub struct StudyArgs {
     /// (e.g. one built with `dataset build --pointing realistic`).
     #[arg(long)]
     pub dataset: Option<PathBuf>,
+    /// Also write the tables and figures here (e.g. docs/study), with each finished model's
+    /// record (its result, evaluation tables and training curve; no checkpoints): a model
+    /// recorded here is taken as done, so a clone continues the study without OUT.
+    #[arg(long)]
+    pub publish: Option<PathBuf>,
 }
 
 /// One training run of the study.
@@ -118,6 +129,11 @@ impl Run {
     /// The rooms of `split` this run is evaluated in (`--scenes`; empty: all of them).
     fn rooms(&self, split: Split) -> Vec<String> {
         self.scene_type.map_or_else(Vec::new, |t| rooms_of(t, split))
+    }
+
+    /// The run's folder and record name, e.g. `both-seed1`.
+    fn file_name(&self) -> String {
+        self.dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
     }
 
     fn name(&self) -> String {
@@ -223,99 +239,6 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
         METHODS.map(|m| m.stem).join(".toml, ")
     );
     Ok((runs, random))
-}
-
-/// Kinds of step, which go at different rates.
-#[derive(Clone, Copy)]
-enum Kind {
-    /// Work: frames.
-    Train = 0,
-    /// Work: programs × passes.
-    Eval = 1,
-}
-
-/// Seconds per unit of work of a kind not yet run in this invocation (training at 1,000
-/// frames/s, evaluation at 15 episodes/s: this machine's order of magnitude).
-const PRIOR_SECONDS: [f64; 2] = [1.0 / 1000.0, 1.0 / 15.0];
-
-/// Where the study is, with an ETA summed per kind of step from each kind's rate in this
-/// invocation: a bar on a terminal, one line per step otherwise (studies run for hours, mostly
-/// unattended, into logs).
-struct Progress {
-    done: usize,
-    steps: usize,
-    left: [f64; 2],
-    spent: [(f64, f64); 2],
-    bar: Option<indicatif::ProgressBar>,
-}
-
-impl Progress {
-    fn new(plan: &[(Kind, f64)]) -> Progress {
-        let mut left = [0.0; 2];
-        for (k, w) in plan {
-            left[*k as usize] += w;
-        }
-        let bar = std::io::stderr().is_terminal().then(|| {
-            let b = indicatif::ProgressBar::new(plan.len() as u64);
-            b.set_style(
-                indicatif::ProgressStyle::with_template("study [{bar:30}] {pos}/{len} steps  {msg}")
-                    .expect("a valid template")
-                    .progress_chars("=> "),
-            );
-            b.enable_steady_tick(std::time::Duration::from_secs(1));
-            b
-        });
-        Progress { done: 0, steps: plan.len(), left, spent: [(0.0, 0.0); 2], bar }
-    }
-
-    fn eta(&self) -> f64 {
-        (0..2)
-            .map(|k| {
-                let (s, w) = self.spent[k];
-                self.left[k] * if w > 0.0 { s / w } else { PRIOR_SECONDS[k] }
-            })
-            .sum()
-    }
-
-    /// Shows what runs now.
-    fn doing(&self, what: &str) {
-        if let Some(b) = &self.bar {
-            b.set_message(format!("{what}; about {} left", humantime(self.eta())));
-        }
-    }
-
-    /// A step of `work` units is over: run here in `seconds`, or found done (None).
-    fn step(&mut self, kind: Kind, work: f64, seconds: Option<f64>, what: &str) {
-        self.done += 1;
-        self.left[kind as usize] = (self.left[kind as usize] - work).max(0.0);
-        let Some(s) = seconds else {
-            if let Some(b) = &self.bar {
-                b.inc(1);
-            }
-            return;
-        };
-        let spent = &mut self.spent[kind as usize];
-        (spent.0, spent.1) = (spent.0 + s, spent.1 + work);
-        let line = format!("{}/{} done: {what}; about {} left", self.done, self.steps, humantime(self.eta()));
-        match &self.bar {
-            Some(b) => {
-                b.inc(1);
-                b.println(format!("[study] {line}"));
-            }
-            None => eprintln!("[study] {line}"),
-        }
-    }
-
-    fn finish(&self) {
-        if let Some(b) = &self.bar {
-            b.finish_and_clear();
-        }
-    }
-}
-
-fn humantime(s: f64) -> String {
-    let m = (s / 60.0).round() as u64;
-    if m >= 60 { format!("{} h {:02} min", m / 60, m % 60) } else { format!("{m} min") }
 }
 
 /// Runs `orchestrator ARGS` (this binary) to the end; a child stopped by a signal stops the study.
@@ -489,8 +412,23 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
     );
     let mut results = Vec::new();
     let random_names: Vec<String> = (1..=random_seeds).map(|k| format!("Random seed {k}")).collect();
+    let settings =
+        records::Settings { checkpoints: a.checkpoints, val_programs: a.val_programs, test_programs: a.test_programs };
     for (i, (run, planned)) in runs.iter().zip(steps.chunks(4)).enumerate() {
         let name = run.name();
+        let pending =
+            || -> Vec<String> { runs[i + 1..].iter().map(Run::name).chain(random_names.iter().cloned()).collect() };
+        if let Some(p) = &a.publish
+            && let Some(r) = records::read(p, &run.file_name(), &run.cfg, settings)?
+        {
+            for (k, (kind, work)) in planned.iter().enumerate() {
+                progress.step(*kind, *work, None, if k == 0 { "recorded" } else { "" });
+            }
+            eprintln!("[study] {name}: recorded in {}", p.join("records").join(run.file_name()).display());
+            results.push(r);
+            report(&a, &runs, &results, &pending())?;
+            continue;
+        }
         let trained = run.trained(a.workers);
         let t = Instant::now();
         if !trained {
@@ -559,7 +497,8 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             run.method.stem,
             run.scene_type,
             run.seed_index,
-            &chosen,
+            // named inside the study folder, as its record keeps it
+            chosen.strip_prefix(&a.out).unwrap_or(&chosen),
             val_sr1,
             &test.out.join("tables.csv"),
         )?;
@@ -572,17 +511,27 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             adam_steps: update * (run.cfg.ppo.epochs * run.cfg.ppo.minibatches) as u64,
             frames_per_update: run.frames_per_update(a.workers),
         });
+        if let Some(p) = &a.publish {
+            r = records::write(p, &run.file_name(), &run.cfg, settings, &r, Some(&run.dir.join("metrics.jsonl")))?;
+        }
         results.push(r);
         // every finished model's tables at once: a study stopped later loses only the model
         // in progress
-        let pending: Vec<String> = runs[i + 1..].iter().map(Run::name).chain(random_names.iter().cloned()).collect();
-        report(&a, &runs, &results, &pending)?;
+        report(&a, &runs, &results, &pending())?;
     }
     if let Some(cfg) = &random {
         for k in 1..=a.seeds {
             let mut c = cfg.clone();
             c.run.seed = cfg.run.seed + k - 1;
-            let path = a.out.join("configs").join(format!("random-seed{k}.toml"));
+            let name = format!("random-seed{k}");
+            if let Some(p) = &a.publish
+                && let Some(r) = records::read(p, &name, &c, settings)?
+            {
+                progress.step(Kind::Eval, a.test_programs as f64, None, "recorded");
+                results.push(r);
+                continue;
+            }
+            let path = a.out.join("configs").join(format!("{name}.toml"));
             farm::files::write_atomic(&path, c.to_toml().as_bytes())?;
             let e = Eval {
                 what: ["--config".into(), s(&path)],
@@ -593,7 +542,11 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
                 out: a.out.join("random").join(format!("seed{k}")),
             };
             evaluate(&a, &e, &mut progress, &format!("Random seed {k} on test"))?;
-            results.push(RunResult::read("random", None, k, Path::new("-"), f64::NAN, &e.out.join("tables.csv"))?);
+            let mut r = RunResult::read("random", None, k, Path::new("-"), f64::NAN, &e.out.join("tables.csv"))?;
+            if let Some(p) = &a.publish {
+                r = records::write(p, &name, &c, settings, &r, None)?;
+            }
+            results.push(r);
         }
     }
     progress.finish();
@@ -602,12 +555,26 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Writes T4.2–T4.7 of the models evaluated so far; `pending` names the runs still to do.
+/// Writes T4.2–T4.7 of the models evaluated so far into the study folder (and `--publish`);
+/// `pending` names the runs still to do.
 fn report(a: &StudyArgs, runs: &[Run], results: &[RunResult], pending: &[String]) -> anyhow::Result<()> {
-    let done: Vec<&Run> = runs.iter().filter(|r| r.scene_type.is_none() && r.trained(a.workers)).collect();
-    let curves: Vec<(String, PathBuf)> = done.iter().map(|r| (r.method.stem.to_string(), r.dir.clone())).collect();
-    summary::write(&a.out, results, &curves, pending)?;
-    ablations::write(&a.out, results)
+    // each run's training curve: its metrics, or its record's when the run folder is elsewhere
+    let curves: Vec<(String, PathBuf)> = runs
+        .iter()
+        .filter(|r| r.scene_type.is_none() && results.iter().any(|x| x.stem == r.method.stem && x.seed == r.seed_index))
+        .filter_map(|r| {
+            let metrics = r.dir.join("metrics.jsonl");
+            let recorded = a.publish.as_ref().and_then(|p| records::curve(p, &r.file_name()));
+            let path = if r.trained(a.workers) && metrics.is_file() { Some(metrics) } else { recorded };
+            path.map(|p| (r.method.stem.to_string(), p))
+        })
+        .collect();
+    for out in std::iter::once(&a.out).chain(&a.publish) {
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        summary::write(out, results, &curves, pending)?;
+        ablations::write(out, results)?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -627,6 +594,7 @@ mod tests {
             val_programs: 100,
             test_programs: 100,
             dataset: None,
+            publish: None,
             set: Vec::new(),
         }
     }

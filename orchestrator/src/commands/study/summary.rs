@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use farm::config::Method;
 use farm::metrics::FirstStops;
 use farm::rooms::SceneType;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::report::tables::{TableRow, find, read_rows};
 
@@ -46,7 +46,7 @@ pub fn method(stem: &str) -> Option<StudyMethod> {
 }
 
 /// SR (%), SPL (%), DTS (m) at one number of stops.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Metrics {
     pub sr: f64,
     pub spl: f64,
@@ -84,7 +84,7 @@ pub const ORDERINGS: [(&str, &str); 6] = [
 ];
 
 /// What a selected checkpoint cost to train.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Budget {
     pub frames: u64,
     /// Optimizer steps: updates × epochs × minibatches.
@@ -99,20 +99,22 @@ pub const DISSERTATION_BUDGET: Budget =
 
 /// One evaluated model of the study (a training run's selected checkpoint, or a Random seed),
 /// with the evaluations the ablation tables read.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct RunResult {
     pub stem: String,
     /// Trained in the rooms of this type only (`--per-scene-type`), else in every training room.
     pub scene_type: Option<SceneType>,
     pub seed: u64,
     pub checkpoint: String,
-    /// SR at the first stop on val of the selected checkpoint (NaN for Random).
+    /// SR at the first stop on val of the selected checkpoint (NaN for Random; null in JSON).
+    #[serde(deserialize_with = "nan_when_null")]
     pub val_sr1: f64,
     /// On test, at 1 stop and at unlimited stops.
     pub test_first: Metrics,
     pub test_unlimited: Metrics,
-    /// `tables.csv` of the selected checkpoint on test, on val, and on train (T4.3).
-    pub test_tables: PathBuf,
+    /// `tables.csv` of the selected checkpoint on test, on val, and on train (T4.3); None in a
+    /// record of a model trained before records kept them.
+    pub test_tables: Option<PathBuf>,
     pub val_tables: Option<PathBuf>,
     pub train_tables: Option<PathBuf>,
     /// Where the first stops on test were (from the normal pass's episodes).
@@ -147,7 +149,7 @@ impl RunResult {
             val_sr1,
             test_first: row(&rows, test_tables, "1")?,
             test_unlimited: row(&rows, test_tables, "inf")?,
-            test_tables: test_tables.into(),
+            test_tables: Some(test_tables.into()),
             val_tables: None,
             train_tables: None,
             first_stops,
@@ -159,6 +161,10 @@ impl RunResult {
     pub fn label(&self) -> &'static str {
         method(&self.stem).map_or("?", |m| m.label)
     }
+}
+
+fn nan_when_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// The first-stop row (normal pass, all scene types and instance counts) of `eval`'s tables.csv.
@@ -208,7 +214,7 @@ fn summary(results: &[RunResult], stem: &str) -> Option<Summary> {
 
 /// Success on training episodes against frames, per method: the mean over the seeds' runs
 /// (update by update; every seed makes the same updates) of a 10-update moving mean, in %.
-/// `runs` are (stem, run directory) of the runs trained in every training room.
+/// `runs` are (stem, metrics JSONL) of the runs trained in every training room.
 pub fn learning_curves(runs: &[(String, PathBuf)]) -> anyhow::Result<Vec<crate::report::plot::Series>> {
     #[derive(serde::Deserialize)]
     struct Row {
@@ -218,8 +224,8 @@ pub fn learning_curves(runs: &[(String, PathBuf)]) -> anyhow::Result<Vec<crate::
     let mut out = Vec::new();
     for m in METHODS {
         let mut seeds: Vec<Vec<(f64, f64)>> = Vec::new();
-        for (_, dir) in runs.iter().filter(|(x, _)| x == m.stem) {
-            let rows: Vec<Row> = farm::files::read_jsonl(&dir.join("metrics.jsonl"))?;
+        for (_, metrics) in runs.iter().filter(|(x, _)| x == m.stem) {
+            let rows: Vec<Row> = farm::files::read_jsonl(metrics)?;
             let smooth: Vec<(f64, f64)> = (0..rows.len())
                 .map(|i| {
                     let w: Vec<f64> = rows[i.saturating_sub(9)..=i].iter().filter_map(|r| r.success_rate).collect();
@@ -413,7 +419,19 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
     }
     farm::files::write_atomic(&out.join("T4.2.md"), md.as_bytes())?;
     farm::files::write_atomic(&out.join("T4.2.csv"), csv.as_bytes())?;
-    farm::files::write_atomic(&out.join("study.json"), serde_json::to_string_pretty(results)?.as_bytes())?;
+    // paths inside the folder relative to it, so that it reads the same wherever it is copied
+    let inside = |p: &Path| p.strip_prefix(out).map_or(p.to_path_buf(), Path::to_path_buf);
+    let relative: Vec<RunResult> = results
+        .iter()
+        .map(|r| RunResult {
+            checkpoint: inside(Path::new(&r.checkpoint)).display().to_string(),
+            test_tables: r.test_tables.as_deref().map(inside),
+            val_tables: r.val_tables.as_deref().map(inside),
+            train_tables: r.train_tables.as_deref().map(inside),
+            ..r.clone()
+        })
+        .collect();
+    farm::files::write_atomic(&out.join("study.json"), serde_json::to_string_pretty(&relative)?.as_bytes())?;
     Ok(())
 }
 
