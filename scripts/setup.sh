@@ -3,6 +3,7 @@
 #   - Mesa lavapipe + Vulkan loader: wgpu renders headless on the CPU
 #   - libtorch 2.11.0 (from the PyPI wheel, no Python needed at run time) for tch 0.24
 #   - numpy, iceoryx2 0.10.0, tensorboard 2.21.0, gymnasium 1.4.0 for the Python tests (tests/python)
+#   - MediaPipe 0.10.14 (with its landmark models) for `orchestrator gesture capture`
 # Prints the environment to source as its last lines; `source scripts/env.sh` does that for you.
 set -euo pipefail
 
@@ -53,11 +54,29 @@ if [ "$(cat "$PYDIR/.complete" 2>/dev/null)" != "$PY_REQS" ]; then
   echo "$PY_REQS" > "$PYDIR/.complete"
 fi
 
+# MediaPipe Holistic for `orchestrator gesture capture`: 0.10.14 is the newest wheel that ships its
+# landmark models (pose, hands) inside, so capture runs offline. Its own requirements pull JAX,
+# which capture does not use, so what it imports is pinned here, installed without resolving
+# (numpy 1: the wheel is built against it), in a folder apart from the Python packages above.
+CAPDIR="$DEPS/capture"
+CAP_REQS="mediapipe==0.10.14 absl-py==2.1.0 attrs==24.2.0 flatbuffers==24.3.25 protobuf==4.25.5 numpy==1.26.4
+  opencv-python-headless==4.10.0.84 matplotlib==3.9.2 contourpy==1.3.0 cycler==0.12.1 fonttools==4.54.1
+  kiwisolver==1.4.7 packaging==24.1 pillow==10.4.0 pyparsing==3.1.4 python-dateutil==2.9.0.post0 six==1.16.0"
+if [ "$(cat "$CAPDIR/.complete" 2>/dev/null)" != "$CAP_REQS" ]; then
+  log "installing MediaPipe 0.10.14 (landmark models for gesture capture) into $CAPDIR"
+  rm -rf "$CAPDIR"
+  # shellcheck disable=SC2086 # one word per requirement
+  $PY -m pip install -q --disable-pip-version-check --only-binary=:all: --no-deps --target "$CAPDIR" $CAP_REQS
+  echo "$CAP_REQS" > "$CAPDIR/.complete"
+fi
+
 cat > "$DEPS/env.sh" <<ENV
 export LIBTORCH="$TORCH_DIR/torch"
 export LIBTORCH_BYPASS_VERSION_CHECK=0
 export LD_LIBRARY_PATH="$TORCH_DIR/torch/lib\${LD_LIBRARY_PATH:+:\$LD_LIBRARY_PATH}"
 export PYTHONPATH="$PYDIR\${PYTHONPATH:+:\$PYTHONPATH}"
+# the landmark model of gesture capture, apart (it needs numpy 1)
+export GESTHOR_CAPTURE_PATH="$CAPDIR"
 # mesa-vulkan-drivers (lavapipe) and the Python packages are installed above: tests that render
 # must find an adapter, tests that read with Python must find their packages
 export GESTHOR_ADAPTER_REQUIRED=1

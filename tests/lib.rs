@@ -323,3 +323,27 @@ pub fn python_with(modules: &[&str]) -> Result<Command, String> {
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
 }
+
+/// Whether `orchestrator gesture capture` finds its landmark model (MediaPipe, which setup.sh
+/// installs into its `capture` folder); where setup.sh ran, a missing one fails the test.
+pub fn capture_ready() -> bool {
+    let path = std::env::var("GESTHOR_CAPTURE_PATH").unwrap_or_else(|_| {
+        let deps = std::env::var_os("GESTHOR_DEPS")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache/gesthor"));
+        deps.join("capture").display().to_string()
+    });
+    let probe = Command::new("python3").env("PYTHONPATH", &path).args(["-c", "import mediapipe, cv2"]).output();
+    if probe.as_ref().is_ok_and(|o| o.status.success()) {
+        return true;
+    }
+    let why = match probe {
+        Err(e) => format!("no python3 ({e})"),
+        Ok(o) => String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or_default().to_string(),
+    };
+    if std::env::var_os("CI").is_some() || std::env::var_os("GESTHOR_PYTHON_REQUIRED").is_some_and(|v| v == "1") {
+        panic!("MediaPipe is not importable from {path}: {why} (scripts/setup.sh installs it)");
+    }
+    eprintln!("skipped: MediaPipe is not importable from {path}: {why}");
+    false
+}

@@ -6,7 +6,9 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use tracing_subscriber::Layer;
 
-use orchestrator::commands::{bench, dataset, encoder, eval, hosts, program, render, soak, study, up, workers};
+use orchestrator::commands::{
+    bench, dataset, encoder, eval, gesture, hosts, program, render, soak, study, up, workers,
+};
 
 #[derive(Parser)]
 #[command(
@@ -31,6 +33,9 @@ enum Command {
     Program(program::ProgramCmd),
     /// Render the person performing a program's gesture (robot view and from above, PNG + GIF).
     Replay(program::ReplayArgs),
+    /// A person's own gesture from a video (capture), and the avatar's filmed (film).
+    #[command(subcommand)]
+    Gesture(gesture::GestureCmd),
     /// Start a run: the learner and N worker processes, supervised; Ctrl-C stops it cleanly.
     Up(up::UpArgs),
     /// Evaluate a checkpoint (or the Random baseline) on a split: the tables of chapter 4.
@@ -72,6 +77,7 @@ fn main() -> ExitCode {
         Command::Render(a) => render::run(a).map(|_| 0),
         Command::Program(c) => program::run(c).map(|_| 0),
         Command::Replay(a) => program::replay(a).map(|_| 0),
+        Command::Gesture(c) => gesture::run(c).map(|_| 0),
         Command::Up(a) => up::run(a),
         Command::Eval(a) => eval::run(a).map(|_| 0),
         Command::Encoder(c) => encoder::run(c).map(|_| 0),

@@ -1,11 +1,12 @@
 //! The subcommands of `orchestrator`, one module each (a subcommand with parts of its own is a
-//! folder: `bench`, `encoder`, `study`). Each holds its clap arguments and a `run` that
+//! folder: `bench`, `encoder`, `gesture`, `study`). Each holds its clap arguments and a `run` that
 //! `main.rs` dispatches to; `values` checks the command-line values they share.
 
 pub mod bench;
 pub mod dataset;
 pub mod encoder;
 pub mod eval;
+pub mod gesture;
 pub mod hosts;
 pub mod program;
 pub mod render;

@@ -94,16 +94,12 @@ fn instruction(p: &Program) -> String {
     format!("go to this {}", p.target.name().to_lowercase())
 }
 
-fn export(a: ExportArgs) -> anyhow::Result<()> {
-    let (split, i) =
-        parse_ref(&a.program).with_context(|| format!("`{}` is not SPLIT:INDEX (e.g. val:17)", a.program))?;
-    let ds = Dataset::open(&a.dataset, Verify::Quick)?;
-    let (p, motion) = dataset_program(&ds, split, i)?;
-    let scene = ds.scene(p.scene_id())?;
-    let name = format!("{}_{}_{:06}", p.scene, split.name(), i);
+/// The recorder's metadata of program `p` saved as `name`, with the files it names (image,
+/// motion, audio; relative to the metadata's folder).
+pub fn metadata(p: &Program, name: &str) -> (Metadata, [String; 3]) {
     let files = [format!("images/{name}.png"), format!("motions/{name}.csv"), format!("audios/{name}.wav")];
     let meta = Metadata::new(
-        &instruction(&p),
+        &instruction(p),
         p.scene_type.name(),
         p.scene_id().index as i64,
         p.target.name(),
@@ -112,6 +108,17 @@ fn export(a: ExportArgs) -> anyhow::Result<()> {
         p.target_center(),
         [&files[0], &files[1], &files[2]],
     );
+    (meta, files)
+}
+
+fn export(a: ExportArgs) -> anyhow::Result<()> {
+    let (split, i) =
+        parse_ref(&a.program).with_context(|| format!("`{}` is not SPLIT:INDEX (e.g. val:17)", a.program))?;
+    let ds = Dataset::open(&a.dataset, Verify::Quick)?;
+    let (p, motion) = dataset_program(&ds, split, i)?;
+    let scene = ds.scene(p.scene_id())?;
+    let name = format!("{}_{}_{:06}", p.scene, split.name(), i);
+    let (meta, files) = metadata(&p, &name);
     std::fs::create_dir_all(a.out.join("images"))?;
     std::fs::create_dir_all(a.out.join("motions"))?;
     meta.save(&a.out.join(format!("{name}.json")))?;
@@ -167,19 +174,24 @@ fn above_camera(scene: &Scene, person: Point3<f32>, target: Point3<f32>) -> Came
     Camera { position: Point3::new(c.x, height, c.y), yaw_deg: yaw_of(look - c), pitch_deg: pitch }
 }
 
-pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
-    let ds = Dataset::open(&a.dataset, Verify::Quick).ok();
-    let (scene, program, motion, label) = if let Some((split, i)) = parse_ref(&a.program) {
-        let ds = ds
-            .as_ref()
-            .with_context(|| format!("{}: no dataset to take program {} from", a.dataset.display(), a.program))?;
+/// A program with its room, motion and a label: `program` is SPLIT:INDEX of the dataset or a
+/// recorder metadata JSON (`seed` generates its room when there is no dataset).
+pub fn resolve(program: &str, dataset: &Path, seed: u64) -> anyhow::Result<(Scene, Program, Motion, String)> {
+    let ds = Dataset::open(dataset, Verify::Quick).ok();
+    if let Some((split, i)) = parse_ref(program) {
+        let ds =
+            ds.as_ref().with_context(|| format!("{}: no dataset to take program {program} from", dataset.display()))?;
         let (p, m) = dataset_program(ds, split, i)?;
         let scene = ds.scene(p.scene_id())?;
         let label = format!("{} {}:{} → {}", p.scene, split.name(), i, p.target.name());
-        (scene, p, m, label)
+        Ok((scene, p, m, label))
     } else {
-        replay_from_metadata(&a, ds.as_ref())?
-    };
+        from_metadata(program, seed, ds.as_ref())
+    }
+}
+
+pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
+    let (scene, program, motion, label) = resolve(&a.program, &a.dataset, a.seed)?;
     let (motion, label) = match a.intervention {
         Some(k) => {
             anyhow::ensure!(
@@ -238,12 +250,11 @@ pub fn replay(a: ReplayArgs) -> anyhow::Result<()> {
 
 /// An original-format metadata JSON (e.g. the recorder's own), replayed in our room of that
 /// scene type and number. The robot starts 2.5 m in front of the person, facing them.
-fn replay_from_metadata(a: &ReplayArgs, ds: Option<&Dataset>) -> anyhow::Result<(Scene, Program, Motion, String)> {
-    let path = Path::new(&a.program);
+fn from_metadata(program: &str, seed: u64, ds: Option<&Dataset>) -> anyhow::Result<(Scene, Program, Motion, String)> {
+    let path = Path::new(program);
     anyhow::ensure!(
         path.is_file(),
-        "{}: neither SPLIT:INDEX (train, val or test, e.g. val:61) nor a recorder metadata JSON file",
-        a.program
+        "{program}: neither SPLIT:INDEX (train, val or test, e.g. val:61) nor a recorder metadata JSON file"
     );
     let meta = Metadata::load(path)?;
     let dir = path.parent().unwrap_or(Path::new("."));
@@ -269,7 +280,7 @@ fn replay_from_metadata(a: &ReplayArgs, ds: Option<&Dataset>) -> anyhow::Result<
     let id = SceneId::new(t, meta.scene_num as u32);
     let scene = match ds {
         Some(ds) => ds.scene(id)?,
-        None => worker::scene::generate::generate(id, a.seed),
+        None => worker::scene::generate::generate(id, seed),
     };
     let human = meta.human_position();
     let yaw = meta.human_yaw_deg();

@@ -4,6 +4,7 @@
 //!   either arm, straight or bent elbow, varied timing, tremor and aiming error);
 //! - [`intervention`]: 20 rejective gestures shown towards whoever the person faces;
 //! - [`bvh`]: motion capture retargeted to the muscles;
+//! - [`capture`]: a person's own gesture from a video's body and hand landmarks;
 //! - [`motion`]: the original file formats (motion.csv, metadata JSON);
 //! - [`accuracy`]: the original evaluator's measure of how well a gesture points at a target.
 //!
@@ -11,6 +12,7 @@
 
 pub mod accuracy;
 pub mod bvh;
+pub mod capture;
 pub mod intervention;
 pub mod motion;
 pub mod referencing;

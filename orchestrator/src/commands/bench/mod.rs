@@ -1,5 +1,6 @@
 //! `orchestrator bench ...`: throughput reports. One variant per benchmark.
 
+pub mod capture;
 pub mod farm;
 pub mod remote;
 pub mod sim;
@@ -7,6 +8,7 @@ pub mod train;
 
 use clap::Subcommand;
 
+use capture::BenchCaptureArgs;
 use farm::BenchFarmArgs;
 use remote::BenchRemoteArgs;
 use sim::SimArgs;
@@ -25,6 +27,9 @@ pub enum BenchCmd {
     /// A worker host over Zenoh on loopback against local workers: frames/s and bytes per
     /// remote worker, per frame size and codec.
     Remote(BenchRemoteArgs),
+    /// The closed loop of `gesture capture`: filmed avatar gestures captured back, pointing
+    /// lines against the originals.
+    Capture(BenchCaptureArgs),
 }
 
 pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
@@ -36,5 +41,6 @@ pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
         BenchCmd::Sim(a) => sim::run(a),
         BenchCmd::Train(a) => train::run(a),
         BenchCmd::Remote(a) => remote::run(a),
+        BenchCmd::Capture(a) => capture::run(a),
     }
 }
