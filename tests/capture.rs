@@ -154,3 +154,119 @@ fn bad_videos_get_one_line_each() {
     let e = one_line_error(&tmp.path().join("nothing.mp4"), &data);
     assert!(e.contains("no such file"), "{e}");
 }
+
+#[test]
+fn a_trained_agent_follows_a_given_gesture_from_the_cli_and_from_python() {
+    let _g = gesthor_tests::serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let data = dataset();
+    // a small +Both checkpoint
+    let cfg = gesthor_tests::small_ppo_config(tmp.path(), "");
+    let run = tmp.path().join("run");
+    let o = orchestrator(&[
+        "up",
+        "--config",
+        &cfg.display().to_string(),
+        "--run-dir",
+        &run.display().to_string(),
+        "--workers",
+        "2",
+        "--frames",
+        "128",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // the gesture: another program's, from the recorder's files
+    let exported = tmp.path().join("exported");
+    let o = orchestrator(&[
+        "program",
+        "export",
+        "val:2",
+        "--dataset",
+        &data.display().to_string(),
+        "--out",
+        &exported.display().to_string(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let motion = std::fs::read_dir(exported.join("motions")).unwrap().flatten().next().unwrap().path();
+
+    let out = tmp.path().join("follow");
+    let o = orchestrator(&[
+        "follow",
+        "--checkpoint",
+        &run.display().to_string(),
+        "--program",
+        "val:1",
+        "--motion",
+        &motion.display().to_string(),
+        "--dataset",
+        &data.display().to_string(),
+        "--out",
+        &out.display().to_string(),
+    ]);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(said.contains("val:1") && said.contains("SR at the first stop"), "{said}");
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(out.join("result.json")).unwrap()).unwrap();
+    let steps = r["steps"].as_u64().unwrap();
+    assert!(steps >= 1 && r["spl_first_stop"].as_f64().unwrap() <= 1.0, "{r}");
+    assert_eq!(r["success_first_stop"].as_bool().unwrap(), r["spl_first_stop"].as_f64().unwrap() > 0.0, "{r}");
+    assert!(out.join("follow.gif").is_file() && out.join("map.png").is_file());
+    // the program ran with the given gesture in place of its own
+    let csv = std::fs::read_to_string(&motion).unwrap();
+    let first: Vec<f64> =
+        csv.lines().nth(1).unwrap().trim().split(';').take(3).map(|v| v.replace(',', ".").parse().unwrap()).collect();
+    let index: Value = serde_json::from_str(&std::fs::read_to_string(out.join("dataset/val.json")).unwrap()).unwrap();
+    assert_eq!(index.as_array().unwrap().len(), 1);
+    let gond = std::fs::read(out.join("dataset/val.gond")).unwrap();
+    let m0 = f32::from(half_f16(&gond[64..66]));
+    assert!((m0 as f64 - first[0]).abs() < 1e-3, "motion {m0} vs the CSV's {}", first[0]);
+
+    // from Python: the same, as a dict
+    let py_out = tmp.path().join("follow-py");
+    let o = Command::new("python3")
+        .env("PYTHONPATH", repo_root().join("python"))
+        .env("GESTHOR_ORCHESTRATOR", bin("orchestrator"))
+        .args([
+            "-c",
+            &format!(
+                "import gesthor, json; r = gesthor.follow({:?}, program='val:1', motion={:?}, out={:?}, dataset={:?}); \
+                 print(json.dumps(r))",
+                run.display().to_string(),
+                motion.display().to_string(),
+                py_out.display().to_string(),
+                data.display().to_string()
+            ),
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let py: Value = serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    assert_eq!((py["steps"].clone(), py["success"].clone()), (r["steps"].clone(), r["success"].clone()), "{py}");
+    // and one clear error from Python for a motion that is not there
+    let o = Command::new("python3")
+        .env("PYTHONPATH", repo_root().join("python"))
+        .env("GESTHOR_ORCHESTRATOR", bin("orchestrator"))
+        .args([
+            "-c",
+            &format!(
+                "import gesthor; gesthor.follow({:?}, program='val:1', motion='nowhere.csv', out={:?})",
+                run.display().to_string(),
+                py_out.display().to_string()
+            ),
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("GestureError") && err.contains("nowhere.csv"), "{err}");
+}
+
+/// An IEEE half-precision value from two little-endian bytes.
+fn half_f16(b: &[u8]) -> f32 {
+    let h = u16::from_le_bytes([b[0], b[1]]);
+    let (sign, exp, frac) = ((h >> 15) as i32, ((h >> 10) & 0x1f) as i32, (h & 0x3ff) as f32);
+    let v = match exp {
+        0 => frac / 1024.0 * 2f32.powi(-14),
+        _ => (1.0 + frac / 1024.0) * 2f32.powi(exp - 15),
+    };
+    if sign == 1 { -v } else { v }
+}

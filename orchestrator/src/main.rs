@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 use tracing_subscriber::Layer;
 
 use orchestrator::commands::{
-    bench, dataset, encoder, eval, gesture, hosts, program, render, soak, study, up, workers,
+    bench, dataset, encoder, eval, follow, gesture, hosts, program, render, soak, study, up, workers,
 };
 
 #[derive(Parser)]
@@ -36,6 +36,8 @@ enum Command {
     /// A person's own gesture from a video (capture), and the avatar's filmed (film).
     #[command(subcommand)]
     Gesture(gesture::GestureCmd),
+    /// A trained agent answers a gesture: one program with a captured motion, a GIF and SR/SPL.
+    Follow(follow::FollowArgs),
     /// Start a run: the learner and N worker processes, supervised; Ctrl-C stops it cleanly.
     Up(up::UpArgs),
     /// Evaluate a checkpoint (or the Random baseline) on a split: the tables of chapter 4.
@@ -78,6 +80,7 @@ fn main() -> ExitCode {
         Command::Program(c) => program::run(c).map(|_| 0),
         Command::Replay(a) => program::replay(a).map(|_| 0),
         Command::Gesture(c) => gesture::run(c).map(|_| 0),
+        Command::Follow(a) => follow::run(a).map(|_| 0),
         Command::Up(a) => up::run(a),
         Command::Eval(a) => eval::run(a).map(|_| 0),
         Command::Encoder(c) => encoder::run(c).map(|_| 0),

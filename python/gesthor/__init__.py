@@ -1,5 +1,6 @@
 """GesTHOR from Python: the simulator as a Gymnasium vector environment (`make_vec`, stepped
-in native code) and the live frames of a running farm (`FarmReader`, zero-copy).
+in native code), the live frames of a running farm (`FarmReader`, zero-copy), and a person's own
+gesture captured from a video and followed by a trained agent (`capture`, `follow`).
 
     import gesthor
     envs = gesthor.make_vec(split="train", num_envs=8, method="both", dataset="data/gond")
@@ -12,7 +13,7 @@ Observation spec: docs/python.md.
 import os
 import tempfile
 
-__all__ = ["make_vec", "GesthorVectorEnv", "GesthorEnv", "FarmReader", "ACTIONS", "METHODS"]
+__all__ = ["make_vec", "GesthorVectorEnv", "GesthorEnv", "FarmReader", "capture", "follow", "ACTIONS", "METHODS"]
 
 ACTIONS = ("MoveAhead", "RotateLeft", "RotateRight", "Stop")
 METHODS = ("random", "vision_only", "vis_sem", "referencing", "intervention", "both")
@@ -35,6 +36,10 @@ def __getattr__(name):
         from gesthor import vector
 
         return getattr(vector, name)
+    if name in ("capture", "follow", "GestureError"):
+        from gesthor import gesture
+
+        return getattr(gesture, name)
     if name == "FarmReader":
         from gesthor.farm_reader import FarmReader
 

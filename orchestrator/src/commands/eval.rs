@@ -87,7 +87,7 @@ pub fn read_episodes(path: &Path) -> anyhow::Result<Vec<EpisodeResult>> {
 }
 
 /// Resolves `--checkpoint` into (checkpoint file, run directory holding its config).
-fn locate(path: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
+pub(crate) fn locate(path: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
     if path.is_dir() {
         let (ckpt, skipped) = farm::checkpoints::latest_verified(&farm::checkpoints::dir_of(path));
         if !skipped.is_empty() {

@@ -6,6 +6,7 @@ pub mod bench;
 pub mod dataset;
 pub mod encoder;
 pub mod eval;
+pub mod follow;
 pub mod gesture;
 pub mod hosts;
 pub mod program;

@@ -284,6 +284,31 @@ pub fn write_gond(path: &Path, records: &[ProgramRecord], motions: &[Vec<f32>]) 
     w.finish()
 }
 
+/// Writes into `dir` a dataset of `programs` of one split with their own motions, reading its
+/// rooms and intervention gestures from `base` (named by absolute path, not copied): a person's
+/// own gesture in place of a program's, run by the same farm and evaluation as any dataset.
+pub fn write_subset(dir: &Path, base: &Dataset, split: Split, programs: &[(Program, Vec<f32>)]) -> std::io::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    let base_dir = std::path::absolute(&base.dir)?;
+    let index: Vec<Program> =
+        programs.iter().enumerate().map(|(i, (p, _))| Program { id: i as u64, ..p.clone() }).collect();
+    let records: Vec<ProgramRecord> = index.iter().map(Program::to_record).collect();
+    let motions: Vec<Vec<f32>> = programs.iter().map(|(_, m)| m.clone()).collect();
+    let data = format!("{}.gond", split.name());
+    let checksum = write_gond(&dir.join(&data), &records, &motions)?;
+    let idx = format!("{}.json", split.name());
+    farm::files::write_atomic(&dir.join(&idx), (serde_json::to_string_pretty(&index)? + "\n").as_bytes())?;
+    let multi = index.iter().filter(|p| p.instances > 1).count() as f64 / index.len().max(1) as f64;
+    let mut m = base.manifest.clone();
+    m.scenes = base_dir.join(&m.scenes).display().to_string();
+    m.interventions.data = base_dir.join(&m.interventions.data).display().to_string();
+    m.splits = BTreeMap::from([(
+        split.name().to_string(),
+        SplitEntry { programs: index.len() as u64, index: idx, data, checksum, multi_instance_share: multi },
+    )]);
+    farm::files::write_atomic(&dir.join("manifest.json"), (serde_json::to_string_pretty(&m)? + "\n").as_bytes())
+}
+
 /// An open dataset.
 pub struct Dataset {
     pub dir: PathBuf,

@@ -1,8 +1,8 @@
 //! A person's own gesture. `orchestrator gesture capture SOURCE --out DIR` reads a video (a
 //! folder of frames, or a camera) through MediaPipe Holistic (`landmarks.py`, run by the Python
 //! that `scripts/setup.sh` equips) and `worker::gesture::capture`, and writes the recorder's files
-//! (metadata JSON and motions/NAME.csv, for `replay`, `follow` and the dataset tools), a BVH and
-//! the landmarks. `orchestrator gesture film PROGRAM --out DIR` renders the avatar performing a
+//! (metadata JSON and motions/NAME.csv, for `replay` and `follow`), a BVH, the landmarks and
+//! `capture.json` (what was found). `orchestrator gesture film PROGRAM --out DIR` renders the avatar performing a
 //! program's gesture from a fixed camera, frame by frame: what the closed-loop check captures back.
 
 use std::io::{BufRead, BufReader};
@@ -185,17 +185,37 @@ fn capture_cmd(a: CaptureArgs) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.source))?;
     let written = write(&a.out, &name, &p, &human, &c)?;
     let (t0, t1) = (c.times[c.span.0], c.times[c.span.1]);
+    let side = if c.side == worker::humanoid::Side::Left { "left" } else { "right" };
+    let summary = serde_json::json!({
+        "source": a.source,
+        "program": a.program,
+        "metadata": written,
+        "motion": a.out.join("motions").join(format!("{name}.csv")),
+        "bvh": a.out.join(format!("{name}.bvh")),
+        "arm": side,
+        "span_seconds": [t0, t1],
+        "frames": c.frames.len(),
+        "person_frames": c.person_frames,
+        "hand_frames": [c.hand_frames.0, c.hand_frames.1],
+    });
+    farm::files::write_atomic(&a.out.join("capture.json"), serde_json::to_string_pretty(&summary)?.as_bytes())?;
     println!(
         "{}: a {} arm gesture from {t0:.1} to {t1:.1} s ({} of {} frames with a person; the hand seen in {} of {}), \
          recorded into {label}",
         a.source,
-        if c.side == worker::humanoid::Side::Left { "left" } else { "right" },
+        side,
         c.person_frames,
         c.frames.len(),
         c.hand_frames.0,
         c.hand_frames.1
     );
     println!("wrote {}; see it: orchestrator replay {}", written.display(), written.display());
+    println!(
+        "let a trained agent answer it: orchestrator follow --checkpoint RUN --program {} --motion {} --out {}",
+        a.program,
+        a.out.join("motions").join(format!("{name}.csv")).display(),
+        a.out.join("follow").display()
+    );
     Ok(())
 }
 

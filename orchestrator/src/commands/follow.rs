@@ -1,0 +1,171 @@
+//! `orchestrator follow`: a trained agent answers a person's own gesture. The gesture (a motion
+//! CSV, as `gesture capture` writes it) takes the place of a dataset program's; the checkpoint
+//! runs that program as `eval` does (greedy, unlimited stops; the intervention gestures shown
+//! whenever the agent faces away, for the methods that see them), and `follow.gif` shows the
+//! robot's view beside the top-down map of its path. SR and SPL at the first stop, where it
+//! stopped and how far from the target go to the terminal and `result.json`.
+//!
+//! ```text
+//! OUT/dataset/    the one program, its rooms and intervention gestures read from --dataset
+//! OUT/eval/       the evaluation (tables, episodes, trajectory)
+//! OUT/follow.gif  the robot's view (the band: gesture perceived) beside the map
+//! OUT/result.json what the terminal says
+//! ```
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+use image::{Rgb, RgbImage};
+use serde::Serialize;
+
+use farm::config::RunConfig;
+use farm::metrics::{EpisodeResult, spl};
+use worker::dataset::{Dataset, Verify, write_subset};
+use worker::gesture::motion::read_csv;
+use worker::scene::Split;
+
+use super::eval::{EvalArgs, read_episodes};
+use crate::report::trajectory;
+
+#[derive(Args, Debug)]
+pub struct FollowArgs {
+    /// A checkpoint file, or a run directory (its newest complete checkpoint).
+    #[arg(long)]
+    pub checkpoint: PathBuf,
+    /// The program the gesture was recorded into (SPLIT:INDEX): its room, target, person and
+    /// robot start.
+    #[arg(long)]
+    pub program: String,
+    /// The gesture: a motion CSV (`gesture capture` writes OUT/motions/NAME.csv); default: the
+    /// program's own.
+    #[arg(long)]
+    pub motion: Option<PathBuf>,
+    #[arg(long, default_value = "data/gond")]
+    pub dataset: PathBuf,
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// What the agent did.
+#[derive(Debug, Serialize)]
+pub struct FollowResult {
+    pub program: String,
+    pub motion: Option<PathBuf>,
+    /// Success and SPL when the episode ends at the first stop.
+    pub success_first_stop: bool,
+    pub spl_first_stop: f64,
+    /// Step of the first stop and the robot's distance from the target there (None: never stopped).
+    pub first_stop: Option<(u32, f32)>,
+    /// With unlimited stops (within the step limit).
+    pub success: bool,
+    pub steps: u32,
+    pub gif: PathBuf,
+}
+
+pub fn run(a: FollowArgs) -> anyhow::Result<()> {
+    let (split, i) = a
+        .program
+        .split_once(':')
+        .and_then(|(s, i)| Some((Split::from_name(s)?, i.parse::<usize>().ok()?)))
+        .with_context(|| format!("--program: `{}` is not SPLIT:INDEX (e.g. val:17)", a.program))?;
+    // the person's gesture first: the file they named is the likelier mistake
+    let given = a.motion.as_deref().map(read_csv).transpose()?;
+    let ds = Dataset::open(&a.dataset, Verify::Quick)?;
+    let p = ds
+        .program(split, i)
+        .with_context(|| format!("{}: split {} has no program {i}", ds.dir.display(), split.name()))?;
+    let motion = match given {
+        Some(m) => m.as_flat().to_vec(),
+        None => ds.require(split)?.motion(i),
+    };
+    let one = a.out.join("dataset");
+    write_subset(&one, &ds, split, &[(p.clone(), motion)]).with_context(|| format!("writing {}", one.display()))?;
+
+    let ev = a.out.join("eval");
+    super::eval::run(EvalArgs {
+        checkpoint: Some(a.checkpoint.clone()),
+        expert: false,
+        greedy: false,
+        scenes: vec![],
+        split: split.name().into(),
+        workers: 1,
+        config: None,
+        dataset: Some(one.clone()),
+        max_programs: None,
+        modes: vec!["normal".into()],
+        dts_threshold: 1.5,
+        out: Some(ev.clone()),
+        label: None,
+        trajectories: 0,
+        set: vec![],
+        compare: vec![],
+    })?;
+
+    let episodes: Vec<EpisodeResult> = read_episodes(&ev.join("normal/episodes.jsonl"))?;
+    let e = episodes.first().with_context(|| format!("{}: no episode", ev.display()))?;
+    let first = e.stops.first();
+    let result = FollowResult {
+        program: a.program.clone(),
+        motion: a.motion.clone(),
+        success_first_stop: first.is_some_and(|s| s.success),
+        spl_first_stop: first.filter(|s| s.success).map_or(0.0, |s| spl(e.shortest_path as f64, s.path_length as f64)),
+        first_stop: first.map(|s| (s.step, s.distance)),
+        success: e.success,
+        steps: e.steps,
+        gif: a.out.join("follow.gif"),
+    };
+
+    // the picture: the robot's view along the episode beside the map of its path
+    let (_, run_dir) = super::eval::locate(&a.checkpoint)?;
+    let mut cfg = RunConfig::load(&run_dir.join("config.toml"))?;
+    cfg.run.split = split;
+    let one_ds = Dataset::open(&one, Verify::Quick)?;
+    let trajs = trajectory::read(&ev.join("normal/trajectories.jsonl"))?;
+    let t = trajs.first().with_context(|| format!("{}: no trajectory", ev.display()))?;
+    let p1 = one_ds.program(split, 0).context("the one program")?;
+    let outcome = match (result.success_first_stop, result.success) {
+        (true, _) => "success at the first stop".to_string(),
+        (false, true) => "success after more stops".to_string(),
+        (false, false) => "failure".to_string(),
+    };
+    let title = format!("{} → {}: {outcome}", a.program, p.target.name());
+    let map = trajectory::map(&one_ds, &p1, t, &title)?;
+    let map_png = a.out.join("map.png");
+    map.save_png(&map_png)?;
+    let map_img = image::open(&map_png)?.to_rgb8();
+    let views = trajectory::views(&cfg, &one_ds, &p1, t, 240)?;
+    let h = views.first().map_or(240, |v| v.height());
+    let map_img = image::imageops::resize(
+        &map_img,
+        map_img.width() * h / map_img.height().max(1),
+        h,
+        image::imageops::FilterType::Triangle,
+    );
+    let frames: Vec<RgbImage> = views
+        .iter()
+        .map(|v| {
+            let mut f = RgbImage::from_pixel(v.width() + map_img.width(), h, Rgb([255, 255, 255]));
+            image::imageops::overlay(&mut f, v, 0, 0);
+            image::imageops::overlay(&mut f, &map_img, v.width() as i64, 0);
+            f
+        })
+        .collect();
+    trajectory::write_gif(&result.gif, &frames, 150)?;
+    farm::files::write_atomic(&a.out.join("result.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
+
+    let stop = match result.first_stop {
+        Some((step, d)) => format!("first stop at step {step}, {d:.2} m from the target"),
+        None => "never stopped".into(),
+    };
+    println!(
+        "{} ({}): {outcome}; {stop}; SR at the first stop {}, SPL {:.2}; {} steps; {}",
+        a.program,
+        a.motion.as_ref().map_or("its own gesture".into(), |m| m.display().to_string()),
+        result.success_first_stop as u8,
+        result.spl_first_stop,
+        result.steps,
+        result.gif.display()
+    );
+    Ok(())
+}
