@@ -16,15 +16,9 @@ use serde_json::Value;
 /// or wrong arm (≥ 40°).
 const BOUND_DEG: f64 = 25.0;
 
+/// The real GOND recording (the repository's copy of reference/gond-sample).
 fn gond_sample() -> std::path::PathBuf {
-    let dir = repo_root().join("../shared/reference/gond-sample");
-    let json = std::fs::read_dir(&dir)
-        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
-        .flatten()
-        .map(|e| e.path())
-        .find(|p| p.extension().is_some_and(|e| e == "json"))
-        .expect("the GOND sample's metadata");
-    json
+    repo_root().join("worker/tests/fixtures/gond-sample/2021-05-04_13-22-28_mocap.json")
 }
 
 fn orchestrator(args: &[&str]) -> std::process::Output {
