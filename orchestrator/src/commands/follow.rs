@@ -1,8 +1,8 @@
 //! `orchestrator follow`: a trained agent answers a person's own gesture. The gesture (a motion
 //! CSV, as `gesture capture` writes it) takes the place of a dataset program's; the checkpoint
-//! runs that program as `eval` does (greedy, unlimited stops; the intervention gestures shown
-//! whenever the agent faces away, for the methods that see them), and `follow.gif` shows the
-//! robot's view beside the top-down map of its path. SR and SPL at the first stop, where it
+//! runs that program as `eval` does (actions sampled from the policy, seeded; unlimited stops;
+//! the intervention gestures shown whenever the agent faces away, for the methods that see
+//! them), and `follow.gif` shows the robot's view beside the top-down map of its path. SR and SPL at the first stop, where it
 //! stopped and how far from the target go to the terminal and `result.json`.
 //!
 //! ```text
