@@ -12,8 +12,8 @@ use serde_json::Value;
 /// Median error bound (degrees) of the recovered shoulder→wrist line during the hold. Measured
 /// (BENCHMARKS.md, "Gesture capture"): a median of 16.5° over 12 filmed dataset gestures (4.5–34°
 /// each; 13.8° from the landmarks alone: most of it is the landmark model's depth) and 16.2° on
-/// the GOND recording; 25° leaves room for the test dataset's gestures without admitting a lost
-/// or wrong arm (≥ 40°).
+/// the GOND recording; the test dataset's first 4 gestures: 11.9, 16.0, 22.1, 22.9° (median
+/// 19.1°). 25° leaves room for that spread without admitting a lost or wrong arm (≥ 40°).
 const BOUND_DEG: f64 = 25.0;
 
 /// The real GOND recording (the repository's copy of reference/gond-sample).
@@ -51,7 +51,8 @@ fn filmed_gestures_and_the_gond_recording_come_back_pointing_the_same_way() {
     assert!(rows.iter().all(|r| r["arm_found"] == true), "{rows:#?}");
     let mut errs: Vec<f64> = rows[..4].iter().map(|r| r["captured_deg"].as_f64().unwrap()).collect();
     errs.sort_by(f64::total_cmp);
-    assert!(errs[2] < BOUND_DEG, "median of the filmed gestures {:.1}° ({errs:?})", errs[2]);
+    let median = (errs[1] + errs[2]) / 2.0;
+    assert!(median < BOUND_DEG, "median of the filmed gestures {median:.1}° ({errs:?})");
     let gond = rows[4]["captured_deg"].as_f64().unwrap();
     assert!(gond < BOUND_DEG, "the GOND recording: {gond:.1}°");
 
