@@ -216,6 +216,37 @@ fn a_trained_agent_follows_a_given_gesture_from_the_cli_and_from_python() {
     let m0 = f32::from(half_f16(&gond[64..66]));
     assert!((m0 as f64 - first[0]).abs() < 1e-3, "motion {m0} vs the CSV's {}", first[0]);
 
+    // the robot moved (turned where it starts), and moved out of the room: one line
+    let start = &index[0]["robot_pos"];
+    let (x, z) = (start[0].as_f64().unwrap(), start[2].as_f64().unwrap());
+    let turned = tmp.path().join("turned");
+    let robot = |x: f64, z: f64, out: &Path| {
+        orchestrator(&[
+            "follow",
+            "--checkpoint",
+            &run.display().to_string(),
+            "--program",
+            "val:1",
+            "--robot",
+            &x.to_string(),
+            &z.to_string(),
+            "90",
+            "--dataset",
+            &data.display().to_string(),
+            "--out",
+            &out.display().to_string(),
+        ])
+    };
+    let o = robot(x, z, &turned);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let moved: Value =
+        serde_json::from_str(&std::fs::read_to_string(turned.join("dataset/val.json")).unwrap()).unwrap();
+    assert_eq!(moved[0]["robot_yaw"].as_f64(), Some(90.0));
+    assert_eq!(moved[0]["geodesic"], index[0]["geodesic"], "the same start, the same distance");
+    let o = robot(100.0, 100.0, &tmp.path().join("away"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.trim().lines().count() == 1 && err.contains("outside the room"), "{err}");
+
     // from Python: the same, as a dict
     let py_out = tmp.path().join("follow-py");
     let o = Command::new("python3")

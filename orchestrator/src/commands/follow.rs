@@ -1,5 +1,6 @@
 //! `orchestrator follow`: a trained agent answers a person's own gesture. The gesture (a motion
-//! CSV, as `gesture capture` writes it) takes the place of a dataset program's; the checkpoint
+//! CSV, as `gesture capture` writes it) takes the place of a dataset program's, whose person and
+//! robot may be moved (`--person`, `--robot`); the checkpoint
 //! runs that program as `eval` does (actions sampled from the policy, seeded; unlimited stops;
 //! the intervention gestures shown whenever the agent faces away, for the methods that see
 //! them), and `follow.gif` shows the robot's view beside the top-down map of its path. SR and SPL at the first stop, where it
@@ -21,6 +22,7 @@ use serde::Serialize;
 
 use farm::config::RunConfig;
 use farm::metrics::{EpisodeResult, spl};
+use worker::dataset::build::with_poses;
 use worker::dataset::{Dataset, Verify, write_subset};
 use worker::gesture::motion::read_csv;
 use worker::scene::Split;
@@ -41,6 +43,13 @@ pub struct FollowArgs {
     /// program's own.
     #[arg(long)]
     pub motion: Option<PathBuf>,
+    /// Move the person in the program's room: x, z (metres) and yaw (degrees; they must face
+    /// the target).
+    #[arg(long, num_args = 3, value_names = ["X", "Z", "YAW"], allow_hyphen_values = true)]
+    pub person: Option<Vec<f32>>,
+    /// Move the robot's start: x, z (metres; taken to the nearest 0.25 m grid point) and yaw.
+    #[arg(long, num_args = 3, value_names = ["X", "Z", "YAW"], allow_hyphen_values = true)]
+    pub robot: Option<Vec<f32>>,
     #[arg(long, default_value = "data/gond")]
     pub dataset: PathBuf,
     #[arg(long)]
@@ -75,6 +84,16 @@ pub fn run(a: FollowArgs) -> anyhow::Result<()> {
     let p = ds
         .program(split, i)
         .with_context(|| format!("{}: split {} has no program {i}", ds.dir.display(), split.name()))?;
+    let p = match (&a.person, &a.robot) {
+        (None, None) => p,
+        (person, robot) => {
+            let scene = ds.scene(p.scene_id())?;
+            let person = person.as_ref().map(|v| (nalgebra::Point2::new(v[0], v[1]), v[2]));
+            let robot = robot.as_ref().map(|v| worker::robot::RobotPose { x: v[0], z: v[1], yaw: v[2] });
+            with_poses(&scene, &p, person, robot, ds.manifest.build.success_distance)
+                .map_err(|e| anyhow::anyhow!("--person/--robot in {} ({}): {e}", a.program, p.scene))?
+        }
+    };
     let motion = match given {
         Some(m) => m.as_flat().to_vec(),
         None => ds.require(split)?.motion(i),

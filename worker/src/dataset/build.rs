@@ -542,6 +542,48 @@ fn build_into(
 /// start is free and reachable (and, for `far` starts, not already successful), whether it is
 /// already successful and both geodesic distances recompute to the stored values. Returns the
 /// first violated constraint.
+/// Program `p` with its person and/or robot moved (`follow --person/--robot`): the robot on the
+/// nearest grid point, the distances and whether it starts successful recomputed, the whole
+/// checked as a built program is (the person sees the target, the robot can reach it). The
+/// gesture is the caller's: nothing is synthesised here.
+pub fn with_poses(
+    scene: &Scene,
+    p: &Program,
+    human: Option<(Point2<f32>, f32)>,
+    robot: Option<crate::robot::RobotPose>,
+    success_distance: f32,
+) -> Result<Program, String> {
+    let env = EnvConfig::default();
+    let ctx = RoomContext::new(p.scene_id(), scene.clone(), &env, success_distance);
+    let t = ctx.targets.get(&p.target_object).ok_or("the program's target cannot be reached")?;
+    let mut q = p.clone();
+    if let Some((xz, yaw)) = human {
+        (q.human_pos, q.human_yaw) = ([xz.x, 0.0, xz.y], wrap_deg(yaw));
+    }
+    let mut physics = Physics::new(&scene.parts(), ctx.physics.robot());
+    physics.set_human(Some(q.human_xz()));
+    let (grid, region, field) = ctx.goal_field(&physics, q.target_object, q.human_xz());
+    let start = robot.unwrap_or(p.robot_start());
+    let c = grid.cell_at(start.xz()).ok_or("the robot stands outside the room")?;
+    let at = grid.point(c);
+    (q.robot_pos, q.robot_yaw) = ([at.x, 0.0, at.y], wrap_deg(start.yaw));
+    let tc = Point2::new(t.center.x, t.center.z);
+    q.geodesic = field.at_cell(c);
+    q.target_geodesic = starts::target_field(&grid, &region, tc).at_cell(c);
+    let pose = q.robot_start();
+    q.starts_successful = (pose.xz() - tc).norm() < success_distance
+        && visibility::visible(
+            &physics,
+            &pose.camera(&env),
+            &ctx.k,
+            &t.points,
+            crate::scene::object_id(q.target_object),
+        );
+    q.robot_human_distance = (pose.xz() - q.human_xz()).norm();
+    verify_program(scene, &q, success_distance, Starts::Dissertation)?;
+    Ok(q)
+}
+
 pub fn verify_program(scene: &Scene, p: &Program, success_distance: f32, starts: Starts) -> Result<(), String> {
     let env = EnvConfig::default();
     let id = p.scene_id();
