@@ -8,8 +8,9 @@
 //! not matter. Per frame: the three spine twists (equal shares) to the turn of the shoulders over
 //! the hips; each arm's nine muscles (Levenberg–Marquardt, warm-started from the frame before) to
 //! the directions of the upper arm, the forearm and, where the hand is seen, the hand and its
-//! palm; each finger joint's "Stretched" muscle to that joint's bend; neck and head to the face's
-//! turn and nod. Legs, spread and the rest stay at rest.
+//! palm; each hand's 20 finger muscles to its knuckles' flexion and spread (in the palm's frame)
+//! and its other joints' bends; neck and head to the face's turn and nod (against its resting
+//! nod). Legs and the rest stay at rest.
 
 use std::fmt;
 
