@@ -214,6 +214,16 @@ fn a_published_study_continues_from_its_records_without_its_folder() {
     // the ablation tables read the recorded model's tables
     assert!(std::fs::read_to_string(docs.join("T4.6.md")).unwrap().contains("| +Both |"));
 
+    // a study of one method publishes tables that keep every other recorded model
+    let mut c = study(&cfg, &tmp.path().join("one"), "vis_sem");
+    publish(&mut c);
+    let o = c.output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table = std::fs::read_to_string(docs.join("T4.2.md")).unwrap();
+    for row in ["| +Both | 1 |", "| VisSem | 1 |", "| Random | 1 |"] {
+        assert!(table.contains(row), "no `{row}` after a VisSem-only study in\n{table}");
+    }
+
     // a study of another budget is refused by the record, which is left as it was
     let record = std::fs::read_to_string(docs.join("records/both-seed1/record.json")).unwrap();
     let mut c = study_of(&cfg, &tmp.path().join("longer"), "both", 512);

@@ -569,10 +569,25 @@ fn report(a: &StudyArgs, runs: &[Run], results: &[RunResult], pending: &[String]
             path.map(|p| (r.method.stem.to_string(), p))
         })
         .collect();
-    for out in std::iter::once(&a.out).chain(&a.publish) {
-        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-        summary::write(out, results, &curves, pending)?;
-        ablations::write(out, results)?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    summary::write(&a.out, results, &curves, pending)?;
+    ablations::write(&a.out, results)?;
+    if let Some(p) = &a.publish {
+        // the published tables hold every model recorded there, of this invocation or another
+        // (a study of some methods must not drop the others' rows)
+        let (mut all, mut curves) = (results.to_vec(), curves);
+        for (r, curve) in records::all(p)? {
+            let same =
+                |x: &RunResult| (x.stem.as_str(), x.seed, x.scene_type) == (r.stem.as_str(), r.seed, r.scene_type);
+            if !all.iter().any(same) {
+                if let Some(c) = curve.filter(|_| r.scene_type.is_none()) {
+                    curves.push((r.stem.clone(), c));
+                }
+                all.push(r);
+            }
+        }
+        summary::write(p, &all, &curves, pending)?;
+        ablations::write(p, &all)?;
     }
     Ok(())
 }

@@ -83,11 +83,36 @@ pub fn read(publish: &Path, name: &str, config: &RunConfig, settings: Settings) 
         record.evaluation,
         settings
     );
-    let mut r = record.result;
+    Ok(Some(rebased(record.result, &dir)))
+}
+
+/// Every model recorded under `publish`, this study's or not (its config unchecked), with its
+/// training curve when it has one: what the published tables are made of.
+pub fn all(publish: &Path) -> anyhow::Result<Vec<(RunResult, Option<PathBuf>)>> {
+    let Ok(entries) = std::fs::read_dir(publish.join("records")) else { return Ok(Vec::new()) };
+    let mut names: Vec<String> = entries
+        .flatten()
+        .filter(|e| e.path().join("record.json").is_file())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    let mut out = Vec::with_capacity(names.len());
+    for name in names {
+        let dir = folder(publish, &name);
+        let path = dir.join("record.json");
+        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        let record: Record =
+            serde_json::from_str(&text).with_context(|| format!("{}: not a study record", path.display()))?;
+        out.push((rebased(record.result, &dir), curve(publish, &name)));
+    }
+    Ok(out)
+}
+
+fn rebased(mut r: RunResult, dir: &Path) -> RunResult {
     r.test_tables = r.test_tables.map(|p| dir.join(p));
     r.val_tables = r.val_tables.map(|p| dir.join(p));
     r.train_tables = r.train_tables.map(|p| dir.join(p));
-    Ok(Some(r))
+    r
 }
 
 /// Writes the record of a finished model: `r`'s tables and the run's `metrics.jsonl` (when
