@@ -25,7 +25,6 @@ use farm::metrics::{EpisodeResult, spl};
 use worker::dataset::build::with_poses;
 use worker::dataset::{Dataset, Verify, write_subset};
 use worker::gesture::motion::read_csv;
-use worker::scene::Split;
 
 use super::eval::{EvalArgs, read_episodes};
 use crate::report::trajectory;
@@ -73,17 +72,12 @@ pub struct FollowResult {
 }
 
 pub fn run(a: FollowArgs) -> anyhow::Result<()> {
-    let (split, i) = a
-        .program
-        .split_once(':')
-        .and_then(|(s, i)| Some((Split::from_name(s)?, i.parse::<usize>().ok()?)))
+    let (split, i) = super::program::parse_ref(&a.program)
         .with_context(|| format!("--program: `{}` is not SPLIT:INDEX (e.g. val:17)", a.program))?;
     // the person's gesture first: the file they named is the likelier mistake
     let given = a.motion.as_deref().map(read_csv).transpose()?;
     let ds = Dataset::open(&a.dataset, Verify::Quick)?;
-    let p = ds
-        .program(split, i)
-        .with_context(|| format!("{}: split {} has no program {i}", ds.dir.display(), split.name()))?;
+    let (p, own) = super::program::dataset_program(&ds, split, i)?;
     let p = match (&a.person, &a.robot) {
         (None, None) => p,
         (person, robot) => {
@@ -96,7 +90,7 @@ pub fn run(a: FollowArgs) -> anyhow::Result<()> {
     };
     let motion = match given {
         Some(m) => m.as_flat().to_vec(),
-        None => ds.require(split)?.motion(i),
+        None => own.as_flat().to_vec(),
     };
     let one = a.out.join("dataset");
     write_subset(&one, &ds, split, &[(p.clone(), motion)]).with_context(|| format!("writing {}", one.display()))?;

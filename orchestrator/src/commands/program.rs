@@ -70,13 +70,13 @@ pub fn run(cmd: ProgramCmd) -> anyhow::Result<()> {
     }
 }
 
-fn parse_ref(s: &str) -> Option<(Split, usize)> {
+pub(crate) fn parse_ref(s: &str) -> Option<(Split, usize)> {
     let (split, i) = s.split_once(':')?;
     Some((Split::from_name(split)?, i.parse().ok()?))
 }
 
 /// A program and its motion, from the dataset.
-fn dataset_program(ds: &Dataset, split: Split, i: usize) -> anyhow::Result<(Program, Motion)> {
+pub(crate) fn dataset_program(ds: &Dataset, split: Split, i: usize) -> anyhow::Result<(Program, Motion)> {
     let file = ds.require(split)?;
     anyhow::ensure!(
         i < file.len(),

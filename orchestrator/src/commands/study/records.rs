@@ -64,9 +64,7 @@ pub fn read(publish: &Path, name: &str, config: &RunConfig, settings: Settings) 
     if !path.is_file() {
         return Ok(None);
     }
-    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    let record: Record =
-        serde_json::from_str(&text).with_context(|| format!("{}: not a study record", path.display()))?;
+    let record = load(&path)?;
     let recorded = RunConfig::from_toml(&record.config, &format!("{} (field `config`)", path.display()))?;
     if let Some((ours, theirs)) = first_difference(&config.to_toml(), &recorded.to_toml()) {
         anyhow::bail!(
@@ -100,12 +98,15 @@ pub fn all(publish: &Path) -> anyhow::Result<Vec<(RunResult, Option<PathBuf>)>> 
     for name in names {
         let dir = folder(publish, &name);
         let path = dir.join("record.json");
-        let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-        let record: Record =
-            serde_json::from_str(&text).with_context(|| format!("{}: not a study record", path.display()))?;
+        let record = load(&path)?;
         out.push((rebased(record.result, &dir), curve(publish, &name)));
     }
     Ok(out)
+}
+
+fn load(path: &Path) -> anyhow::Result<Record> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{}: not a study record", path.display()))
 }
 
 fn rebased(mut r: RunResult, dir: &Path) -> RunResult {
