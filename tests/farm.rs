@@ -531,7 +531,8 @@ fn bench_train_reports_throughput_and_where_the_time_went() {
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let md = std::fs::read_to_string(out_dir.join("bench_train.md")).unwrap();
-    for row in ["end-to-end frames/s", "PPO update", "inference", "render", "waiting for actions"] {
+    // the learner names where it ran (CPU here, CUDA on a GPU machine)
+    for row in ["Learner: device ", "end-to-end frames/s", "PPO update", "inference", "render", "waiting for actions"] {
         assert!(md.contains(row), "no `{row}` in\n{md}");
     }
     let progress = std::fs::read_to_string(out_dir.join("run/farm.jsonl")).unwrap();

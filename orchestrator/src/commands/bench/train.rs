@@ -47,6 +47,8 @@ pub struct TrainBench {
     pub updates: u64,
     pub profile: Profile,
     pub workers: usize,
+    /// The learner's report of where it ran (torch device, CUDA backend, threads), from its log.
+    pub learner_device: Option<String>,
 }
 
 impl TrainBench {
@@ -90,6 +92,9 @@ pub fn report(b: &TrainBench, cfg: &RunConfig, command: &str) -> String {
         b.seconds,
         b.updates,
     );
+    if let Some(d) = &b.learner_device {
+        let _ = writeln!(md, "Learner: {d}.\n");
+    }
     let _ = writeln!(md, "| measure | value |\n|---|---:|");
     let _ = writeln!(md, "| end-to-end frames/s | **{:.0}** |", b.fps());
     let _ = writeln!(md, "| frames/s while collecting (outside updates) | {:.0} |", b.collection_fps());
@@ -157,6 +162,12 @@ fn train(a: &BenchTrainArgs, cfg: &RunConfig, out: &std::path::Path) -> anyhow::
     Ok((p, start.elapsed().as_secs_f64()))
 }
 
+/// The device report the learner logs when it starts (`learner::device::report`).
+fn learner_device(log: &std::path::Path) -> Option<String> {
+    let text = std::fs::read_to_string(log).ok()?;
+    text.lines().find_map(|l| l.split_once("learner::ppo_policy: device ").map(|(_, r)| format!("device {}", r.trim())))
+}
+
 pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     process::install_termination_handler()?;
     anyhow::ensure!(a.workers > 0, "--workers: give a positive count");
@@ -181,6 +192,7 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
         updates: metrics.len() as u64,
         profile,
         workers: a.workers,
+        learner_device: learner_device(&out.join("run/logs/learner.log")),
     };
     let mut command = format!("orchestrator bench train --workers {} --frames {}", a.workers, a.frames);
     if let Some(c) = &a.config {

@@ -122,6 +122,18 @@ impl Run {
         self.latest_update() >= self.updates_needed(workers)
     }
 
+    /// The checkpoints val chooses from: the evenly spaced ones and the final one. A checkpoint
+    /// written when the run was stopped part-way is not among them, so a study that was stopped
+    /// and continued chooses from the same candidates as one that ran through.
+    fn candidates(&self, workers: usize) -> Vec<PathBuf> {
+        let (every, last) = (self.cfg.checkpoint.every_updates.max(1), self.updates_needed(workers));
+        farm::checkpoints::list(&farm::checkpoints::dir_of(&self.dir))
+            .into_iter()
+            .filter(|(u, _)| u % every == 0 || *u >= last)
+            .map(|(_, ckpt)| ckpt)
+            .collect()
+    }
+
     fn select_dir(&self, ckpt: &Path) -> PathBuf {
         self.dir.join("select").join(ckpt.file_stem().unwrap_or_default())
     }
@@ -448,7 +460,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         let mut val_curve = Vec::new();
         let t = Instant::now();
         progress.doing(&format!("selecting {name} on val"));
-        for (_, ckpt) in farm::checkpoints::list(&farm::checkpoints::dir_of(&run.dir)) {
+        for ckpt in run.candidates(a.workers) {
             let e = Eval {
                 what: ["--checkpoint".into(), s(&ckpt)],
                 split: Split::Val,
@@ -638,6 +650,22 @@ mod tests {
         );
         assert!(both2.dir.ends_with("runs/both-seed2"));
         assert!(both2.cfg.run.scenes.is_empty(), "the study trains in all 80 training rooms");
+    }
+
+    #[test]
+    fn val_chooses_from_the_spaced_and_final_checkpoints_not_one_written_at_a_stop() {
+        let dir = tempfile::tempdir().unwrap();
+        let (runs, _) = plan(&args(dir.path())).unwrap();
+        let run = &runs[0];
+        // 10 updates, one checkpoint in 2; the run was stopped at update 3 and continued
+        let ckpts = farm::checkpoints::dir_of(&run.dir);
+        std::fs::create_dir_all(&ckpts).unwrap();
+        for u in [2, 3, 4, 6, 8, 10] {
+            std::fs::write(farm::checkpoints::path(&ckpts, u), b"").unwrap();
+        }
+        let chosen_from: Vec<u64> =
+            run.candidates(4).iter().map(|p| farm::checkpoints::update_of(p).unwrap()).collect();
+        assert_eq!(chosen_from, [2, 4, 6, 8, 10], "as a study that ran through");
     }
 
     #[test]
