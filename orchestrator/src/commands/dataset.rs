@@ -165,17 +165,53 @@ fn stats_cmd(a: StatsArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&out)?;
     let mut by_split: BTreeMap<Split, Vec<Program>> = BTreeMap::new();
     let mut lines: BTreeMap<Split, Vec<[f32; 2]>> = BTreeMap::new();
+    let mut ranks: BTreeMap<Split, Vec<usize>> = BTreeMap::new();
     for s in Split::ALL {
         if let Some(file) = ds.split(s) {
             let programs = ds.index(s)?;
             lines.insert(s, aiming_lines(file, &programs));
+            ranks.insert(s, target_ranks(&ds, &programs)?);
             by_split.insert(s, programs);
         }
     }
-    let summary = write_stats(&by_split, &ds.manifest.build, &lines, &out)?;
+    let summary = write_stats(&by_split, &ds.manifest.build, &lines, &ranks, &out)?;
     println!("{summary}");
     println!("figures and summary in {}", out.display());
     Ok(())
+}
+
+/// Per program, the target's rank among its room's objects by floor distance from the robot's
+/// start (0: it is the nearest).
+fn target_ranks(ds: &Dataset, programs: &[Program]) -> anyhow::Result<Vec<usize>> {
+    let mut rooms: BTreeMap<&str, Vec<[f32; 3]>> = BTreeMap::new();
+    let mut ranks = Vec::with_capacity(programs.len());
+    for p in programs {
+        if !rooms.contains_key(p.scene.as_str()) {
+            let id = farm::rooms::SceneId::parse(&p.scene)
+                .with_context(|| format!("program {}: no room `{}`", p.id, p.scene))?;
+            let scene = ds.scene(id)?;
+            rooms.insert(&p.scene, scene.objects.iter().map(|o| o.position).collect());
+        }
+        let objects = &rooms[p.scene.as_str()];
+        let from_start = |q: [f32; 3]| (q[0] - p.robot_pos[0]).hypot(q[2] - p.robot_pos[2]);
+        let target = objects.get(p.target_object).map_or(f32::INFINITY, |&q| from_start(q));
+        ranks.push(objects.iter().filter(|&&q| from_start(q) < target).count());
+    }
+    Ok(ranks)
+}
+
+/// What the starts give away without the target: how often the target is the object nearest
+/// the robot's start, or among the three nearest.
+fn nearest_table(ranks: &BTreeMap<Split, Vec<usize>>) -> String {
+    let mut md = "\nThe target among its room's objects by floor distance from the robot's start (a policy told no target can learn to go to what is near):\n\n| split | target the nearest object | among the 3 nearest | median rank (1: nearest) |\n|---|---:|---:|---:|\n".to_string();
+    for (s, r) in ranks {
+        let share = |k: usize| 100.0 * r.iter().filter(|&&x| x < k).count() as f64 / r.len().max(1) as f64;
+        let mut sorted = r.clone();
+        sorted.sort_unstable();
+        let median = sorted.get(sorted.len() / 2).map_or(0, |m| m + 1);
+        md += &format!("| {} | {:.1}% | {:.1}% | {} |\n", s.name(), share(1), share(3), median);
+    }
+    md
 }
 
 /// Per program, how far the referencing gesture's shoulder→wrist and forearm lines pass from
@@ -194,11 +230,13 @@ fn aiming_lines(file: &worker::dataset::GondFile, programs: &[Program]) -> Vec<[
 }
 
 /// Draws the figures and writes `summary.md`; returns the summary text. `lines` holds each
-/// program's aiming-line errors (shoulder→wrist, forearm; degrees) per split.
+/// program's aiming-line errors (shoulder→wrist, forearm; degrees) per split, `ranks` each
+/// program's target rank by distance from the start ([`target_ranks`]).
 pub fn write_stats(
     by_split: &BTreeMap<Split, Vec<Program>>,
     build: &worker::dataset::BuildParams,
     lines: &BTreeMap<Split, Vec<[f32; 2]>>,
+    ranks: &BTreeMap<Split, Vec<usize>>,
     out: &Path,
 ) -> anyhow::Result<String> {
     let main_split = if by_split.contains_key(&Split::Train) {
@@ -328,6 +366,7 @@ pub fn write_stats(
         md +=
             &format!("| {} | {:.2} | {:.1} | {:.1} | {:.0}% |\n", s.name(), acc, median(0), median(1), 100.0 * within);
     }
+    md += &nearest_table(ranks);
     md += "\n![scene types](fig3_8_scene_types.png)\n![object types](fig3_9_object_types.png)\n![instances](fig3_11_instances.png)\n![geodesic](fig3_12a_geodesic.png)\n![robot-person](fig3_12b_robot_person.png)\n";
     farm::files::write_atomic(&out.join("summary.md"), md.as_bytes())?;
     Ok(md)
