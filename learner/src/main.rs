@@ -179,6 +179,8 @@ fn run_serve(a: ServeArgs, dev: tch::Device) -> anyhow::Result<()> {
     process::install_termination_handler()?;
     process::die_with_parent(Signal::SIGINT)?;
     let cfg = RunConfig::load(&a.config)?;
+    // where the policy runs, for the run's log (`orchestrator bench train` prints it)
+    tracing::info!("{}", device::report(dev));
     let mut policy = make_policy(&a, &cfg, dev)?;
     if a.resume && a.policy != PolicyKind::Ppo {
         tracing::info!("--resume: policy `{}` keeps no state; nothing to resume", policy.name());

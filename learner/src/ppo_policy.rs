@@ -98,7 +98,6 @@ impl PpoPolicy {
         // A stop (Ctrl-C, or the time budget spent) during an update cuts it short; the final
         // checkpoint follows.
         trainer.interrupted = farm::process::stop_requested;
-        tracing::info!("{}", crate::device::report(device));
         for note in trainer.agent.notes() {
             tracing::info!("{note}");
         }
@@ -125,7 +124,6 @@ impl PpoPolicy {
         tch::manual_seed(cfg.run.seed as i64);
         let n = workers * cfg.env.envs_per_worker;
         let agent = checkpoint::load_agent(cfg, n, device, checkpoint)?;
-        tracing::info!("{}", crate::device::report(device));
         for note in agent.notes() {
             tracing::info!("{note}");
         }

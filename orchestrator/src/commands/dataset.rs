@@ -187,9 +187,7 @@ fn target_ranks(ds: &Dataset, programs: &[Program]) -> anyhow::Result<Vec<usize>
     let mut ranks = Vec::with_capacity(programs.len());
     for p in programs {
         if !rooms.contains_key(p.scene.as_str()) {
-            let id = farm::rooms::SceneId::parse(&p.scene)
-                .with_context(|| format!("program {}: no room `{}`", p.id, p.scene))?;
-            let scene = ds.scene(id)?;
+            let scene = ds.scene(p.scene_id())?;
             rooms.insert(&p.scene, scene.objects.iter().map(|o| o.position).collect());
         }
         let objects = &rooms[p.scene.as_str()];

@@ -165,7 +165,7 @@ fn train(a: &BenchTrainArgs, cfg: &RunConfig, out: &std::path::Path) -> anyhow::
 /// The device report the learner logs when it starts (`learner::device::report`).
 fn learner_device(log: &std::path::Path) -> Option<String> {
     let text = std::fs::read_to_string(log).ok()?;
-    text.lines().find_map(|l| l.split_once("learner::ppo_policy: device ").map(|(_, r)| format!("device {}", r.trim())))
+    text.lines().find_map(|l| l.split_once(" learner: device ").map(|(_, r)| format!("device {}", r.trim())))
 }
 
 pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
