@@ -193,10 +193,28 @@ pub type Series = (String, Vec<(f64, f64)>);
 
 /// Line chart of several series over a shared x axis.
 pub fn lines(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series]) -> anyhow::Result<()> {
+    let groups: Vec<LineGroup> = series.iter().map(|(name, s)| (name.clone(), vec![s.clone()])).collect();
+    grouped_lines(path, title, x_label, y_label, &groups)
+}
+
+/// A named group of series drawn in one colour (e.g. a method's seeds).
+pub type LineGroup = (String, Vec<Vec<(f64, f64)>>);
+
+/// Line chart of groups of series over a shared x axis: one colour and one legend entry per
+/// group; a group's members are told apart by their line: solid, dashed, dotted, in order.
+pub fn grouped_lines(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    groups: &[LineGroup],
+) -> anyhow::Result<()> {
     super::fonts::ensure();
-    let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
+    // the legend has a panel of its own, right of the chart: over the lines it hid them
+    let root = BitMapBackend::new(path, (W + LEGEND_PX, H)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
-    let pts = series.iter().flat_map(|s| s.1.iter());
+    let (plot, panel) = root.split_horizontally(W);
+    let pts = groups.iter().flat_map(|g| g.1.iter().flatten());
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for &(x, y) in pts {
         x0 = x0.min(x);
@@ -208,25 +226,56 @@ pub fn lines(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[S
         (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
     }
     let pad = ((y1 - y0) * 0.08).max(1e-3);
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 26))
+    let mut chart = ChartBuilder::on(&plot)
+        .caption(title, ("sans-serif", 22))
         .margin(20)
         .x_label_area_size(50)
         .y_label_area_size(70)
         .build_cartesian_2d(x0..x1.max(x0 + 1e-9), (y0 - pad)..(y1 + pad))
         .map_err(err)?;
-    chart.configure_mesh().x_desc(x_label).y_desc(y_label).label_style(("sans-serif", 16)).draw().map_err(err)?;
-    for (i, (name, s)) in series.iter().enumerate() {
-        let c = PALETTE[i % PALETTE.len()];
-        chart
-            .draw_series(LineSeries::new(s.iter().copied(), c.stroke_width(2)))
-            .map_err(err)?
-            .label(name.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .x_label_formatter(&|v| short_count(*v))
+        .label_style(("sans-serif", 16))
+        .draw()
+        .map_err(err)?;
+    let font: TextStyle = ("sans-serif", 15).into_font().into();
+    for (i, (name, members)) in groups.iter().enumerate() {
+        let style = PALETTE[i % PALETTE.len()].stroke_width(2);
+        for (k, s) in members.iter().enumerate() {
+            let pts = s.iter().copied();
+            match k % 3 {
+                0 => chart.draw_series(LineSeries::new(pts, style)),
+                1 => chart.draw_series(DashedLineSeries::new(pts, 10, 6, style)),
+                _ => chart.draw_series(DashedLineSeries::new(pts, 3, 5, style)),
+            }
+            .map_err(err)?;
+        }
+        let y = 70 + i as i32 * 24;
+        panel.draw(&PathElement::new(vec![(8, y), (34, y)], style.stroke_width(3))).map_err(err)?;
+        panel.draw(&Text::new(name.clone(), (42, y), font.pos(Pos::new(HPos::Left, VPos::Center)))).map_err(err)?;
     }
-    legend(&mut chart)?;
     root.present().map_err(err)?;
     Ok(())
+}
+
+/// Width of the legend's panel beside a line chart, in pixels.
+const LEGEND_PX: u32 = 270;
+
+/// An axis count in few characters: 250000 → "250k", 1500000 → "1.5M".
+fn short_count(v: f64) -> String {
+    let a = v.abs();
+    let (x, unit) = if a >= 1e6 {
+        (v / 1e6, "M")
+    } else if a >= 1e3 {
+        (v / 1e3, "k")
+    } else {
+        (v, "")
+    };
+    let digits = if (x - x.round()).abs() < 1e-9 { 0 } else { 1 };
+    format!("{x:.digits$}{unit}")
 }
 
 /// Groups of bars: one group per `groups` entry (a label and, per bucket, a value and a
@@ -309,6 +358,12 @@ pub fn grouped_bars(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn axis_counts_are_short() {
+        let got: Vec<String> = [0.0, 250.0, 250_000.0, 1_000_000.0, 1_500_000.0, 4_497_408.0].map(short_count).into();
+        assert_eq!(got, ["0", "250", "250k", "1M", "1.5M", "4.5M"]);
+    }
 
     #[test]
     fn long_labels_break_before_a_plus_or_after_a_space() {

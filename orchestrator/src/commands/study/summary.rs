@@ -267,17 +267,28 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
             &curves,
         )?;
     }
-    let val_curves: Vec<crate::report::plot::Series> = results
-        .iter()
-        .filter(|r| r.val_curve.len() > 1 && r.scene_type.is_none())
-        .map(|r| {
-            (format!("{} seed {}", r.label(), r.seed), r.val_curve.iter().map(|&(f, sr)| (f as f64, sr)).collect())
+    // one colour per method, its seeds as line styles: a study holds up to a dozen such runs
+    let val_curves: Vec<crate::report::plot::LineGroup> = METHODS
+        .into_iter()
+        .filter_map(|m| {
+            let mut seeds: Vec<&RunResult> = results
+                .iter()
+                .filter(|r| r.stem == m.stem && r.val_curve.len() > 1 && r.scene_type.is_none())
+                .collect();
+            seeds.sort_by_key(|r| r.seed);
+            let curves = seeds.iter().map(|r| r.val_curve.iter().map(|&(f, sr)| (f as f64, sr)).collect()).collect();
+            let n = match seeds.len() {
+                0 => return None,
+                1 => "1 seed".to_string(),
+                n => format!("{n} seeds"),
+            };
+            Some((format!("{} ({n})", m.label), curves))
         })
         .collect();
     if !val_curves.is_empty() {
-        crate::report::plot::lines(
+        crate::report::plot::grouped_lines(
             &out.join("val_curves.png"),
-            "Val, first stop: SR of each evaluated checkpoint",
+            "Val, first stop: SR of each evaluated checkpoint (seeds 1, 2, 3: solid, dashed, dotted)",
             "frames",
             "SR at the first stop (%)",
             &val_curves,
