@@ -286,9 +286,11 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
         })
         .collect();
     if !val_curves.is_empty() {
+        let styles =
+            if val_curves.iter().any(|g| g.1.len() > 1) { " (seeds 1, 2, 3: solid, dashed, dotted)" } else { "" };
         crate::report::plot::grouped_lines(
             &out.join("val_curves.png"),
-            "Val, first stop: SR of each evaluated checkpoint (seeds 1, 2, 3: solid, dashed, dotted)",
+            &format!("Val, first stop: SR of each evaluated checkpoint{styles}"),
             "frames",
             "SR at the first stop (%)",
             &val_curves,
