@@ -97,6 +97,9 @@ pub struct MetricsLog {
     pub png: PathBuf,
     pub rows: Vec<UpdateMetrics>,
     tb: EventWriter,
+    /// Frames of this process's last update, and of its last farm counters in TensorBoard.
+    updated_at: Option<u64>,
+    farm_at: Option<u64>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -125,7 +128,7 @@ impl MetricsLog {
         let tb_dir = dir.join("tb");
         let tb = EventWriter::create(&tb_dir, "train")
             .map_err(|e| MetricsError::File { file: tb_dir.display().to_string(), message: e.to_string() })?;
-        Ok(MetricsLog { jsonl, png, rows, tb })
+        Ok(MetricsLog { jsonl, png, rows, tb, updated_at: None, farm_at: None })
     }
 
     fn tb_err(&self) -> impl FnOnce(std::io::Error) -> MetricsError + '_ {
@@ -145,6 +148,10 @@ impl MetricsLog {
 
     /// The farm's counters since this learner process started, at an update's frame count.
     pub fn farm(&mut self, frames: u64, p: &crate::records::Progress) -> Result<(), MetricsError> {
+        if self.farm_at.is_some_and(|f| f >= frames) {
+            return Ok(());
+        }
+        self.farm_at = Some(frames);
         let t = &p.totals;
         let mut v = vec![
             ("farm/fps", p.fps),
@@ -161,7 +168,17 @@ impl MetricsLog {
         self.tb.scalars(frames as i64, &v).map_err(self.tb_err())
     }
 
+    /// The farm's counters at the end, at this process's last update (the last report comes
+    /// after it: waiting for a next update would lose them).
+    pub fn farm_final(&mut self, p: &crate::records::Progress) -> Result<(), MetricsError> {
+        match self.updated_at {
+            Some(frames) => self.farm(frames, p),
+            None => Ok(()),
+        }
+    }
+
     pub fn append(&mut self, m: &UpdateMetrics) -> Result<(), MetricsError> {
+        self.updated_at = Some(m.frames);
         let err =
             |e: std::io::Error| MetricsError::File { file: self.jsonl.display().to_string(), message: e.to_string() };
         if let Some(dir) = self.jsonl.parent() {

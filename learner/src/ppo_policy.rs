@@ -305,8 +305,12 @@ impl Policy for PpoPolicy {
     }
 
     fn report(&mut self, progress: &crate::records::Progress) -> anyhow::Result<()> {
-        if matches!(self.mode, Mode::Train { .. }) {
-            self.farm_progress = Some(progress.clone());
+        if let Mode::Train { log, .. } = &mut self.mode {
+            if progress.stop_reason.is_some() {
+                log.farm_final(progress)?;
+            } else {
+                self.farm_progress = Some(progress.clone());
+            }
         }
         Ok(())
     }
