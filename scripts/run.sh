@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The README's main command: installs what is missing (idempotent), builds, makes the default
-# dataset if there is none and the pretrained RGB-D encoder (configs/tiny/*) if it is
+# dataset if there is none and the label-free RGB-D encoder (configs/tiny/*) if it is
 # missing, then trains the embedded default configuration (tiny CPU +Both)
 # on the farm and evaluates its last checkpoint on the validation split.
 # Extra arguments go to `orchestrator up` (e.g. --workers 4, --seconds 600).
@@ -14,9 +14,10 @@ DATA="${GESTHOR_DATASET:-data/gond}"
 if [ ! -f "$DATA/manifest.json" ]; then
   "$ORCH" dataset build --out "$DATA"
 fi
-ENCODER="${GESTHOR_ENCODER:-encoders/rgbd64}"
+ENCODER="${GESTHOR_ENCODER:-encoders/contrast64}"
 if [ ! -f "$ENCODER.safetensors" ]; then
-  # about 3 minutes on two cores; the same seed gives the same file (sha256 in $ENCODER.json)
+  # label-free (dense contrast), about 7 minutes on two cores; the same seed gives the same file
+  # (sha256 in $ENCODER.json)
   "$ORCH" encoder pretrain --out "$ENCODER" --dataset "$DATA"
 fi
 RUN="${GESTHOR_RUN_DIR:-runs/default}"

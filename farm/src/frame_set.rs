@@ -4,22 +4,25 @@
 //!
 //! File layout, little-endian:
 //! ```text
-//! magic "GTHFRAME" | version u32 = 1
+//! magic "GTHFRAME" | version u32 = 2
 //! width u32 | height u32 | grid u32 | classes u32 | count u32 | seed u64
 //! held-out rooms: n u32, then n × floorplan u16
 //! count × frame: room u16 (floorplan) | flags u8 (bit 0: the person is in the scene)
+//!                | person facing f32 (degrees, NaN without a person: see `FrameRef`)
 //!                | rgb u8 H×W×3 | depth u16 H×W (the wire's 0..10 m → 0..65535)
 //!                | cell class u8 grid×grid | cell mean depth u16 grid×grid (same unit)
 //! ```
 //! Rows top first; cells row-major. Frames are records so a writer appends them in order; the
 //! reader keeps each field in one array over all frames (what a trainer slices batches from).
+//! The cell labels and the person's facing are for the semantic sensor's training and for the
+//! probes; a label-free encoder reads only the pixels.
 
 use std::path::Path;
 
 /// First bytes of every frame-set file.
 pub const MAGIC: [u8; 8] = *b"GTHFRAME";
 /// The layout above; a reader refuses any other.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 /// Frame flag: the person stands in the scene (in view or not).
 pub const FLAG_PERSON: u8 = 1;
 
@@ -57,7 +60,7 @@ impl FrameSetHeader {
 
     /// Bytes of one frame record.
     fn record_bytes(&self) -> usize {
-        3 + self.pixels() * 5 + self.cells() * 3
+        7 + self.pixels() * 5 + self.cells() * 3
     }
 
     fn check(&self) -> Result<(), (String, String)> {
@@ -84,6 +87,9 @@ pub struct FrameRef<'a> {
     /// Floorplan number of the room.
     pub room: u16,
     pub flags: u8,
+    /// Where the person faces, relative to the robot: their yaw minus the yaw of the line from
+    /// them to the camera, degrees in −180..180 (0: facing the robot); NaN without a person.
+    pub person_facing: f32,
     /// `H × W × 3`.
     pub rgb: &'a [u8],
     /// `H × W`, 0..10 m → 0..65535.
@@ -100,6 +106,7 @@ pub struct FrameSet {
     pub header: FrameSetHeader,
     pub rooms: Vec<u16>,
     pub flags: Vec<u8>,
+    pub person_facing: Vec<f32>,
     pub rgb: Vec<u8>,
     pub depth: Vec<u16>,
     pub cell_class: Vec<u8>,
@@ -123,6 +130,7 @@ impl FrameSet {
             header,
             rooms: Vec::new(),
             flags: Vec::new(),
+            person_facing: Vec::new(),
             rgb: Vec::new(),
             depth: Vec::new(),
             cell_class: Vec::new(),
@@ -162,6 +170,7 @@ impl FrameSet {
         }
         self.rooms.push(f.room);
         self.flags.push(f.flags);
+        self.person_facing.push(f.person_facing);
         self.rgb.extend_from_slice(f.rgb);
         self.depth.extend_from_slice(f.depth);
         self.cell_class.extend_from_slice(f.cell_class);
@@ -175,6 +184,7 @@ impl FrameSet {
         FrameRef {
             room: self.rooms[i],
             flags: self.flags[i],
+            person_facing: self.person_facing[i],
             rgb: &self.rgb[i * px * 3..(i + 1) * px * 3],
             depth: &self.depth[i * px..(i + 1) * px],
             cell_class: &self.cell_class[i * cells..(i + 1) * cells],
@@ -204,6 +214,7 @@ impl FrameSet {
             let f = self.frame(i);
             out.extend_from_slice(&f.room.to_le_bytes());
             out.push(f.flags);
+            out.extend_from_slice(&f.person_facing.to_le_bytes());
             out.extend_from_slice(f.rgb);
             out.extend(f.depth.iter().flat_map(|v| v.to_le_bytes()));
             out.extend_from_slice(f.cell_class);
@@ -267,6 +278,7 @@ impl FrameSet {
         for i in 0..count {
             set.rooms.push(r.u16("room")?);
             set.flags.push(r.take("flags", 1)?[0]);
+            set.person_facing.push(f32::from_le_bytes(r.take("person facing", 4)?.try_into().expect("4 bytes")));
             set.rgb.extend_from_slice(r.take("rgb", px * 3)?);
             set.depth.extend(r.take("depth", px * 2)?.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])));
             let labels = r.take("cell class", cells)?;
@@ -337,14 +349,23 @@ mod tests {
         s.push(&FrameRef {
             room: 1,
             flags: FLAG_PERSON,
+            person_facing: -30.0,
             rgb: &rgb,
             depth: &[0, 1, 0x1234, 65535],
             cell_class: &[2],
             cell_depth: &[0x1000],
         })
         .unwrap();
-        s.push(&FrameRef { room: 430, flags: 0, rgb: &[9; 12], depth: &[7; 4], cell_class: &[0], cell_depth: &[7] })
-            .unwrap();
+        s.push(&FrameRef {
+            room: 430,
+            flags: 0,
+            person_facing: f32::NAN,
+            rgb: &[9; 12],
+            depth: &[7; 4],
+            cell_class: &[0],
+            cell_depth: &[7],
+        })
+        .unwrap();
         s
     }
 
@@ -352,15 +373,17 @@ mod tests {
     fn golden() -> Vec<u8> {
         let mut g = Vec::new();
         g.extend_from_slice(b"GTHFRAME");
-        g.extend_from_slice(&[1, 0, 0, 0]); // version
+        g.extend_from_slice(&[2, 0, 0, 0]); // version
         g.extend_from_slice(&[2, 0, 0, 0, 2, 0, 0, 0, 1, 0, 0, 0, 3, 0, 0, 0, 2, 0, 0, 0]); // w h grid classes count
         g.extend_from_slice(&[7, 0, 0, 0, 0, 0, 0, 0]); // seed
         g.extend_from_slice(&[1, 0, 0, 0, 0xAE, 0x01]); // one held-out room: 430
         g.extend_from_slice(&[1, 0, 1]); // room 1, person
+        g.extend_from_slice(&[0, 0, 0xF0, 0xC1]); // facing -30.0
         g.extend(0..12u8);
         g.extend_from_slice(&[0, 0, 1, 0, 0x34, 0x12, 0xFF, 0xFF]);
         g.extend_from_slice(&[2, 0x00, 0x10]);
         g.extend_from_slice(&[0xAE, 0x01, 0]); // room 430, no person
+        g.extend_from_slice(&f32::NAN.to_le_bytes());
         g.extend_from_slice(&[9; 12]);
         g.extend_from_slice(&[7, 0, 7, 0, 7, 0, 7, 0]);
         g.extend_from_slice(&[0, 7, 0]);
@@ -372,7 +395,9 @@ mod tests {
         let s = tiny();
         assert_eq!(s.to_bytes(), golden());
         let back = FrameSet::from_bytes(&golden(), "g.frames").unwrap();
-        assert_eq!(back, s);
+        assert_eq!(back.to_bytes(), s.to_bytes(), "NaN facings make PartialEq useless here");
+        assert_eq!(back.person_facing[0], -30.0);
+        assert!(back.person_facing[1].is_nan());
         assert!(!back.is_held_out(0) && back.is_held_out(1));
         assert_eq!(back.frame(0).depth, &[0, 1, 0x1234, 65535]);
     }
@@ -382,7 +407,7 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let p = d.path().join("x.frames");
         tiny().write(&p).unwrap();
-        assert_eq!(FrameSet::read(&p).unwrap(), tiny());
+        assert_eq!(FrameSet::read(&p).unwrap().to_bytes(), tiny().to_bytes());
     }
 
     #[test]
@@ -397,13 +422,13 @@ mod tests {
         v[0] = b'X';
         assert!(msg(&v).starts_with("enc/x.frames: magic:"));
         let mut v = g.clone();
-        v[8] = 2;
-        assert!(msg(&v).contains("version 2"));
+        v[8] = 1;
+        assert!(msg(&v).contains("version 1"));
         let mut v = g.clone();
         v[20] = 0; // grid 0
         assert!(msg(&v).starts_with("enc/x.frames: grid:"));
         let mut v = g.clone();
-        v[46 + 3 + 12 + 8] = 3; // first frame's cell label = classes
+        v[46 + 3 + 4 + 12 + 8] = 3; // first frame's cell label = classes
         let m = msg(&v);
         assert!(m.contains("frame 0 cell class") && m.contains("label 3"), "{m}");
         let e = FrameSet::read(Path::new("/nonexistent/y.frames")).unwrap_err().to_string();
@@ -412,13 +437,13 @@ mod tests {
 
     #[test]
     fn push_checks_sizes_and_labels() {
-        let mut s = tiny();
+        let (mut s, other) = (tiny(), tiny());
         let e = s
-            .push(&FrameRef { room: 1, flags: 0, rgb: &[0; 11], depth: &[0; 4], cell_class: &[0], cell_depth: &[0] })
+            .push(&FrameRef { rgb: &[0; 11], ..other.frame(1) })
             .unwrap_err();
         assert!(e.to_string().contains("frame 2 rgb"), "{e}");
         let e = s
-            .push(&FrameRef { room: 1, flags: 0, rgb: &[0; 12], depth: &[0; 4], cell_class: &[5], cell_depth: &[0] })
+            .push(&FrameRef { cell_class: &[5], ..other.frame(1) })
             .unwrap_err();
         assert!(e.to_string().contains("label 5"), "{e}");
         assert_eq!(s.len(), 2);

@@ -4,7 +4,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use learner::bench;
-use learner::ppo::Trainer;
+use learner::ppo::trainer::Trainer;
 use tch::Device;
 
 fn tiny(c: &mut Criterion) {

@@ -12,9 +12,9 @@ use shm_schema::action;
 use tch::{Device, Tensor, nn};
 
 use crate::LearnerError;
-use crate::agent::{Actions, Agent, AgentError};
+use crate::net::agent::{Actions, Agent, AgentError};
 use crate::obs::{EnvStep, GestureKind, OwnedObs};
-use crate::ppo::Trainer;
+use crate::ppo::trainer::Trainer;
 
 /// The tiny CPU network of `configs/tiny-e2e/both.toml`: 64×64, small CNN, hidden 256, 1-layer GRU.
 pub fn tiny_config() -> RunConfig {
@@ -67,7 +67,7 @@ pub fn faithful_config(weights: &Path) -> RunConfig {
 /// values; ImageNet weights are the user's to supply).
 pub fn random_resnet_weights(dir: &Path) -> Result<PathBuf, LearnerError> {
     let vs = nn::VarStore::new(Device::Cpu);
-    let _net = crate::resnet::Resnet18::new(&vs.root());
+    let _net = crate::net::resnet::Resnet18::new(&vs.root());
     let path = dir.join("resnet18-random.safetensors");
     vs.save(&path).map_err(|e| AgentError::Config(format!("{}: {e}", path.display())))?;
     Ok(path)
@@ -225,7 +225,7 @@ pub fn rollout_mib(t: &Trainer) -> f64 {
 }
 
 /// One PPO update on whatever the trainer's rollout holds (for benches).
-pub fn update_once(t: &mut Trainer) -> crate::metrics::UpdateMetrics {
+pub fn update_once(t: &mut Trainer) -> crate::logs::metrics::UpdateMetrics {
     let bootstrap = vec![0.0f32; t.rollout.envs];
     t.update(&bootstrap)
 }

@@ -3,58 +3,45 @@
 //!
 //! The farm calls, per step message of N envs (see [`obs`] for the step protocol):
 //! ```text
-//! let mut trainer = Trainer::new(&cfg, n_envs, device)?;      // or checkpoint::resume_trainer(..)
+//! let mut trainer = Trainer::new(&cfg, n_envs, device)?; // or ppo::checkpoint::resume_trainer(..)
 //! loop {
-//!     let out = trainer.step(&env_batch)?;                     // feedback in, actions out
+//!     let out = trainer.step(&env_batch)?;                // feedback in, actions out
 //!     send(out.actions.actions);
-//!     if let Some(m) = out.update { log.append(&m)?; /* every K: checkpoint::save_in_dir */ }
+//!     if let Some(m) = out.update { log.append(&m)?; /* every K: ppo::checkpoint::save_in_dir */ }
 //! }
 //! ```
-//! Evaluation uses an [`Agent`] alone: `checkpoint::load_agent`, then `act_deterministic`.
+//! Evaluation uses an [`Agent`] alone: `ppo::checkpoint::load_agent`, then `act_deterministic`.
 //!
-//! The farm side: [`serve`] is the policy server (batches the workers' observations, read in
-//! place from shared memory through [`transport`] and [`batch`]), and [`policy::Policy`] is
-//! what it asks of a policy.
+//! The farm side: [`serve::server`] is the policy server (batches the workers' observations, read
+//! in place from shared memory through [`transport`] and [`serve::batch`]), and
+//! [`serve::policy::Policy`] is what it asks of a policy.
 //!
-//! Layers, each using only those before it: observations ([`obs`]) → network spec ([`spec`]) →
-//! input preparation ([`inputs`]) → layers ([`layers`], [`resnet`]) → network ([`network`]) →
-//! acting agent ([`agent`]) → rollout ([`rollout`]) → PPO ([`ppo`]) → checkpoints
-//! ([`checkpoint`]) → policies served to the farm ([`policy`], [`ppo_policy`]) → the serve loop
-//! ([`serve`], beside it [`integrity`], [`records`] and [`transport`]) → the binary.
+//! Layers, each using only those before it (a folder's own are listed in its `mod.rs`):
+//! observations ([`obs`]) → input preparation ([`inputs`]) → the pretrained encoder
+//! ([`encoder`]) → the network ([`net`]: spec, layers, ResNet, network, acting agent) → what a
+//! run logs ([`logs`]: records, metrics) → PPO ([`ppo`]: rollout, Adam, trainer, checkpoints) →
+//! the policy server ([`serve`]: worker batches, integrity, policies, the serve loop; beside it
+//! [`transport`]) → the binary. Under them all, [`device`]; over net, logs and PPO, the
+//! throughput figures ([`bench`]) and the synthetic in-process run ([`smoke`]).
 
-pub mod agent;
-pub mod batch;
 pub mod bench;
-pub mod checkpoint;
 pub mod device;
 pub mod encoder;
-pub(crate) mod gesture_memo;
-pub mod gesture_table;
 pub mod inputs;
-pub mod integrity;
-pub mod layers;
-pub mod metrics;
-pub mod network;
+pub mod logs;
+pub mod net;
 pub mod obs;
-pub mod optim;
-pub mod policy;
 pub mod ppo;
-pub mod ppo_policy;
-pub mod pth;
-pub mod records;
-pub mod resnet;
-pub mod rollout;
 pub mod serve;
 pub mod smoke;
-pub mod spec;
 pub use farm::learner_ports as transport;
 
-pub use agent::{ActMode, Actions, Agent};
-pub use checkpoint::CheckpointError;
-pub use metrics::{MetricsLog, UpdateMetrics};
+pub use logs::metrics::{MetricsLog, UpdateMetrics};
+pub use net::agent::{ActMode, Actions, Agent};
+pub use net::spec::NetSpec;
 pub use obs::{EnvBatch, EnvStep, FrameView, GestureKind, GestureView};
-pub use ppo::{StepOutput, Trainer};
-pub use spec::NetSpec;
+pub use ppo::checkpoint::CheckpointError;
+pub use ppo::trainer::{StepOutput, Trainer};
 
 /// Everything the learner library can fail with; each names what to fix.
 #[derive(Debug, thiserror::Error)]
@@ -62,20 +49,20 @@ pub enum LearnerError {
     #[error(transparent)]
     Obs(#[from] obs::ObsError),
     #[error(transparent)]
-    Agent(#[from] agent::AgentError),
+    Agent(#[from] net::agent::AgentError),
     #[error(transparent)]
-    Checkpoint(#[from] checkpoint::CheckpointError),
+    Checkpoint(#[from] ppo::checkpoint::CheckpointError),
     #[error(transparent)]
     Device(#[from] device::NoCuda),
     #[error(transparent)]
-    Metrics(#[from] metrics::MetricsError),
+    Metrics(#[from] logs::metrics::MetricsError),
 }
 
-impl From<checkpoint::RestoreError> for LearnerError {
-    fn from(e: checkpoint::RestoreError) -> LearnerError {
+impl From<ppo::checkpoint::RestoreError> for LearnerError {
+    fn from(e: ppo::checkpoint::RestoreError) -> LearnerError {
         match e {
-            checkpoint::RestoreError::Build(e) => LearnerError::Agent(e),
-            checkpoint::RestoreError::File(e) => LearnerError::Checkpoint(e),
+            ppo::checkpoint::RestoreError::Build(e) => LearnerError::Agent(e),
+            ppo::checkpoint::RestoreError::File(e) => LearnerError::Checkpoint(e),
         }
     }
 }

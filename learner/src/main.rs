@@ -9,9 +9,9 @@ use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use farm::config::{Device as DeviceChoice, RunConfig};
 use farm::process;
-use learner::policy::{ExpertPolicy, Policy, RandomPolicy};
-use learner::ppo_policy::{Blank, PpoPolicy};
-use learner::serve::{ServeOptions, serve};
+use learner::serve::policy::{ExpertPolicy, Policy, RandomPolicy};
+use learner::serve::ppo_policy::{Blank, PpoPolicy};
+use learner::serve::server::{ServeOptions, serve};
 use learner::{bench, device, smoke};
 use nix::sys::signal::Signal;
 
@@ -48,6 +48,22 @@ enum Command {
     Weights { path: PathBuf },
     /// Pretrain the frozen RGB-D encoder on a frame set (spawned by `orchestrator encoder pretrain`).
     PretrainEncoder(PretrainEncoderArgs),
+    /// Linear probes of frozen encoders on a frame set (spawned by `orchestrator encoder probe`).
+    ProbeEncoder {
+        /// Frame set written by `orchestrator encoder probe`.
+        #[arg(long)]
+        frames: PathBuf,
+        /// NAME=WEIGHTS, one per encoder; NAME=pixels probes the raw cells.
+        #[arg(long = "encoder", required = true)]
+        encoders: Vec<String>,
+        /// Output stem: STEM.json and STEM.md.
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long, default_value_t = 4)]
+        epochs: usize,
+    },
     /// Time a forward of the tiny network (batch 32) and PPO updates on 1280 samples.
     Bench {
         /// Also the dissertation's network (frozen ResNet-18 at 224², GRU 2×512) — slow on a CPU.
@@ -70,6 +86,12 @@ struct PretrainEncoderArgs {
     seed: u64,
     #[arg(long, default_value_t = 12)]
     epochs: usize,
+    /// reconstruct or contrast (label-free), or semantic (the id target's labels: the semantic sensor).
+    #[arg(long, default_value = "contrast")]
+    objective: learner::encoder::Objective,
+    /// Reconstruction: share of cells hidden from the trunk (default 0).
+    #[arg(long)]
+    mask: Option<f64>,
     /// Frames per step (default 64).
     #[arg(long)]
     batch: Option<usize>,
@@ -246,14 +268,28 @@ fn run(cli: Cli) -> Result<()> {
             println!("{}", device::report(dev));
             bench::run(dev, faithful, reps, |f| println!("{f}"))?
         }
-        Command::Weights { path } => println!("{}", learner::resnet::check_weights(&path)?),
+        Command::Weights { path } => println!("{}", learner::net::resnet::check_weights(&path)?),
         Command::PretrainEncoder(a) => {
             let mut o = learner::encoder::PretrainOptions::new(a.frames, a.out, a.seed, a.epochs);
+            o.objective = a.objective;
+            o.mask = a.mask.unwrap_or(o.mask);
             o.batch = a.batch.unwrap_or(o.batch);
             o.lr = a.lr.unwrap_or(o.lr);
             o.other_weight = a.other_weight.unwrap_or(o.other_weight);
             o.threads = a.threads.unwrap_or(o.threads);
             learner::encoder::pretrain(&o, dev).map(drop)?
+        }
+        Command::ProbeEncoder { frames, encoders, out, seed, epochs } => {
+            let encoders = encoders
+                .iter()
+                .map(|e| match e.split_once('=') {
+                    Some((name, "pixels")) => Ok((name.to_string(), None)),
+                    Some((name, path)) => Ok((name.to_string(), Some(PathBuf::from(path)))),
+                    None => Err(anyhow::anyhow!("--encoder {e}: NAME=WEIGHTS or NAME=pixels")),
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let o = learner::encoder::ProbeOptions { frames, encoders, seed, epochs, threads: 2 };
+            learner::encoder::probe(&o, &out).map(drop)?
         }
     }
     Ok(())

@@ -1,6 +1,6 @@
 //! What the learner reads from the environments at one step: the [`EnvBatch`], the agent's and
-//! the trainer's input (the farm's round of worker messages, `crate::batch::WorkerBatch`, becomes
-//! one of these in `crate::ppo_policy`).
+//! the trainer's input (the farm's round of worker messages, `crate::serve::batch::WorkerBatch`,
+//! becomes one of these in `crate::serve::ppo_policy`).
 //!
 //! One message per step for N environments. Frames and gestures are read *in place* from the
 //! buffers the caller hands over (shared memory, in the farm): a [`FrameView`] per group of

@@ -22,11 +22,11 @@ use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
 use tch::Device;
 
 use crate::LearnerError;
-use crate::agent::{ActMode, Agent};
-use crate::checkpoint;
-use crate::metrics::{MetricsLog, UpdateMetrics};
+use crate::logs::metrics::{MetricsLog, UpdateMetrics};
+use crate::net::agent::{ActMode, Agent};
 use crate::obs::{EnvBatch, EnvStep, GestureKind, OwnedObs};
-use crate::ppo::Trainer;
+use crate::ppo::checkpoint;
+use crate::ppo::trainer::Trainer;
 
 /// N copies of the cue task, stepped together.
 #[derive(Debug)]

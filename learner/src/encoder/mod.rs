@@ -1,14 +1,19 @@
-//! A frozen visual encoder for CPU runs, pretrained on frames the simulator labels for free
-//! (DESIGN §6): the role ImageNet plays for the dissertation's ResNet-18.
+//! A frozen visual encoder for CPU runs, pretrained without labels on frames of the training
+//! rooms (DESIGN §6): the role ImageNet plays for the dissertation's ResNet-18.
 //!
 //! - [`net`]: the early-fusion RGB-D trunk, its input and its weights file
-//! - [`pretrain`]: `learner pretrain-encoder`: per-cell class and depth from a frame set
+//! - [`pretrain`]: `learner pretrain-encoder`: dense contrast or reconstruction (label-free), or
+//!   the semantic sensor (per-cell class and depth)
+//! - [`probe`]: `learner probe-encoder`: linear probes of the category per cell and the person's
+//!   facing, in held-out rooms
 
 pub mod net;
 pub mod pretrain;
+pub mod probe;
 
 pub use net::{EncoderFileError, EncoderInfo, RgbdEncoder, encoder_input, load_weights};
-pub use pretrain::{PretrainOptions, PretrainReport, pretrain};
+pub use pretrain::{Objective, PretrainOptions, PretrainReport, pretrain};
+pub use probe::{ProbeOptions, ProbeReport, probe};
 
 #[cfg(test)]
 mod tests {
@@ -27,7 +32,15 @@ mod tests {
             let depth: Vec<u16> = (0..16 * 16).map(|_| r.random()).collect();
             let class: Vec<u8> = (0..4).map(|_| r.random_range(0..3)).collect();
             let room = if i % 8 == 0 { 19 } else { 1 + (i % 5) as u16 };
-            set.push(&FrameRef { room, flags: 0, rgb: &rgb, depth: &depth, cell_class: &class, cell_depth: &[100; 4] })
+            set.push(&FrameRef {
+                room,
+                flags: 0,
+                person_facing: f32::NAN,
+                rgb: &rgb,
+                depth: &depth,
+                cell_class: &class,
+                cell_depth: &[100; 4],
+            })
                 .unwrap();
         }
         let p = dir.join("syn.frames");
@@ -63,7 +76,32 @@ mod tests {
         let header = FrameSetHeader { width: 16, height: 16, grid: 2, classes: 3, seed: 5, held_out: vec![] };
         let p = dir.path().join("few.frames");
         FrameSet::new(header).unwrap().write(&p).unwrap();
-        let e = pretrain(&PretrainOptions::new(p, dir.path().join("x"), 1, 1), tch::Device::Cpu).unwrap_err();
+        let mut o = PretrainOptions::new(p, dir.path().join("x"), 1, 1);
+        let e = pretrain(&o, tch::Device::Cpu).unwrap_err();
+        assert!(e.to_string().contains("few.frames") && e.to_string().contains("no frames"), "{e}");
+        o.objective = Objective::Semantic;
+        let e = pretrain(&o, tch::Device::Cpu).unwrap_err();
         assert!(e.to_string().contains("few.frames") && e.to_string().contains("classes"), "{e}");
+    }
+
+    /// Each objective reports its own held-out figures (that reconstruction reads no label is
+    /// checked in `tests/encoder.rs`, one process per run).
+    #[test]
+    fn each_objective_reports_its_figures() {
+        let dir = tempfile::tempdir().unwrap();
+        let frames = synthetic(dir.path(), 32);
+        let run = |name: &str, objective: Objective| {
+            let mut o = PretrainOptions::new(frames.clone(), dir.path().join(name), 3, 1);
+            o.objective = objective;
+            pretrain(&o, tch::Device::Cpu).unwrap()
+        };
+        let a = run("a", Objective::Reconstruct);
+        assert!(a.held_out.rgb_error.is_some() && a.held_out.accuracy.is_none(), "{:?}", a.held_out);
+        assert_eq!((a.objective, a.mask), (Objective::Reconstruct, 0.0));
+        let b = run("b", Objective::Contrast);
+        assert!(b.held_out.cells_matched.is_some_and(|m| (0.0..=1.0).contains(&m)), "{:?}", b.held_out);
+        let c = run("c", Objective::Semantic);
+        assert!(c.held_out.accuracy.is_some() && c.held_out.rgb_error.is_none(), "{:?}", c.held_out);
+        assert_eq!(c.objective, Objective::Semantic);
     }
 }

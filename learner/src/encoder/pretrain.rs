@@ -1,6 +1,21 @@
-//! Pretraining the RGB-D encoder on a frame set (`learner pretrain-encoder`): per feature cell,
-//! the class the id target shows there (37 targets, the person, other; cross-entropy) and the
-//! mean depth (L1). RGB or depth is zeroed in some frames so a policy may drop either (T4.7).
+//! Pretraining the RGB-D encoder on a frame set (`learner pretrain-encoder`), by one of two
+//! objectives ([`Objective`]):
+//!
+//! - **contrast** (label-free, the default): two views of each frame, each with its own colour
+//!   and depth jitter and a quarter of its cells hidden; each cell's features (through a small
+//!   projection) must pick out the same cell of the other view among the cells of the batch
+//!   (InfoNCE, as dense contrastive learning does): features that tell places apart, whatever the
+//!   lighting. No label of any kind is read: the role ImageNet plays for the dissertation.
+//! - **reconstruct** (label-free): one linear map per cell (64 features → the cell's 8×8 RGB-D
+//!   pixels) must give the whole frame back (`mask`: a share of cells hidden from the trunk).
+//!   Its features read the category and the person no better than the raw pixels do (the probes,
+//!   docs/encoder), the contrast's read the person better.
+//! - **semantic** (the "semantic sensor", an ablation beyond the dissertation): per feature cell,
+//!   the class the id target shows there (37 targets, the person, other; cross-entropy) and the
+//!   mean depth (L1) — a segmentation of the task's own answer.
+//!
+//! RGB or depth is zeroed in some frames so a policy may drop either (T4.7); with the
+//! reconstruction objective the missing modality is then predicted from the other.
 //!
 //! Reproducible: the weights' sha256 depends only on the frame set, the seed and the options.
 //! Initial weights come from `tch::manual_seed`; shuffling, channel drops and flips from
@@ -17,11 +32,58 @@ use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Reduction, Tensor, nn, nn::OptimizerConfig};
 
-use super::net::{EncoderInfo, FEATURE_CHANNELS, RgbdEncoder, STRIDE, encoder_input, sha256_hex, weights_bytes};
+use super::net::{
+    EncoderInfo, FEATURE_CHANNELS, IN_CHANNELS, RgbdEncoder, STRIDE, encoder_input, sha256_hex, weights_bytes,
+};
 
 /// Keys of the pretraining's random streams.
 const KEY_INIT: u64 = 0xE4C0_0100;
 const KEY_EPOCH: u64 = 0xE4C0_0101;
+
+/// What the trunk is trained to give.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Objective {
+    /// RGB-D reconstruction through the feature map: no labels.
+    Reconstruct,
+    /// Dense contrast of two jittered views: no labels.
+    #[default]
+    Contrast,
+    /// Per-cell target category, person and depth from the id target: the semantic sensor.
+    Semantic,
+}
+
+/// Contrast: the temperature of the cells' similarities, the width of the projection, the share
+/// of cells hidden in each view, and the jitter (RGB gain per channel ±, RGB offset ±, depth gain ±).
+const TEMPERATURE: f64 = 0.2;
+const PROJECTION: i64 = 32;
+const CONTRAST_HIDE: f64 = 0.25;
+const JITTER: (f64, f64, f64) = (0.3, 0.1, 0.1);
+/// Contrast: cells a training step contrasts against all cells of the batch (all would make a
+/// 4,096² similarity matrix a step: too slow on two cores).
+const ANCHORS: usize = 512;
+
+impl std::str::FromStr for Objective {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Objective, String> {
+        match s {
+            "reconstruct" => Ok(Objective::Reconstruct),
+            "contrast" => Ok(Objective::Contrast),
+            "semantic" => Ok(Objective::Semantic),
+            _ => Err(format!("`{s}`: the objectives are `reconstruct`, `contrast` (label-free) and `semantic`")),
+        }
+    }
+}
+
+impl std::fmt::Display for Objective {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Objective::Reconstruct => "reconstruct",
+            Objective::Contrast => "contrast",
+            Objective::Semantic => "semantic",
+        })
+    }
+}
 
 /// How to pretrain.
 #[derive(Clone, Debug)]
@@ -32,6 +94,9 @@ pub struct PretrainOptions {
     pub out: PathBuf,
     pub seed: u64,
     pub epochs: usize,
+    pub objective: Objective,
+    /// Reconstruction: the share of 8×8-pixel cells hidden from the trunk in each training frame.
+    pub mask: f64,
     pub batch: usize,
     /// Adam's learning rate at the start; it falls linearly to a tenth by the end.
     pub lr: f64,
@@ -54,6 +119,8 @@ impl PretrainOptions {
             out,
             seed,
             epochs,
+            objective: Objective::default(),
+            mask: 0.0,
             batch: 64,
             lr: 2e-3,
             other_weight: 0.3,
@@ -65,27 +132,39 @@ impl PretrainOptions {
     }
 }
 
-/// Held-out figures: per-cell accuracy over all cells, over cells showing a target or the
-/// person, and over the person's cells (None when there are no such cells); mean depth error.
+/// Held-out figures of the objective itself. Semantic: per-cell accuracy over all cells, over
+/// cells showing a target or the person, and over the person's cells (None when there are no such
+/// cells), and the cells' mean depth error. Reconstruction (nothing hidden): the mean absolute
+/// error of the frame given back, RGB in levels (0..255) and depth in metres. What the features
+/// hold for the task is measured by `probe-encoder`, the same way for every objective.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct HeldOut {
     pub accuracy: Option<f64>,
     pub accuracy_targets_and_person: Option<f64>,
     pub accuracy_person: Option<f64>,
     pub depth_error_m: f64,
+    #[serde(default)]
+    pub rgb_error: Option<f64>,
+    /// Contrast: the share of cells whose nearest cell of a jittered view is their own.
+    #[serde(default)]
+    pub cells_matched: Option<f64>,
 }
 
 impl std::fmt::Display for HeldOut {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let a = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
-        write!(
-            f,
-            "accuracy {} (targets and person {}, person {}), depth error {:.3} m",
-            a(self.accuracy),
-            a(self.accuracy_targets_and_person),
-            a(self.accuracy_person),
-            self.depth_error_m
-        )
+        match (self.rgb_error, self.cells_matched) {
+            (Some(rgb), _) => write!(f, "RGB error {rgb:.1} levels, depth error {:.3} m", self.depth_error_m),
+            (_, Some(m)) => write!(f, "cells matched across views {m:.3}"),
+            _ => write!(
+                f,
+                "accuracy {} (targets and person {}, person {}), depth error {:.3} m",
+                a(self.accuracy),
+                a(self.accuracy_targets_and_person),
+                a(self.accuracy_person),
+                self.depth_error_m
+            ),
+        }
     }
 }
 
@@ -95,6 +174,12 @@ pub struct PretrainReport {
     /// Training seed, and the seed the frames were drawn from.
     pub seed: u64,
     pub frames_seed: u64,
+    /// What the trunk was trained to give (`semantic` read the id target's labels).
+    #[serde(default = "semantic")]
+    pub objective: Objective,
+    /// Reconstruction's hidden share of cells.
+    #[serde(default)]
+    pub mask: f64,
     pub frame_set: String,
     pub width: u32,
     pub height: u32,
@@ -119,6 +204,11 @@ pub struct PretrainReport {
     pub training_seconds: f64,
     pub weights: String,
     pub sha256: String,
+}
+
+/// Reports written before the objective was recorded came from the semantic objective.
+fn semantic() -> Objective {
+    Objective::Semantic
 }
 
 /// Errors of pretraining; each names its file.
@@ -162,23 +252,99 @@ impl Data {
     }
 }
 
-/// The trunk and the pretraining heads.
+/// The trunk and the pretraining heads of its objective.
 struct Model {
     trunk: RgbdEncoder,
-    class_head: nn::Conv2D,
-    depth_head: nn::Conv2D,
-    grid: i64,
+    head: Head,
+}
+
+enum Head {
+    Semantic { class: nn::Conv2D, depth: nn::Conv2D, grid: i64 },
+    /// One 1×1 conv: each feature cell's 64 values → its STRIDE×STRIDE×4 pixels.
+    Reconstruct { pixels: nn::Conv2D },
+    /// 1×1 conv, ReLU, 1×1 conv: each cell's features → the space its similarities are taken in.
+    Contrast { hidden: nn::Conv2D, out: nn::Conv2D },
 }
 
 impl Model {
-    /// Class logits `[B, C, g, g]` and depth `[B, g, g]` (0..1) of encoder inputs.
-    fn forward(&self, x: &Tensor) -> (Tensor, Tensor) {
-        let mut f = self.trunk.forward(x);
-        if f.size()[2] != self.grid || f.size()[3] != self.grid {
-            f = f.adaptive_avg_pool2d([self.grid, self.grid]);
-        }
-        (f.apply(&self.class_head), f.apply(&self.depth_head).squeeze_dim(1))
+    fn new(root: &nn::Path, objective: Objective, grid: i64) -> Model {
+        let trunk = RgbdEncoder::new(&(root / "trunk"));
+        let head = match objective {
+            Objective::Semantic => Head::Semantic {
+                class: nn::conv2d(root / "class_head", FEATURE_CHANNELS, CLASSES as i64, 1, Default::default()),
+                depth: nn::conv2d(root / "depth_head", FEATURE_CHANNELS, 1, 1, Default::default()),
+                grid,
+            },
+            Objective::Reconstruct => Head::Reconstruct {
+                pixels: nn::conv2d(
+                    root / "pixel_head",
+                    FEATURE_CHANNELS,
+                    IN_CHANNELS * STRIDE * STRIDE,
+                    1,
+                    Default::default(),
+                ),
+            },
+            Objective::Contrast => Head::Contrast {
+                hidden: nn::conv2d(root / "projection_hidden", FEATURE_CHANNELS, FEATURE_CHANNELS, 1, Default::default()),
+                out: nn::conv2d(root / "projection_out", FEATURE_CHANNELS, PROJECTION, 1, Default::default()),
+            },
+        };
+        Model { trunk, head }
     }
+
+    /// Contrast: unit-length projections of every cell, `[B·g·g, PROJECTION]`.
+    fn project(&self, x: &Tensor) -> Tensor {
+        let Head::Contrast { hidden, out } = &self.head else { unreachable!("a contrast head") };
+        let z = self.trunk.forward(x).apply(hidden).relu().apply(out).permute([0, 2, 3, 1]).reshape([-1, PROJECTION]);
+        let norm = z.square().sum_dim_intlist(1, true, Kind::Float).sqrt() + 1e-6;
+        z / norm
+    }
+
+    /// Semantic: class logits `[B, C, g, g]` and depth `[B, g, g]` (0..1) of encoder inputs.
+    fn semantic(&self, x: &Tensor) -> (Tensor, Tensor) {
+        let Head::Semantic { class, depth, grid } = &self.head else { unreachable!("a semantic head") };
+        let mut f = self.trunk.forward(x);
+        if f.size()[2] != *grid || f.size()[3] != *grid {
+            f = f.adaptive_avg_pool2d([*grid, *grid]);
+        }
+        (f.apply(class), f.apply(depth).squeeze_dim(1))
+    }
+
+    /// Reconstruction: the frame `[B, 4, H, W]` given back from encoder inputs.
+    fn reconstruct(&self, x: &Tensor) -> Tensor {
+        let Head::Reconstruct { pixels } = &self.head else { unreachable!("a reconstruction head") };
+        self.trunk.forward(x).apply(pixels).pixel_shuffle(STRIDE)
+    }
+}
+
+/// Contrast: the InfoNCE loss of two views' cell projections (row k of each: the same cell), both
+/// ways, for the cells `anchors` against every cell of the other view, and the share of anchors
+/// whose most similar cell of the other view is their own.
+fn info_nce(z1: &Tensor, z2: &Tensor, anchors: &Tensor) -> (Tensor, Tensor) {
+    let one_way = |a: &Tensor, b: &Tensor| {
+        let logits = a.index_select(0, anchors).matmul(&b.tr()) / TEMPERATURE;
+        let matched = logits.argmax(1, false).eq_tensor(anchors).to_kind(Kind::Float).mean(Kind::Float);
+        (logits.cross_entropy_for_logits(anchors), matched)
+    };
+    let ((l1, m1), (l2, m2)) = (one_way(z1, z2), one_way(z2, z1));
+    ((l1 + l2) / 2.0, (m1 + m2) / 2.0)
+}
+
+/// Contrast: a view of frames `x` `[B, 4, H, W]`: per frame RGB gains and offset and a depth gain
+/// (`jitter`: 5 values a frame), values kept in 0..1.
+fn jittered(x: &Tensor, jitter: &[f32]) -> Tensor {
+    let b = x.size()[0];
+    let j = Tensor::from_slice(jitter).view([b, 5]).to_device(x.device());
+    let gain = Tensor::cat(&[j.narrow(1, 0, 3), j.narrow(1, 4, 1)], 1).view([b, 4, 1, 1]);
+    let offset = Tensor::cat(&[j.narrow(1, 3, 1).expand([b, 3], false), j.zeros_like().narrow(1, 0, 1)], 1);
+    (x * gain + offset.view([b, 4, 1, 1])).clamp(0.0, 1.0)
+}
+
+/// Hides cells of the frames: `hide` is `[B, H/STRIDE, W/STRIDE]` of 0/1 (1: hidden).
+fn hide_cells(x: &Tensor, hide: &Tensor) -> Tensor {
+    let keep: Tensor = 1.0 - hide.unsqueeze(1);
+    let keep = keep.repeat_interleave_self_int(STRIDE, 2, None::<i64>);
+    x * keep.repeat_interleave_self_int(STRIDE, 3, None::<i64>)
 }
 
 /// Zeroes RGB or depth per frame: `keep_rgb`/`keep_depth` are 0/1 per frame.
@@ -193,6 +359,11 @@ fn evaluate(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64), dev: Device)
     if idx.is_empty() {
         return HeldOut::default();
     }
+    match model.head {
+        Head::Reconstruct { .. } => return evaluate_reconstruction(model, d, idx, keep, dev),
+        Head::Contrast { .. } => return evaluate_contrast(model, d, idx, keep, dev),
+        Head::Semantic { .. } => {}
+    }
     let (mut correct, mut cells, mut fg_correct, mut fg, mut p_correct, mut p, mut depth_err) =
         (0i64, 0i64, 0i64, 0i64, 0i64, 0i64, 0f64);
     tch::no_grad(|| {
@@ -202,7 +373,7 @@ fn evaluate(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64), dev: Device)
             let x = encoder_input(&d.rgb.index_select(0, &i), &d.depth.index_select(0, &i)).to_device(dev);
             let ones = Tensor::ones([b], (Kind::Float, dev));
             let x = drop_channels(&x, &(&ones * keep.0), &(&ones * keep.1));
-            let (logits, depth) = model.forward(&x);
+            let (logits, depth) = model.semantic(&x);
             let want = d.class.index_select(0, &i).to_device(dev);
             let hit = logits.argmax(1, false).eq_tensor(&want);
             let is_fg = want.ne(i64::from(CLASS_OTHER));
@@ -223,6 +394,54 @@ fn evaluate(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64), dev: Device)
         accuracy_targets_and_person: ratio(fg_correct, fg),
         accuracy_person: ratio(p_correct, p),
         depth_error_m: 10.0 * depth_err / cells as f64,
+        rgb_error: None,
+        cells_matched: None,
+    }
+}
+
+/// Contrast's figure: cells matched between each frame and a fixed jitter of it (RGB × 0.85 +
+/// 0.05, depth × 1.05), among the cells of 64 frames at a time.
+fn evaluate_contrast(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64), dev: Device) -> HeldOut {
+    let (mut matched, mut chunks) = (0f64, 0f64);
+    tch::no_grad(|| {
+        for chunk in idx.chunks(64) {
+            let i = Tensor::from_slice(chunk);
+            let b = chunk.len() as i64;
+            let x = encoder_input(&d.rgb.index_select(0, &i), &d.depth.index_select(0, &i)).to_device(dev);
+            let ones = Tensor::ones([b], (Kind::Float, dev));
+            let drop = |v: &Tensor| drop_channels(v, &(&ones * keep.0), &(&ones * keep.1));
+            let fixed: Vec<f32> = (0..b).flat_map(|_| [0.85, 0.85, 0.85, 0.05, 1.05]).collect();
+            let (z1, z2) = (model.project(&drop(&x)), model.project(&drop(&jittered(&x, &fixed))));
+            let (_, m) = info_nce(&z1, &z2, &Tensor::arange(z1.size()[0], (Kind::Int64, dev)));
+            matched += m.double_value(&[]) * b as f64;
+            chunks += b as f64;
+        }
+    });
+    HeldOut { cells_matched: Some(matched / chunks), ..HeldOut::default() }
+}
+
+/// Reconstruction's figures: the whole frame given back from the (channel-masked) input.
+fn evaluate_reconstruction(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64), dev: Device) -> HeldOut {
+    let (mut rgb_err, mut depth_err, mut px) = (0f64, 0f64, 0f64);
+    tch::no_grad(|| {
+        for chunk in idx.chunks(256) {
+            let i = Tensor::from_slice(chunk);
+            let b = chunk.len() as i64;
+            let x = encoder_input(&d.rgb.index_select(0, &i), &d.depth.index_select(0, &i)).to_device(dev);
+            let ones = Tensor::ones([b], (Kind::Float, dev));
+            let err = (model.reconstruct(&drop_channels(&x, &(&ones * keep.0), &(&ones * keep.1))) - &x).abs();
+            rgb_err += err.narrow(1, 0, 3).sum(Kind::Double).double_value(&[]);
+            depth_err += err.narrow(1, 3, 1).sum(Kind::Double).double_value(&[]);
+            px += (x.numel() / 4) as f64;
+        }
+    });
+    HeldOut {
+        accuracy: None,
+        accuracy_targets_and_person: None,
+        accuracy_person: None,
+        depth_error_m: 10.0 * depth_err / px,
+        rgb_error: Some(255.0 * rgb_err / (3.0 * px)),
+        cells_matched: None,
     }
 }
 
@@ -240,7 +459,7 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
     let h = set.header.clone();
     let file = o.frames.display().to_string();
     let unusable = |message: String| PretrainError::Unusable { file: file.clone(), message };
-    if h.classes != CLASSES {
+    if o.objective == Objective::Semantic && h.classes != CLASSES {
         return Err(unusable(format!("{} classes, the encoder's labels have {CLASSES}", h.classes)));
     }
     if h.width as i64 % STRIDE != 0 || h.height as i64 % STRIDE != 0 || h.width as i64 / STRIDE < h.grid as i64 {
@@ -256,12 +475,9 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
     tch::set_num_threads(o.threads);
     let vs = nn::VarStore::new(dev);
     let root = vs.root();
-    let model = crate::device::seeded(farm::seed::mix(o.seed, &[KEY_INIT]) as i64, || Model {
-        trunk: RgbdEncoder::new(&(&root / "trunk")),
-        class_head: nn::conv2d(&root / "class_head", FEATURE_CHANNELS, CLASSES as i64, 1, Default::default()),
-        depth_head: nn::conv2d(&root / "depth_head", FEATURE_CHANNELS, 1, 1, Default::default()),
-        grid: h.grid as i64,
-    });
+    let model =
+        crate::device::seeded(farm::seed::mix(o.seed, &[KEY_INIT]) as i64, || Model::new(&root, o.objective, h.grid as i64));
+    let cells = (h.height as i64 / STRIDE, h.width as i64 / STRIDE);
     let mut opt = nn::Adam::default().build(&vs, o.lr).expect("adam");
     let mut class_weights = vec![1f32; CLASSES as usize];
     class_weights[CLASS_OTHER as usize] = o.other_weight as f32;
@@ -280,6 +496,7 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
             opt.set_lr(o.lr * (1.0 - 0.9 * step as f64 / total_steps as f64));
             let b = chunk.len();
             let (mut keep_rgb, mut keep_depth, mut flip) = (vec![1f32; b], vec![1f32; b], vec![false; b]);
+            let mut hidden = vec![0f32; b * (cells.0 * cells.1) as usize];
             for k in 0..b {
                 let u: f64 = rng.random();
                 if u < o.drop_rgb {
@@ -289,24 +506,66 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
                 }
                 flip[k] = rng.random_bool(0.5);
             }
+            if o.objective == Objective::Reconstruct && o.mask > 0.0 {
+                hidden.iter_mut().for_each(|c| *c = if rng.random_bool(o.mask) { 1.0 } else { 0.0 });
+            }
+            // contrast: per view, each frame's jitter and hidden cells
+            let mut views: Vec<(Vec<f32>, Vec<f32>)> = Vec::new();
+            let mut anchors: Vec<i64> = Vec::new();
+            if o.objective == Objective::Contrast {
+                let (g, off, dg) = JITTER;
+                for _ in 0..2 {
+                    let mut j = Vec::with_capacity(b * 5);
+                    for _ in 0..b {
+                        j.extend((0..3).map(|_| rng.random_range(1.0 - g..1.0 + g) as f32));
+                        j.push(rng.random_range(-off..off) as f32);
+                        j.push(rng.random_range(1.0 - dg..1.0 + dg) as f32);
+                    }
+                    let hide = (0..hidden.len()).map(|_| if rng.random_bool(CONTRAST_HIDE) { 1.0 } else { 0.0 }).collect();
+                    views.push((j, hide));
+                }
+                anchors = rand::seq::index::sample(&mut rng, hidden.len(), ANCHORS.min(hidden.len()))
+                    .into_iter()
+                    .map(|k| k as i64)
+                    .collect();
+            }
             let i = Tensor::from_slice(chunk);
-            let x = encoder_input(&data.rgb.index_select(0, &i), &data.depth.index_select(0, &i)).to_device(dev);
+            let whole = encoder_input(&data.rgb.index_select(0, &i), &data.depth.index_select(0, &i)).to_device(dev);
+            // Mirror the chosen frames left–right (labels with them below).
+            let f = Tensor::from_slice(&flip).to_device(dev);
+            let whole = whole.flip([3]).where_self(&f.view([b as i64, 1, 1, 1]), &whole);
             let x = drop_channels(
-                &x,
+                &whole,
                 &Tensor::from_slice(&keep_rgb).to_device(dev),
                 &Tensor::from_slice(&keep_depth).to_device(dev),
             );
-            let mut class = data.class.index_select(0, &i).to_device(dev);
-            let mut cell_depth = data.cell_depth.index_select(0, &i).to_device(dev);
-            // Mirror the chosen frames left–right, labels with them.
-            let f = Tensor::from_slice(&flip).to_device(dev);
-            let x = x.flip([3]).where_self(&f.view([b as i64, 1, 1, 1]), &x);
-            class = class.flip([2]).where_self(&f.view([b as i64, 1, 1]), &class);
-            cell_depth = cell_depth.flip([2]).where_self(&f.view([b as i64, 1, 1]), &cell_depth);
-            let (logits, depth) = model.forward(&x);
-            let ce = logits.cross_entropy_loss(&class, Some(&class_weights), Reduction::Mean, -100, 0.0);
-            let l1 = (depth - cell_depth).abs().mean(Kind::Float);
-            let loss = ce + l1 * o.depth_weight;
+            let loss = match o.objective {
+                Objective::Reconstruct => {
+                    let hide = Tensor::from_slice(&hidden).view([b as i64, cells.0, cells.1]).to_device(dev);
+                    (model.reconstruct(&hide_cells(&x, &hide)) - &whole).abs().mean(Kind::Float)
+                }
+                Objective::Contrast => {
+                    let keep = (Tensor::from_slice(&keep_rgb).to_device(dev), Tensor::from_slice(&keep_depth).to_device(dev));
+                    let z: Vec<Tensor> = views
+                        .iter()
+                        .map(|(jitter, hide)| {
+                            let v = drop_channels(&jittered(&whole, jitter), &keep.0, &keep.1);
+                            let hide = Tensor::from_slice(hide).view([b as i64, cells.0, cells.1]).to_device(dev);
+                            model.project(&hide_cells(&v, &hide))
+                        })
+                        .collect();
+                    info_nce(&z[0], &z[1], &Tensor::from_slice(&anchors).to_device(dev)).0
+                }
+                Objective::Semantic => {
+                    let mut class = data.class.index_select(0, &i).to_device(dev);
+                    let mut cell_depth = data.cell_depth.index_select(0, &i).to_device(dev);
+                    class = class.flip([2]).where_self(&f.view([b as i64, 1, 1]), &class);
+                    cell_depth = cell_depth.flip([2]).where_self(&f.view([b as i64, 1, 1]), &cell_depth);
+                    let (logits, depth) = model.semantic(&x);
+                    let ce = logits.cross_entropy_loss(&class, Some(&class_weights), Reduction::Mean, -100, 0.0);
+                    ce + (depth - cell_depth).abs().mean(Kind::Float) * o.depth_weight
+                }
+            };
             opt.backward_step(&loss);
             loss_sum += loss.double_value(&[]) * b as f64;
             step += 1;
@@ -320,6 +579,9 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
             loss_sum / data.train.len() as f64,
             spent / (epoch + 1) as f64 * (o.epochs - epoch - 1) as f64
         );
+    }
+    if o.epochs == 0 {
+        held = evaluate(&model, &data, &data.held, (1.0, 1.0), dev);
     }
     let training_seconds = started.elapsed().as_secs_f64();
     let rgb_only = evaluate(&model, &data, &data.held, (1.0, 0.0), dev);
@@ -336,12 +598,18 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
     let report = PretrainReport {
         seed: o.seed,
         frames_seed: h.seed,
+        objective: o.objective,
+        mask: match o.objective {
+            Objective::Reconstruct => o.mask,
+            Objective::Contrast => CONTRAST_HIDE,
+            Objective::Semantic => 0.0,
+        },
         frame_set: file.clone(),
         width: h.width,
         height: h.height,
         grid: h.grid,
         classes: h.classes,
-        in_channels: super::net::IN_CHANNELS,
+        in_channels: IN_CHANNELS,
         feature_channels: FEATURE_CHANNELS,
         rooms: room_names(data.train.iter().map(|&i| set.rooms[i as usize])),
         held_out_rooms: room_names(h.held_out.iter().copied()),

@@ -146,6 +146,8 @@ impl RoomSetup {
 struct Shot {
     camera: Camera,
     person: Vec<Part>,
+    /// The person's yaw minus the yaw from them to the robot (`FrameRef::person_facing`).
+    person_facing: f32,
 }
 
 /// Draws frame `i`'s robot pose and, in [`PERSON_SHARE`] of frames, the person posed by a random
@@ -159,7 +161,7 @@ fn draw_shot(room: &RoomSetup, env: &EnvConfig, seed: u64, i: usize, interventio
     let at = if room.physics.robot_fits(jittered) { jittered } else { c };
     let yaw = r.random_range(0.0..360.0f32);
     let camera = Camera::new(Point3::new(at.x, env.camera_height, at.y), yaw);
-    let mut person = Vec::new();
+    let (mut person, mut person_facing) = (Vec::new(), f32::NAN);
     if r.random_bool(PERSON_SHARE) {
         for _ in 0..PERSON_TRIES {
             let d = r.random_range(1.0..4.0f32);
@@ -168,7 +170,8 @@ fn draw_shot(room: &RoomSetup, env: &EnvConfig, seed: u64, i: usize, interventio
             if !(room.scene.room.contains(p.x, p.y, env.robot_radius) && room.physics.robot_fits(Point2::from(p))) {
                 continue;
             }
-            let p_yaw = yaw_of(at.coords - p) + r.random_range(-60.0..60.0f32);
+            let facing = r.random_range(-60.0..60.0f32);
+            let p_yaw = yaw_of(at.coords - p) + facing;
             let feet = Point3::new(p.x, 0.0, p.y);
             let motion_seed: u64 = r.random();
             let frame = r.random_range(0..gesture::FRAMES);
@@ -181,15 +184,17 @@ fn draw_shot(room: &RoomSetup, env: &EnvConfig, seed: u64, i: usize, interventio
             };
             let human = Humanoid::seeded(motion_seed);
             person = human.parts(&human.pose(motion.frame(frame), feet, p_yaw));
+            person_facing = facing;
             break;
         }
     }
-    Shot { camera, person }
+    Shot { camera, person, person_facing }
 }
 
 /// One rendered, labelled frame.
 struct Rendered {
     flags: u8,
+    person_facing: f32,
     rgb: Vec<u8>,
     depth: Vec<u16>,
     class: Vec<u8>,
@@ -224,6 +229,7 @@ fn render_room(
             let (class, cell_depth) = cell_labels(id, d, opts.size, GRID, &room.classes);
             out.push(Rendered {
                 flags: if shot.person.is_empty() { 0 } else { FLAG_PERSON },
+                person_facing: shot.person_facing,
                 rgb: rgb[k * px * 3..(k + 1) * px * 3].to_vec(),
                 depth: d.to_vec(),
                 class,
@@ -301,6 +307,7 @@ pub fn render_set(
         set.push(&FrameRef {
             room: room_of_frame(i, opts.frames).floorplan() as u16,
             flags: f.flags,
+            person_facing: f.person_facing,
             rgb: &f.rgb,
             depth: &f.depth,
             cell_class: &f.class,

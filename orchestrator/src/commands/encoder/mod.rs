@@ -1,10 +1,11 @@
-//! `orchestrator encoder pretrain`: renders labelled RGB-D frames from the training rooms
-//! (`frames`), writes them as one frame-set file (`farm::frame_set`), then runs
-//! `learner pretrain-encoder` on it, which writes `OUT.safetensors` and `OUT.json`.
+//! `orchestrator encoder pretrain`: renders RGB-D frames from the training rooms (`frames`),
+//! writes them as one frame-set file (`farm::frame_set`), then runs `learner pretrain-encoder`
+//! on it, which writes `OUT.safetensors` and `OUT.json`. `orchestrator encoder probe`: renders
+//! another set (another seed) and runs `learner probe-encoder`: linear probes of each encoder.
 
 pub mod frames;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
@@ -23,12 +24,14 @@ use frames::{FrameOptions, render_set};
 pub enum EncoderCmd {
     /// Render frames from the training rooms and pretrain the frozen RGB-D encoder on them.
     Pretrain(PretrainArgs),
+    /// Linear probes of frozen encoders in held-out rooms: the category per cell, the person's facing.
+    Probe(ProbeArgs),
 }
 
 #[derive(Args, Debug)]
 pub struct PretrainArgs {
     /// Output stem: OUT.safetensors (weights), OUT.json (seed, rooms, accuracy, sha256).
-    #[arg(long, default_value = "encoders/rgbd64")]
+    #[arg(long, default_value = "encoders/contrast64")]
     pub out: PathBuf,
     /// Frames to render (a tenth of them in the held-out rooms).
     #[arg(long, default_value_t = 16_000)]
@@ -42,6 +45,14 @@ pub struct PretrainArgs {
     /// Passes over the training frames.
     #[arg(long, default_value_t = 12)]
     pub epochs: usize,
+    /// `contrast`: dense contrast of two jittered views, no labels (the default encoder).
+    /// `reconstruct`: RGB-D reconstruction through the feature map, no labels. `semantic`: the
+    /// semantic sensor, trained on the id target's categories (an ablation: it reads the answer).
+    #[arg(long, default_value = "contrast", value_parser = ["contrast", "reconstruct", "semantic"])]
+    pub objective: String,
+    /// Reconstruction: the share of 8×8-pixel cells hidden from the encoder in each frame.
+    #[arg(long, default_value_t = 0.0)]
+    pub mask: f64,
     /// Renderer threads (default: one per core; the frames do not depend on it).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -67,65 +78,114 @@ pub struct PretrainArgs {
 /// (same weights).
 const OMP_WAIT_ENV: &str = "OMP_WAIT_POLICY";
 
+#[derive(Args, Debug)]
+pub struct ProbeArgs {
+    /// NAME=WEIGHTS (an encoder's .safetensors), once per encoder; NAME=pixels probes the raw cells.
+    #[arg(long = "encoder", required = true)]
+    pub encoders: Vec<String>,
+    /// Output stem: OUT.md (the table) and OUT.json.
+    #[arg(long, default_value = "encoders/probes")]
+    pub out: PathBuf,
+    /// Frames to render (a tenth of them in the held-out rooms).
+    #[arg(long, default_value_t = 8_000)]
+    pub frames: usize,
+    /// Frame width = height; the encoders' must match.
+    #[arg(long, default_value_t = 64)]
+    pub size: u32,
+    /// Seed of the frames and the probes (not the encoders' 1: other poses than they trained on).
+    #[arg(long, default_value_t = 2)]
+    pub seed: u64,
+    /// The frame set: read when it exists, else rendered there and kept (default: OUT.frames,
+    /// removed afterwards).
+    #[arg(long)]
+    pub frame_set: Option<PathBuf>,
+    #[arg(long)]
+    pub threads: Option<usize>,
+    #[arg(long, default_value = "data/gond")]
+    pub dataset: PathBuf,
+    #[arg(long, default_value_t = 1)]
+    pub room_seed: u64,
+    #[arg(long)]
+    pub bin_dir: Option<PathBuf>,
+}
+
 pub fn run(cmd: EncoderCmd) -> anyhow::Result<()> {
     match cmd {
         EncoderCmd::Pretrain(a) => pretrain(a),
+        EncoderCmd::Probe(a) => probe(a),
     }
 }
 
 /// Where a room's scene comes from: the dataset the workers use, or the generator.
-fn scene_source(a: &PretrainArgs) -> anyhow::Result<Box<dyn Fn(SceneId) -> anyhow::Result<Scene> + Sync>> {
-    if a.dataset.join("manifest.json").is_file() {
-        let ds = Dataset::open(&a.dataset, Verify::Quick)?;
-        eprintln!("rooms from the dataset in {}", a.dataset.display());
+fn scene_source(
+    dataset: &Path,
+    room_seed: u64,
+) -> anyhow::Result<Box<dyn Fn(SceneId) -> anyhow::Result<Scene> + Sync>> {
+    if dataset.join("manifest.json").is_file() {
+        let ds = Dataset::open(dataset, Verify::Quick)?;
+        eprintln!("rooms from the dataset in {}", dataset.display());
         Ok(Box::new(move |id| Ok(ds.scene(id)?)))
     } else {
-        eprintln!("no dataset in {}: rooms generated from seed {}", a.dataset.display(), a.room_seed);
-        let seed = a.room_seed;
-        Ok(Box::new(move |id| Ok(worker::scene::generate::generate(id, seed))))
+        eprintln!("no dataset in {}: rooms generated from seed {room_seed}", dataset.display());
+        Ok(Box::new(move |id| Ok(worker::scene::generate::generate(id, room_seed))))
     }
 }
 
-fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
-    let learner = crate::supervise::binaries::sibling_in(a.bin_dir.as_deref(), "learner")?;
-    let scene_of = scene_source(&a)?;
-    let threads = a.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: threads.max(1) };
-
-    let bar = Bar::new("render", a.frames as u64, "frames", Duration::from_secs(10));
+/// Renders `opts`'s frames of the training rooms into `path`, with a progress bar.
+fn render_to(opts: &FrameOptions, dataset: &Path, room_seed: u64, path: &Path) -> anyhow::Result<()> {
+    let scene_of = scene_source(dataset, room_seed)?;
+    let bar = Bar::new("render", opts.frames as u64, "frames", Duration::from_secs(10));
     let finished = AtomicUsize::new(0);
     let done = |n: usize| {
         let before = finished.fetch_add(n, Ordering::Relaxed);
         bar.set((before + n) as u64, "");
     };
     let t = Instant::now();
-    let set = render_set(&opts, scene_of.as_ref(), &done)?;
+    let set = render_set(opts, scene_of.as_ref(), &done)?;
     bar.finish();
     let secs = t.elapsed().as_secs_f64();
-    let frames_path = with_ext(&a.out, "frames");
-    set.write(&frames_path)?;
+    set.write(path)?;
     let persons = set.flags.iter().filter(|&&f| f & farm::frame_set::FLAG_PERSON != 0).count();
     eprintln!(
         "rendered {} frames of {}×{} in {secs:.1} s ({:.0} frames/s, {} with the person) into {}",
         set.len(),
-        a.size,
-        a.size,
+        opts.size,
+        opts.size,
         set.len() as f64 / secs,
         persons,
-        frames_path.display()
+        path.display()
     );
-    drop(set);
+    Ok(())
+}
 
+/// The `learner` program, with torch's threads waiting passively.
+fn learner_command(bin_dir: Option<&Path>) -> anyhow::Result<(PathBuf, std::process::Command)> {
+    let learner = crate::supervise::binaries::sibling_in(bin_dir, "learner")?;
     let mut learn = std::process::Command::new(&learner);
     if std::env::var_os(OMP_WAIT_ENV).is_none() {
         learn.env(OMP_WAIT_ENV, "PASSIVE");
     }
+    Ok((learner, learn))
+}
+
+fn render_threads(threads: Option<usize>) -> usize {
+    threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1)
+}
+
+fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
+    let (learner, mut learn) = learner_command(a.bin_dir.as_deref())?;
+    anyhow::ensure!((0.0..1.0).contains(&a.mask), "--mask {}: a share of cells in 0..1", a.mask);
+    let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: render_threads(a.threads) };
+    let t = Instant::now();
+    let frames_path = with_ext(&a.out, "frames");
+    render_to(&opts, &a.dataset, a.room_seed, &frames_path)?;
     let status = learn
         .args(["--device", &a.device, "pretrain-encoder", "--frames"])
         .arg(&frames_path)
         .arg("--out")
         .arg(&a.out)
         .args(["--seed", &a.seed.to_string(), "--epochs", &a.epochs.to_string()])
+        .args(["--objective", &a.objective, "--mask", &a.mask.to_string()])
         .status()
         .with_context(|| format!("starting {}", learner.display()))?;
     anyhow::ensure!(status.success(), "{} pretrain-encoder failed ({status})", learner.display());
@@ -138,5 +198,34 @@ fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
         with_ext(&a.out, "json").display(),
         t.elapsed().as_secs_f64()
     );
+    Ok(())
+}
+
+fn probe(a: ProbeArgs) -> anyhow::Result<()> {
+    let (learner, mut learn) = learner_command(a.bin_dir.as_deref())?;
+    for e in &a.encoders {
+        let (_, weights) = e.split_once('=').with_context(|| format!("--encoder {e}: NAME=WEIGHTS or NAME=pixels"))?;
+        anyhow::ensure!(weights == "pixels" || Path::new(weights).is_file(), "--encoder {e}: no file {weights}");
+    }
+    let frames_path = a.frame_set.clone().unwrap_or_else(|| with_ext(&a.out, "frames"));
+    if frames_path.is_file() {
+        eprintln!("probe frames from {}", frames_path.display());
+    } else {
+        let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: render_threads(a.threads) };
+        render_to(&opts, &a.dataset, a.room_seed, &frames_path)?;
+    }
+    learn.args(["--device", "cpu", "probe-encoder", "--frames"]).arg(&frames_path).arg("--out").arg(&a.out);
+    for e in &a.encoders {
+        learn.args(["--encoder", e]);
+    }
+    let status = learn
+        .args(["--seed", &a.seed.to_string()])
+        .status()
+        .with_context(|| format!("starting {}", learner.display()))?;
+    anyhow::ensure!(status.success(), "{} probe-encoder failed ({status})", learner.display());
+    if a.frame_set.is_none() {
+        std::fs::remove_file(&frames_path).with_context(|| format!("removing {}", frames_path.display()))?;
+    }
+    println!("probes in {} and {}", with_ext(&a.out, "md").display(), with_ext(&a.out, "json").display());
     Ok(())
 }

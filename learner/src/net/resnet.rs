@@ -125,7 +125,7 @@ pub struct WeightsError {
 }
 
 /// Reads the named tensors of a torchvision ResNet-18 checkpoint: `.safetensors`, or a
-/// `.pt`/`.pth`/`.bin` state dict written by `torch.save` (see [`crate::pth`]).
+/// `.pt`/`.pth`/`.bin` state dict written by `torch.save` (see [`crate::net::pth`]).
 pub fn read_torchvision(path: &Path) -> Result<HashMap<String, Tensor>, WeightsError> {
     let err = |reason: String| WeightsError { file: path.display().to_string(), reason };
     if !path.is_file() {
@@ -138,7 +138,9 @@ pub fn read_torchvision(path: &Path) -> Result<HashMap<String, Tensor>, WeightsE
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     let named = match ext.as_str() {
         "safetensors" => Tensor::read_safetensors(path).map_err(|e| err(format!("cannot read it: {e}")))?,
-        "pt" | "pth" | "bin" => crate::pth::read_state_dict(path).map_err(|e| err(format!("cannot read it: {e}")))?,
+        "pt" | "pth" | "bin" => {
+            crate::net::pth::read_state_dict(path).map_err(|e| err(format!("cannot read it: {e}")))?
+        }
         _ => return Err(err(format!("unknown extension `.{ext}`: use .safetensors, .pt or .pth"))),
     };
     // DataParallel checkpoints prefix every name with `module.`.
@@ -259,7 +261,7 @@ mod tests {
         // and the same as torch.save(model.state_dict()) writes it
         let pth = dir.path().join("resnet18.pth");
         let refs: Vec<(&str, Tensor)> = named.iter().map(|(k, v)| (k.as_str(), v.shallow_clone())).collect();
-        crate::pth::tests::write_torch_save(&pth, &refs);
+        crate::net::pth::tests::write_torch_save(&pth, &refs);
 
         let x = crate::device::seeded(5, || Tensor::rand([2, 3, 64, 64], (Kind::Float, Device::Cpu)));
         let ya = tch::no_grad(|| net_a.forward(&x));

@@ -16,13 +16,13 @@ use tch::Device;
 use farm::config::RunConfig;
 use shm_schema::EnvRecord;
 
-use crate::agent::Agent;
-use crate::batch::WorkerBatch;
-use crate::checkpoint;
-use crate::metrics::MetricsLog;
+use crate::logs::metrics::MetricsLog;
+use crate::net::agent::Agent;
 use crate::obs::{EnvBatch, EnvStep, FrameView, GestureKind, GestureView};
-use crate::policy::Policy;
-use crate::ppo::Trainer;
+use crate::ppo::checkpoint;
+use crate::ppo::trainer::Trainer;
+use crate::serve::batch::WorkerBatch;
+use crate::serve::policy::Policy;
 
 /// What the network does with the batches.
 pub enum Mode {
@@ -56,7 +56,7 @@ pub struct PpoPolicy {
     learning: f64,
     /// The server's latest progress record, logged with the next update (one point per update,
     /// at the update's frame count).
-    farm_progress: Option<crate::records::Progress>,
+    farm_progress: Option<crate::logs::records::Progress>,
 }
 
 impl PpoPolicy {
@@ -304,7 +304,7 @@ impl Policy for PpoPolicy {
         Ok(())
     }
 
-    fn report(&mut self, progress: &crate::records::Progress) -> anyhow::Result<()> {
+    fn report(&mut self, progress: &crate::logs::records::Progress) -> anyhow::Result<()> {
         if let Mode::Train { log, .. } = &mut self.mode {
             if progress.stop_reason.is_some() {
                 log.farm_final(progress)?;

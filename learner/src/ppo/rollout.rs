@@ -11,10 +11,10 @@
 
 use tch::{Device, Kind, Tensor};
 
-use crate::agent::Actions;
-use crate::gesture_table::GestureTable;
 use crate::inputs::Inputs;
+use crate::net::agent::Actions;
 use crate::obs::EnvStep;
+use crate::ppo::gesture_table::GestureTable;
 
 #[derive(Debug)]
 pub struct Rollout {

@@ -1,6 +1,7 @@
 //! One round of the farm ([`WorkerBatch`]): the observation messages of every worker that answered,
 //! in worker order, read in place from the workers' shared-memory samples. What a served
-//! `crate::policy::Policy` answers; PPO turns it into the agent's per-env `crate::obs::EnvBatch`.
+//! `crate::serve::policy::Policy` answers; PPO turns it into the agent's per-env
+//! `crate::obs::EnvBatch`.
 //!
 //! Nothing here copies a frame. The slices handed out point into the samples the learner holds
 //! borrowed while the policy runs; **the one copy of a frame happens when a policy turns these

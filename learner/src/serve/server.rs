@@ -10,11 +10,11 @@
 //! worker restarted by the orchestrator announces `generation + 1`: its state is reset, and
 //! observations of older generations still in flight are dropped.
 //!
-//! Every observation is checked as it arrives (`crate::integrity`: header, layout, and the
+//! Every observation is checked as it arrives (`crate::serve::integrity`: header, layout, and the
 //! message and env-step counters within a generation). Violations are counted (`lost`,
 //! `duplicates`, `corrupt`) and, in check mode, fail the run.
 //!
-//! Files in the run directory (`crate::records`): `farm.jsonl` (a progress record every
+//! Files in the run directory (`crate::logs::records`): `farm.jsonl` (a progress record every
 //! `report_every`, and a final one), `episodes.jsonl` (one line per finished episode), in
 //! evaluation `trajectories.jsonl` (every episode step by step), `farm_summary.json` (at exit).
 
@@ -26,10 +26,10 @@ use farm::profile::{LearnerTime, Profile, WorkerTime, process_cpu_seconds};
 use farm::transport::TransportError;
 use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, ObsShape, WorkerTiming, action, command};
 
-use crate::batch::{WorkerBatch, WorkerObs};
-use crate::integrity::{self, Expected, Verdict};
-use crate::policy::Policy;
-use crate::records::{Counters, Progress, RecordError, RunRecords, Summary, WorkerSummary};
+use crate::logs::records::{Counters, Progress, RecordError, RunRecords, Summary, WorkerSummary};
+use crate::serve::batch::{WorkerBatch, WorkerObs};
+use crate::serve::integrity::{self, Expected, Verdict};
+use crate::serve::policy::Policy;
 use crate::transport::{LearnerPorts, ObsMessage};
 
 /// How to serve a run.
@@ -276,8 +276,8 @@ impl Server<'_> {
         if self.opts.check { Err(ServeError::Check(what)) } else { Ok(()) }
     }
 
-    /// Judges an arriving message (`crate::integrity`), counts what it says, and holds it for
-    /// the round when it is accepted.
+    /// Judges an arriving message (`crate::serve::integrity`), counts what it says, and holds it
+    /// for the round when it is accepted.
     fn accept(&mut self, k: usize, msg: ObsMessage) -> Result<(), ServeError> {
         let h = *msg.header();
         let slot = &self.slots[k];
@@ -570,8 +570,8 @@ impl Server<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::policy::{ExpertPolicy, RandomPolicy};
-    use crate::records::EpisodeLine;
+    use crate::logs::records::EpisodeLine;
+    use crate::serve::policy::{ExpertPolicy, RandomPolicy};
     use farm::metrics::EpisodeResult;
     use farm::stepper::SyntheticStepper;
     use farm::transport::{self as wt, Exit, WorkerOptions};

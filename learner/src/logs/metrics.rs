@@ -135,19 +135,23 @@ impl MetricsLog {
         |e| MetricsError::File { file: self.tb.path().display().to_string(), message: e.to_string() }
     }
 
-    /// Marks in TensorBoard that training goes on from a checkpoint taken at `frames`: what an
-    /// earlier process recorded after it is hidden (those updates are done again), and the
-    /// effective configuration is shown as text.
+    /// Marks that training goes on from a checkpoint taken at `frames`: what an earlier process
+    /// recorded after it is hidden in TensorBoard and moved from `metrics.jsonl` to
+    /// `metrics.redone.jsonl` (those updates are done again: the curves go on without a jump
+    /// back), and the effective configuration is shown as text.
     pub fn started_at(&mut self, frames: u64, config_toml: &str) -> Result<(), MetricsError> {
         if frames > 0 {
             self.tb.restart_at(frames as i64 + 1).map_err(self.tb_err())?;
+        }
+        if self.rows.iter().any(|r| r.frames > frames) {
+            self.set_aside_after(frames)?;
         }
         let text = format!("```toml\n{config_toml}\n```");
         self.tb.text("config", frames as i64, &text).map_err(self.tb_err())
     }
 
     /// The farm's counters since this learner process started, at an update's frame count.
-    pub fn farm(&mut self, frames: u64, p: &crate::records::Progress) -> Result<(), MetricsError> {
+    pub fn farm(&mut self, frames: u64, p: &crate::logs::records::Progress) -> Result<(), MetricsError> {
         if self.farm_at.is_some_and(|f| f >= frames) {
             return Ok(());
         }
@@ -170,11 +174,31 @@ impl MetricsLog {
 
     /// The farm's counters at the end, at this process's last update (the last report comes
     /// after it: waiting for a next update would lose them).
-    pub fn farm_final(&mut self, p: &crate::records::Progress) -> Result<(), MetricsError> {
+    pub fn farm_final(&mut self, p: &crate::logs::records::Progress) -> Result<(), MetricsError> {
         match self.updated_at {
             Some(frames) => self.farm(frames, p),
             None => Ok(()),
         }
+    }
+
+    /// Moves the rows past `frames` to `metrics.redone.jsonl` (appended: nothing is lost) and
+    /// rewrites `metrics.jsonl` without them, atomically.
+    fn set_aside_after(&mut self, frames: u64) -> Result<(), MetricsError> {
+        let err = |p: &Path| {
+            let file = p.display().to_string();
+            move |e: std::io::Error| MetricsError::File { file, message: e.to_string() }
+        };
+        let lines = |rows: &[UpdateMetrics]| -> String {
+            rows.iter().map(|r| serde_json::to_string(r).expect("metrics serialise") + "\n").collect()
+        };
+        let (kept, redone): (Vec<UpdateMetrics>, Vec<UpdateMetrics>) =
+            std::mem::take(&mut self.rows).into_iter().partition(|r| r.frames <= frames);
+        let aside = self.jsonl.with_file_name("metrics.redone.jsonl");
+        let mut f = std::fs::OpenOptions::new().create(true).append(true).open(&aside).map_err(err(&aside))?;
+        f.write_all(lines(&redone).as_bytes()).map_err(err(&aside))?;
+        farm::files::write_atomic(&self.jsonl, lines(&kept).as_bytes()).map_err(err(&self.jsonl))?;
+        self.rows = kept;
+        Ok(())
     }
 
     pub fn append(&mut self, m: &UpdateMetrics) -> Result<(), MetricsError> {
@@ -347,5 +371,26 @@ mod tests {
         again.plot().unwrap();
         let png = image::open(&again.png).unwrap();
         assert_eq!((png.width(), png.height()), (1600, 800));
+    }
+
+    /// A run killed after update 5 resumes from its checkpoint at update 3: the rows of updates
+    /// 4 and 5 (to be done again) move aside, and the curve goes on from update 3.
+    #[test]
+    fn a_resume_sets_aside_the_updates_done_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut log = MetricsLog::open(dir.path()).unwrap();
+        for u in 1..=5u64 {
+            log.append(&UpdateMetrics { update: u, frames: u * 1280, ..Default::default() }).unwrap();
+        }
+        let mut resumed = MetricsLog::open(dir.path()).unwrap();
+        resumed.started_at(3 * 1280, "").unwrap();
+        resumed.append(&UpdateMetrics { update: 4, frames: 4 * 1280, ..Default::default() }).unwrap();
+        let frames = |name: &str| -> Vec<u64> {
+            let text = std::fs::read_to_string(dir.path().join(name)).unwrap();
+            text.lines().map(|l| serde_json::from_str::<UpdateMetrics>(l).unwrap().frames / 1280).collect()
+        };
+        assert_eq!(frames("metrics.jsonl"), vec![1, 2, 3, 4]);
+        assert_eq!(frames("metrics.redone.jsonl"), vec![4, 5]);
+        assert_eq!(MetricsLog::open(dir.path()).unwrap().rows.len(), 4);
     }
 }

@@ -88,7 +88,7 @@ mod tests {
         let _ = g.index_copy_(0, &Tensor::from_slice(&[1i64, 3]), &fresh);
         check(&mut memo, &g);
         // PPO's optimizer step changes the layer in place
-        let mut opt = crate::optim::Adam::new(&vs, 0.5, 1e-5);
+        let mut opt = crate::ppo::optim::Adam::new(&vs, 0.5, 1e-5);
         encode(&l, &g).sum(Kind::Float).backward();
         opt.step();
         check(&mut memo, &g);

@@ -1,11 +1,12 @@
 //! What the policy server asks of a policy ([`Policy`]): one action per env of a round's
-//! [`WorkerBatch`]. PPO (`crate::ppo_policy`) plugs in here the same way as the two baselines below.
+//! [`WorkerBatch`]. PPO (`crate::serve::ppo_policy`) plugs in here the same way as the two
+//! baselines below.
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use shm_schema::action;
 
-use crate::batch::WorkerBatch;
+use crate::serve::batch::WorkerBatch;
 
 /// A policy served to the farm.
 pub trait Policy {
@@ -28,7 +29,7 @@ pub trait Policy {
     }
     /// Sees each progress record the server writes (the farm's counters), e.g. to log them
     /// beside its own metrics.
-    fn report(&mut self, _progress: &crate::records::Progress) -> anyhow::Result<()> {
+    fn report(&mut self, _progress: &crate::logs::records::Progress) -> anyhow::Result<()> {
         Ok(())
     }
     /// The run is ending; `checkpoint` says whether to save state first (Ctrl-C: yes).

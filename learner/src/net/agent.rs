@@ -1,7 +1,7 @@
-//! The acting agent ([`Agent`]): the policy network of `crate::network`, its variables, and the
-//! recurrent state of each of N envs. It acts one step for N envs: prepare the inputs, run the
+//! The acting agent ([`Agent`]): the policy network of `crate::net::network`, its variables, and
+//! the recurrent state of each of N envs. It acts one step for N envs: prepare the inputs, run the
 //! network from the current memory, choose actions (sampled or greedy, from its own seeded
-//! stream), then commit the new memory. PPO drives the same four steps (`crate::ppo`).
+//! stream), then commit the new memory. PPO drives the same four steps (`crate::ppo::trainer`).
 
 use farm::config::{Encoder, RunConfig};
 use rand::Rng;
@@ -11,12 +11,12 @@ use tch::nn;
 use tch::{Device, Kind, Tensor};
 
 use crate::encoder::{EncoderFileError, load_weights as load_encoder};
-use crate::gesture_memo::GestureMemo;
 use crate::inputs::{Inputs, Prepared};
-use crate::network::PolicyNet;
+use crate::net::gesture_memo::GestureMemo;
+use crate::net::network::PolicyNet;
+use crate::net::resnet::{self, WeightsError};
+use crate::net::spec::NetSpec;
 use crate::obs::{EnvBatch, ObsError};
-use crate::resnet::{self, WeightsError};
-use crate::spec::NetSpec;
 
 /// Why an agent could not be built for a config.
 #[derive(Debug, thiserror::Error)]
@@ -83,7 +83,7 @@ impl Agent {
 
     /// Builds the network; `load_weights`: read the configured ResNet-18 or pretrained encoder
     /// file (not when a checkpoint is about to overwrite every variable anyway:
-    /// `crate::checkpoint::load_agent`).
+    /// `crate::ppo::checkpoint::load_agent`).
     pub(crate) fn build(
         cfg: &RunConfig,
         n_envs: usize,
@@ -281,8 +281,8 @@ pub fn log_softmax(x: &[f32]) -> Vec<f32> {
 mod tests {
     use super::*;
     use crate::bench::random_obs;
+    use crate::net::spec::tests::tiny_config;
     use crate::obs::GestureKind;
-    use crate::spec::tests::tiny_config;
 
     #[test]
     fn acting_shapes_memory_and_resets() {
@@ -386,7 +386,7 @@ mod tests {
         let a = p.act(&o.batch()).unwrap();
         assert!(a.values[0].is_finite());
         // an Adam over the policy sees only the trainable part
-        let opt = crate::optim::Adam::new(&p.vs, 1e-3, 1e-5);
+        let opt = crate::ppo::optim::Adam::new(&p.vs, 1e-3, 1e-5);
         assert_eq!(opt.state().len() / 2, vars.values().filter(|v| v.requires_grad()).count());
         // 2 × (1×1 convs 74k + FC 1.6M) + gesture FC 4.9M + embedding 19k + GRU 5.5M + heads 1.1M
         assert!((14_000_000..15_000_000).contains(&p.trainable_parameters()), "{}", p.trainable_parameters());
@@ -436,7 +436,7 @@ mod tests {
         let cfg = tiny_config("both");
         let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
         let h0 = p.hidden().copy();
-        let mut r = crate::rollout::Rollout::new(6, 2, &h0);
+        let mut r = crate::ppo::rollout::Rollout::new(6, 2, &h0);
         let first = random_obs(2, 16, 40);
         for t in 0..6u64 {
             let mut o = random_obs(2, 16, 50 + t);

@@ -1,5 +1,5 @@
 //! The policy network of §4.3.3 ([`PolicyNet`]): encoders, GRU, actor and critic, wired together.
-//! Acting with it, one step for N envs, is `crate::agent`.
+//! Acting with it, one step for N envs, is `crate::net::agent`.
 //!
 //! ```text
 //! RGB   224²×3 ─ ResNet-18 (frozen) ─ conv5 512×7×7 ─ 1×1 conv 512→128 ─ 1×1 conv 128→64 ─ FC 512 ┐
@@ -29,14 +29,14 @@ use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
 use tch::nn::{self, RNN};
 use tch::{Device, Kind, Tensor};
 
-use crate::gesture_memo;
 use crate::inputs::{self, Inputs, depth_unit, rgb_unit};
-use crate::layers::{ConvHead, FrozenTrunk, Mlp, Pretrained, SmallCnn, Visual};
+use crate::net::gesture_memo;
+use crate::net::layers::{ConvHead, FrozenTrunk, Mlp, Pretrained, SmallCnn, Visual};
+use crate::net::resnet::{self, Resnet18};
+use crate::net::spec::NetSpec;
 use crate::obs::EnvBatch;
-use crate::resnet::{self, Resnet18};
-use crate::spec::NetSpec;
 
-/// The network. Variables live in the [`crate::agent::Agent`]'s var store under `resnet.` (the
+/// The network. Variables live in the [`crate::net::agent::Agent`]'s var store under `resnet.` (the
 /// frozen trunk), `encoder.` (the frozen pretrained encoder) and `visual.` (its head), `rgb.`,
 /// `depth.`, `gesture.`, `target.`, `pose.`, `gru.`, `actor.`, `critic.`.
 #[derive(Debug)]
@@ -239,9 +239,9 @@ impl PolicyNet {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::agent::Agent;
     use crate::bench::{random_encoder_weights, random_obs, tiny_frozen_config};
-    use crate::rollout::Rollout;
+    use crate::net::agent::Agent;
+    use crate::ppo::rollout::Rollout;
 
     /// The tiny network on the pretrained encoder: 64×64 (the encoder's frame), hidden 32.
     fn frozen_config(dir: &std::path::Path) -> farm::config::RunConfig {
@@ -277,7 +277,7 @@ mod tests {
             let f = p.forward(&x, st);
             acted_values.extend(f.values.clone());
             let acted =
-                crate::agent::Actions { actions: vec![0; 2], log_probs: vec![0.0; 2], values: f.values.clone() };
+                crate::net::agent::Actions { actions: vec![0; 2], log_probs: vec![0.0; 2], values: f.values.clone() };
             r.push(&x, &[t == 0; 2], &acted, &[true; 2]);
             p.commit(f, &o.batch());
             frames.push(o);

@@ -17,9 +17,9 @@ use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use sha2::{Digest, Sha256};
 use tch::{Device, Kind, Tensor};
 
-use crate::agent::{Agent, AgentError};
-use crate::ppo::Trainer;
-use crate::spec::NetSpec;
+use crate::net::agent::{Agent, AgentError};
+use crate::net::spec::NetSpec;
+use crate::ppo::trainer::Trainer;
 
 use farm::checkpoints::{FORMAT, digest};
 
@@ -316,7 +316,7 @@ fn rng_from(path: &Path, meta: &HashMap<String, String>, key: &str) -> Result<Ch
 mod tests {
     use super::*;
     use crate::bench::random_obs;
-    use crate::spec::tests::tiny_config;
+    use crate::net::spec::tests::tiny_config;
     use rand::Rng;
 
     fn trained_a_little(cfg: &RunConfig) -> Trainer {

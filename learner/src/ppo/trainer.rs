@@ -17,11 +17,11 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use tch::{Device, Kind, Tensor};
 
-use crate::agent::{ActMode, Actions, Agent, AgentError};
-use crate::metrics::{EpisodeWindow, UpdateMetrics};
+use crate::logs::metrics::{EpisodeWindow, UpdateMetrics};
+use crate::net::agent::{ActMode, Actions, Agent, AgentError};
 use crate::obs::{EnvBatch, EnvStep, ObsError};
-use crate::optim::Adam;
-use crate::rollout::{FeedbackCounts, Rollout, as_f32, flags};
+use crate::ppo::optim::Adam;
+use crate::ppo::rollout::{FeedbackCounts, Rollout, as_f32, flags};
 
 /// Adam's ε: 1e-5, the usual choice for PPO (torch's default is 1e-8).
 const ADAM_EPS: f64 = 1e-5;
@@ -73,7 +73,7 @@ impl Trainer {
     }
 
     /// `load_weights`: read the configured ResNet-18 file (not when a checkpoint is about to
-    /// overwrite every variable: `crate::checkpoint::resume_trainer`).
+    /// overwrite every variable: `crate::ppo::checkpoint::resume_trainer`).
     pub(crate) fn build(
         cfg: &RunConfig,
         n_envs: usize,

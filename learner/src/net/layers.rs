@@ -1,13 +1,13 @@
 //! The network's building blocks: the visual encoders (a head after the frozen ResNet trunk, a
 //! ResNet trained end to end, a small CNN for CPU runs, the pretrained RGB-D encoder), the frozen
 //! trunk shared by RGB and depth with its bf16 copy, and the MLP of the actor and critic heads.
-//! How they are wired is `crate::network`.
+//! How they are wired is `crate::net::network`.
 
 use tch::{Kind, Tensor, nn};
 
 use crate::encoder::net::{FEATURE_CHANNELS, RgbdEncoder, STRIDE, encoder_input};
 use crate::inputs::{depth_unit, rgb_unit};
-use crate::resnet::{self, CONV5_CHANNELS, Resnet18};
+use crate::net::resnet::{self, CONV5_CHANNELS, Resnet18};
 
 /// Images in 0..1 with 1 or 3 channels → ImageNet-normalised 3 channels.
 pub(crate) fn resnet_input(x: &Tensor) -> Tensor {

@@ -83,7 +83,7 @@ pub struct WorkerSummary {
     pub finished: bool,
 }
 
-/// What `crate::serve::serve` returns and writes to `farm_summary.json`.
+/// What `crate::serve::server::serve` returns and writes to `farm_summary.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
     pub run_id: String,

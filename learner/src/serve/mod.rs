@@ -1,0 +1,14 @@
+//! The farm's policy server, lowest layer first:
+//!
+//! - [`batch`]: one round of the workers' messages, read in place ([`batch::WorkerBatch`]);
+//! - [`integrity`]: the checks every arriving observation passes (a pure function);
+//! - [`policy`]: what the server asks of a policy ([`policy::Policy`]), and the random and expert
+//!   baselines;
+//! - [`ppo_policy`]: PPO served to the farm, training or evaluating;
+//! - [`server`]: the serve loop ([`server::serve`]).
+
+pub mod batch;
+pub mod integrity;
+pub mod policy;
+pub mod ppo_policy;
+pub mod server;
