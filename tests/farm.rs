@@ -190,6 +190,71 @@ fn ctrl_c_while_training_keeps_a_checkpoint_that_resumes() {
     assert!(farm::checkpoints::update_of(&newest).unwrap() > stopped_at, "{}", newest.display());
 }
 
+/// `up` killed with SIGKILL mid-run, then `up --resume` without --frames: training goes on to
+/// the run's own budget (the frames its checkpoint holds count), the progress line counts the
+/// run's frames, and the curves go on from the checkpoint without a jump back.
+#[test]
+fn a_killed_run_resumes_to_its_own_budget() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    // 1 worker × 2 envs × rollout 16 = 32 frames an update; a budget of 24 updates
+    let (per_update, budget) = (32u64, 768u64);
+    let cfg = small_ppo_config(tmp.path(), "\n[checkpoint]\nevery_updates = 2\nkeep = 3\n");
+    let dir = tmp.path().join("run");
+    let budget_set = format!("run.total_frames={budget}");
+    let args = ["--workers", "1", "--config", cfg.to_str().unwrap(), "--set", &budget_set, "--report-every", "0.5"];
+    let mut run = Run::start(&dir, &args);
+    let ckpts = farm::checkpoints::dir_of(&dir);
+    let t0 = Instant::now();
+    while farm::checkpoints::list(&ckpts).iter().all(|(u, _)| *u < 6) {
+        assert!(t0.elapsed() < Duration::from_secs(240), "no checkpoint at update 6\n{}", run.diagnostics());
+        assert!(run.try_wait().is_none(), "the run ended before its kill\n{}", run.diagnostics());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    run.signal(Signal::SIGKILL);
+    run.wait(EVENT_DEADLINE);
+    while !run.processes().is_empty() {
+        assert!(t0.elapsed() < Duration::from_secs(300), "children outlived the orchestrator: {:?}", run.processes());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let (kept, _) = farm::checkpoints::latest_verified(&ckpts);
+    let kept_frames = farm::checkpoints::frames(&kept.expect("a checkpoint")).unwrap();
+    assert!(kept_frames < budget, "killed before the end: {kept_frames}");
+
+    let out = std::process::Command::new(bin("orchestrator"))
+        .args(["up", "--resume"])
+        .arg(&dir)
+        .args(["--workers", "1"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let last = farm::checkpoints::latest(&ckpts).unwrap();
+    let frames = farm::checkpoints::frames(&last).unwrap();
+    assert!(
+        frames + per_update >= budget && frames <= budget + per_update,
+        "the resumed run ended at {frames} frames; its budget is {budget} (one update either side)\n{stderr}"
+    );
+    let rows: Vec<u64> = std::fs::read_to_string(dir.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<Value>(l).unwrap()["frames"].as_u64().unwrap())
+        .collect();
+    assert!(rows.windows(2).all(|w| w[1] == w[0] + per_update), "one row an update, no jump back: {rows:?}");
+    assert_eq!(rows.last(), Some(&frames), "{rows:?}");
+
+    // resuming again does not train the budget over again
+    let again = std::process::Command::new(bin("orchestrator"))
+        .args(["up", "--resume"])
+        .arg(&dir)
+        .args(["--workers", "1"])
+        .output()
+        .unwrap();
+    assert!(again.status.success(), "{}", String::from_utf8_lossy(&again.stderr));
+    let frames = farm::checkpoints::frames(&farm::checkpoints::latest(&ckpts).unwrap()).unwrap();
+    assert!(frames <= budget + per_update, "a second resume trained on to {frames}");
+}
+
 /// A dataset with one flipped bit is refused before any process starts, with one line naming
 /// the damaged file; `eval` on it writes no tables.
 #[test]

@@ -8,7 +8,7 @@ use clap::Args;
 use farm::config::RunConfig;
 use farm::process;
 
-use crate::report::progress::Bar;
+use crate::report::progress::{Bar, Rate};
 use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
 use crate::supervise::launch::{prepare_run, resolve_dataset, resolve_encoder, sweep_dead_runs};
 use crate::supervise::run_dir;
@@ -116,11 +116,24 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
     sweep_dead_runs();
     let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, a.policy);
     spec.max_seconds = a.seconds;
+    // A resumed run trains to its own budget: what its newest checkpoint was trained on counts
+    // (--frames stays this process's frames: `study` passes what is left itself).
+    let trained = if resume && a.policy == PolicyArg::Ppo { frames_trained(&dir.path)? } else { 0 };
     spec.max_frames = match (a.frames, a.seconds) {
         (Some(f), _) => Some(f),
         (None, Some(_)) => None,
-        (None, None) => Some(cfg.run.total_frames),
+        (None, None) => Some(cfg.run.total_frames.saturating_sub(trained)),
     };
+    if spec.max_frames == Some(0) {
+        eprintln!(
+            "[up] {} has trained its budget already ({trained} of run.total_frames = {} frames): nothing to do",
+            dir.path.display(),
+            cfg.run.total_frames
+        );
+        return Ok(0);
+    }
+    // the bar counts the run's frames when it trains to the run's budget
+    let bar_from = if a.frames.is_none() && a.seconds.is_none() { trained } else { 0 };
     spec.check = a.check;
     spec.synthetic = a.synthetic;
     spec.resume = resume;
@@ -137,13 +150,13 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         if a.synthetic { ", synthetic envs" } else { "" }
     );
     spec.remote_slots = a.remote_workers;
-    let spec_frames = spec.max_frames;
+    let spec_frames = spec.max_frames.map(|f| f + bar_from);
     let mut crew = Crew::start(spec)?;
     let bridge = match &a.listen {
         Some(endpoint) => Some(listen(&a, endpoint, &dir.path, &dir.run_id, &cfg)?),
         None => None,
     };
-    let ui = Progressline::new(spec_frames, a.seconds);
+    let ui = Progressline::new(spec_frames, a.seconds, bar_from);
     let mut signals_seen = 0;
     while crew.tick()? == CrewState::Running {
         let n = process::termination_count();
@@ -207,31 +220,45 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
     })
 }
 
+/// Frames the newest usable checkpoint of a run was trained on (0 without one: the learner then
+/// refuses the resume itself, with the reason).
+fn frames_trained(run: &Path) -> anyhow::Result<u64> {
+    match farm::checkpoints::latest_verified(&farm::checkpoints::dir_of(run)).0 {
+        Some(p) => farm::checkpoints::frames(&p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display())),
+        None => Ok(0),
+    }
+}
+
 /// The run's progress: frames of the frame budget (or seconds of the time budget), with what
 /// the learner last reported beside them.
 struct Progressline {
     bar: Bar,
     by_frames: bool,
+    /// Frames trained before this process (a resume to the run's budget).
+    from: u64,
+    /// Frames/s over the last half minute (the learner's own figure swings with its updates).
+    rate: std::cell::RefCell<Rate>,
     started: Instant,
     /// When farm.jsonl was last read (twice a second is enough).
     polled: std::cell::Cell<Instant>,
 }
 
 impl Progressline {
-    fn new(max_frames: Option<u64>, max_seconds: Option<f64>) -> Progressline {
+    fn new(max_frames: Option<u64>, max_seconds: Option<f64>, from: u64) -> Progressline {
         let every = Duration::from_secs(5);
         let (bar, by_frames) = match (max_frames, max_seconds) {
-            (Some(f), _) => (Bar::new("up", f, "frames", every), true),
+            (Some(f), _) => (Bar::new("up", f, "frames", every).starting_at(from), true),
             (None, s) => (Bar::new("up", s.unwrap_or(0.0).ceil() as u64, "s", every), false),
         };
         let now = Instant::now();
-        Progressline { bar, by_frames, started: now, polled: std::cell::Cell::new(now) }
+        let rate = std::cell::RefCell::new(Rate::new(Duration::from_secs(30)));
+        Progressline { bar, by_frames, from, rate, started: now, polled: std::cell::Cell::new(now) }
     }
 
-    fn text(crew: &Crew, p: &Progress) -> String {
+    fn text(crew: &Crew, p: &Progress, fps: f64) -> String {
         format!(
             "{:.0} frames/s  episodes {}  success {}  workers {}/{}  restarts {}{}",
-            p.fps,
+            fps,
             p.episodes,
             p.success_rate.map(|s| format!("{:.1}%", 100.0 * s)).unwrap_or_else(|| "-".into()),
             p.workers_live,
@@ -247,8 +274,9 @@ impl Progressline {
         }
         self.polled.set(Instant::now());
         let Some(p) = crew.progress() else { return };
-        let pos = if self.by_frames { p.frames } else { self.started.elapsed().as_secs() };
-        self.bar.set(pos, &Self::text(crew, &p));
+        let pos = if self.by_frames { self.from + p.frames } else { self.started.elapsed().as_secs() };
+        let fps = self.rate.borrow_mut().add(Instant::now(), p.frames).unwrap_or(p.fps);
+        self.bar.set(pos, &Self::text(crew, &p, fps));
     }
 
     fn println(&self, line: &str) {

@@ -2,6 +2,7 @@
 //! ETA when stderr is a terminal; otherwise (logs, CI) a plain line now and then, never the same
 //! line twice.
 
+use std::collections::VecDeque;
 use std::io::IsTerminal;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
@@ -15,6 +16,9 @@ pub struct Bar {
     total: u64,
     shown: Option<ProgressBar>,
     started: Instant,
+    /// Where this process began counting (a resumed run's frames trained before it): the ETA
+    /// comes from the rate since then.
+    from: u64,
     /// Plain lines: at most one per `every`; the last one printed, to never repeat it.
     every: Duration,
     last: Mutex<(Option<Instant>, String)>,
@@ -53,9 +57,20 @@ impl Bar {
             total,
             shown,
             started: Instant::now(),
+            from: 0,
             every,
             last: Mutex::new((None, String::new())),
         }
+    }
+
+    /// The same bar, starting at `from` of its total (work done before this process).
+    pub fn starting_at(mut self, from: u64) -> Bar {
+        self.from = from.min(self.total);
+        if let Some(b) = &self.shown {
+            b.set_position(self.from);
+            b.reset_eta();
+        }
+        self
     }
 
     /// Moves the bar to `pos` with `msg` beside it.
@@ -76,13 +91,14 @@ impl Bar {
         }
     }
 
-    /// `[name] pos/total unit (p%), eta …  msg`, the ETA from the average rate so far.
+    /// `[name] pos/total unit (p%), eta …  msg`, the ETA from the average rate of this process.
     fn plain_line(&self, pos: u64, msg: &str) -> String {
         let pos = pos.min(self.total);
         let pct = if self.total == 0 { 100.0 } else { 100.0 * pos as f64 / self.total as f64 };
         let elapsed = self.started.elapsed().as_secs_f64();
+        let done = pos.saturating_sub(self.from);
         let eta =
-            if pos == 0 { "-".to_string() } else { duration_words((self.total - pos) as f64 * elapsed / pos as f64) };
+            if done == 0 { "-".to_string() } else { duration_words((self.total - pos) as f64 * elapsed / done as f64) };
         let msg = if msg.is_empty() { String::new() } else { format!("  {msg}") };
         format!("[{}] {pos}/{} {} ({pct:.0}%), eta {eta}{msg}", self.name, self.total, self.unit)
     }
@@ -100,6 +116,31 @@ impl Bar {
         if let Some(b) = &self.shown {
             b.finish_and_clear();
         }
+    }
+}
+
+/// A rate over the last `window` of a growing count: what a progress line shows, steady where
+/// the count comes in bursts (a PPO update stops the frames for a second or two, then they rush).
+pub struct Rate {
+    window: Duration,
+    seen: VecDeque<(Instant, u64)>,
+}
+
+impl Rate {
+    pub fn new(window: Duration) -> Rate {
+        Rate { window, seen: VecDeque::new() }
+    }
+
+    /// Records the count at `now`; returns the rate per second over the window (None until two
+    /// points a second apart).
+    pub fn add(&mut self, now: Instant, count: u64) -> Option<f64> {
+        self.seen.push_back((now, count));
+        while self.seen.len() > 2 && now.duration_since(self.seen[1].0) >= self.window {
+            self.seen.pop_front();
+        }
+        let (t0, c0) = *self.seen.front()?;
+        let dt = now.duration_since(t0).as_secs_f64();
+        (dt >= 1.0).then(|| count.saturating_sub(c0) as f64 / dt)
     }
 }
 
@@ -125,6 +166,30 @@ mod tests {
         let line = b.plain_line(250, "success 3.0%");
         assert!(line.starts_with("[up] 250/1000 frames (25%), eta ") && line.ends_with("  success 3.0%"), "{line}");
         assert!(b.plain_line(2000, "").starts_with("[up] 1000/1000 frames (100%)"), "past the total reads as done");
+        let resumed = Bar { shown: None, ..Bar::new("up", 1000, "frames", Duration::ZERO) }.starting_at(600);
+        assert_eq!(resumed.plain_line(600, ""), "[up] 600/1000 frames (60%), eta -", "nothing done here yet");
+    }
+
+    /// Frames in bursts (500 a second, then nothing for a second while the learner updates):
+    /// the rate over the window stays near the mean of 250 instead of swinging 0 ↔ 500.
+    #[test]
+    fn the_rate_is_steady_over_bursts() {
+        let t0 = Instant::now();
+        let mut r = Rate::new(Duration::from_secs(10));
+        assert_eq!(r.add(t0, 0), None);
+        let mut count = 0;
+        let mut last = None;
+        for s in 1..=40u64 {
+            if s % 2 == 1 {
+                count += 500;
+            }
+            last = r.add(t0 + Duration::from_secs(s), count);
+            if s >= 12 {
+                let v = last.unwrap();
+                assert!((200.0..=300.0).contains(&v), "second {s}: {v}");
+            }
+        }
+        assert!(last.is_some());
     }
 
     #[test]
