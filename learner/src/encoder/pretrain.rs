@@ -354,6 +354,19 @@ fn drop_channels(x: &Tensor, keep_rgb: &Tensor, keep_depth: &Tensor) -> Tensor {
     x * mask.view([b, 4, 1, 1])
 }
 
+/// Frames `chunk` (indices into `d`) and their encoder inputs on `dev`.
+fn held_batch(d: &Data, chunk: &[i64], dev: Device) -> (Tensor, Tensor) {
+    let i = Tensor::from_slice(chunk);
+    let x = encoder_input(&d.rgb.index_select(0, &i), &d.depth.index_select(0, &i)).to_device(dev);
+    (i, x)
+}
+
+/// Inputs with RGB and depth scaled by `keep` (1, 1 = both; 1, 0 = RGB only).
+fn keep_channels(x: &Tensor, keep: (f64, f64)) -> Tensor {
+    let ones = Tensor::ones([x.size()[0]], (Kind::Float, x.device()));
+    drop_channels(x, &(&ones * keep.0), &(&ones * keep.1))
+}
+
 /// Figures over frames `idx` with the given channel mask (1, 1 = both).
 fn evaluate(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64), dev: Device) -> HeldOut {
     if idx.is_empty() {
@@ -368,12 +381,8 @@ fn evaluate(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64), dev: Device)
         (0i64, 0i64, 0i64, 0i64, 0i64, 0i64, 0f64);
     tch::no_grad(|| {
         for chunk in idx.chunks(256) {
-            let i = Tensor::from_slice(chunk);
-            let b = chunk.len() as i64;
-            let x = encoder_input(&d.rgb.index_select(0, &i), &d.depth.index_select(0, &i)).to_device(dev);
-            let ones = Tensor::ones([b], (Kind::Float, dev));
-            let x = drop_channels(&x, &(&ones * keep.0), &(&ones * keep.1));
-            let (logits, depth) = model.semantic(&x);
+            let (i, x) = held_batch(d, chunk, dev);
+            let (logits, depth) = model.semantic(&keep_channels(&x, keep));
             let want = d.class.index_select(0, &i).to_device(dev);
             let hit = logits.argmax(1, false).eq_tensor(&want);
             let is_fg = want.ne(i64::from(CLASS_OTHER));
@@ -405,13 +414,11 @@ fn evaluate_contrast(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64), dev
     let (mut matched, mut chunks) = (0f64, 0f64);
     tch::no_grad(|| {
         for chunk in idx.chunks(64) {
-            let i = Tensor::from_slice(chunk);
+            let (_, x) = held_batch(d, chunk, dev);
             let b = chunk.len() as i64;
-            let x = encoder_input(&d.rgb.index_select(0, &i), &d.depth.index_select(0, &i)).to_device(dev);
-            let ones = Tensor::ones([b], (Kind::Float, dev));
-            let drop = |v: &Tensor| drop_channels(v, &(&ones * keep.0), &(&ones * keep.1));
             let fixed: Vec<f32> = (0..b).flat_map(|_| [0.85, 0.85, 0.85, 0.05, 1.05]).collect();
-            let (z1, z2) = (model.project(&drop(&x)), model.project(&drop(&jittered(&x, &fixed))));
+            let z1 = model.project(&keep_channels(&x, keep));
+            let z2 = model.project(&keep_channels(&jittered(&x, &fixed), keep));
             let (_, m) = info_nce(&z1, &z2, &Tensor::arange(z1.size()[0], (Kind::Int64, dev)));
             matched += m.double_value(&[]) * b as f64;
             chunks += b as f64;
@@ -425,11 +432,8 @@ fn evaluate_reconstruction(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64
     let (mut rgb_err, mut depth_err, mut px) = (0f64, 0f64, 0f64);
     tch::no_grad(|| {
         for chunk in idx.chunks(256) {
-            let i = Tensor::from_slice(chunk);
-            let b = chunk.len() as i64;
-            let x = encoder_input(&d.rgb.index_select(0, &i), &d.depth.index_select(0, &i)).to_device(dev);
-            let ones = Tensor::ones([b], (Kind::Float, dev));
-            let err = (model.reconstruct(&drop_channels(&x, &(&ones * keep.0), &(&ones * keep.1))) - &x).abs();
+            let (_, x) = held_batch(d, chunk, dev);
+            let err = (model.reconstruct(&keep_channels(&x, keep)) - &x).abs();
             rgb_err += err.narrow(1, 0, 3).sum(Kind::Double).double_value(&[]);
             depth_err += err.narrow(1, 3, 1).sum(Kind::Double).double_value(&[]);
             px += (x.numel() / 4) as f64;

@@ -53,6 +53,19 @@ pub struct PretrainArgs {
     /// Reconstruction: the share of 8×8-pixel cells hidden from the encoder in each frame.
     #[arg(long, default_value_t = 0.0)]
     pub mask: f64,
+    #[command(flatten)]
+    pub rooms: Rooms,
+    /// Keep the rendered frames (OUT.frames) after training.
+    #[arg(long)]
+    pub keep_frames: bool,
+    /// Training device: cpu (reproducible, the default), cuda or auto.
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
+}
+
+/// Where frames are rendered and which `learner` trains or probes on them.
+#[derive(Args, Debug)]
+pub struct Rooms {
     /// Renderer threads (default: one per core; the frames do not depend on it).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -62,12 +75,6 @@ pub struct PretrainArgs {
     /// Seed the rooms are generated from when there is no dataset (`dataset build`'s default: 1).
     #[arg(long, default_value_t = 1)]
     pub room_seed: u64,
-    /// Keep the rendered frames (OUT.frames) after training.
-    #[arg(long)]
-    pub keep_frames: bool,
-    /// Training device: cpu (reproducible, the default), cuda or auto.
-    #[arg(long, default_value = "cpu")]
-    pub device: String,
     /// Folder holding the `learner` program (default: beside this one, or GESTHOR_BIN_DIR).
     #[arg(long)]
     pub bin_dir: Option<PathBuf>,
@@ -99,14 +106,8 @@ pub struct ProbeArgs {
     /// removed afterwards).
     #[arg(long)]
     pub frame_set: Option<PathBuf>,
-    #[arg(long)]
-    pub threads: Option<usize>,
-    #[arg(long, default_value = "data/gond")]
-    pub dataset: PathBuf,
-    #[arg(long, default_value_t = 1)]
-    pub room_seed: u64,
-    #[arg(long)]
-    pub bin_dir: Option<PathBuf>,
+    #[command(flatten)]
+    pub rooms: Rooms,
 }
 
 pub fn run(cmd: EncoderCmd) -> anyhow::Result<()> {
@@ -131,9 +132,12 @@ fn scene_source(
     }
 }
 
-/// Renders `opts`'s frames of the training rooms into `path`, with a progress bar.
-fn render_to(opts: &FrameOptions, dataset: &Path, room_seed: u64, path: &Path) -> anyhow::Result<()> {
-    let scene_of = scene_source(dataset, room_seed)?;
+/// Renders `frames` frames of `size`² from `seed` in the training rooms into `path`, with a
+/// progress bar.
+fn render_to(rooms: &Rooms, frames: usize, size: u32, seed: u64, path: &Path) -> anyhow::Result<()> {
+    let threads = rooms.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1);
+    let opts = FrameOptions { frames, size, seed, threads };
+    let scene_of = scene_source(&rooms.dataset, rooms.room_seed)?;
     let bar = Bar::new("render", opts.frames as u64, "frames", Duration::from_secs(10));
     let finished = AtomicUsize::new(0);
     let done = |n: usize| {
@@ -141,7 +145,7 @@ fn render_to(opts: &FrameOptions, dataset: &Path, room_seed: u64, path: &Path) -
         bar.set((before + n) as u64, "");
     };
     let t = Instant::now();
-    let set = render_set(opts, scene_of.as_ref(), &done)?;
+    let set = render_set(&opts, scene_of.as_ref(), &done)?;
     bar.finish();
     let secs = t.elapsed().as_secs_f64();
     set.write(path)?;
@@ -168,17 +172,12 @@ fn learner_command(bin_dir: Option<&Path>) -> anyhow::Result<(PathBuf, std::proc
     Ok((learner, learn))
 }
 
-fn render_threads(threads: Option<usize>) -> usize {
-    threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1)
-}
-
 fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
-    let (learner, mut learn) = learner_command(a.bin_dir.as_deref())?;
+    let (learner, mut learn) = learner_command(a.rooms.bin_dir.as_deref())?;
     anyhow::ensure!((0.0..1.0).contains(&a.mask), "--mask {}: a share of cells in 0..1", a.mask);
-    let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: render_threads(a.threads) };
     let t = Instant::now();
     let frames_path = with_ext(&a.out, "frames");
-    render_to(&opts, &a.dataset, a.room_seed, &frames_path)?;
+    render_to(&a.rooms, a.frames, a.size, a.seed, &frames_path)?;
     let status = learn
         .args(["--device", &a.device, "pretrain-encoder", "--frames"])
         .arg(&frames_path)
@@ -202,7 +201,7 @@ fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
 }
 
 fn probe(a: ProbeArgs) -> anyhow::Result<()> {
-    let (learner, mut learn) = learner_command(a.bin_dir.as_deref())?;
+    let (learner, mut learn) = learner_command(a.rooms.bin_dir.as_deref())?;
     for e in &a.encoders {
         let (_, weights) = e.split_once('=').with_context(|| format!("--encoder {e}: NAME=WEIGHTS or NAME=pixels"))?;
         anyhow::ensure!(weights == "pixels" || Path::new(weights).is_file(), "--encoder {e}: no file {weights}");
@@ -211,8 +210,7 @@ fn probe(a: ProbeArgs) -> anyhow::Result<()> {
     if frames_path.is_file() {
         eprintln!("probe frames from {}", frames_path.display());
     } else {
-        let opts = FrameOptions { frames: a.frames, size: a.size, seed: a.seed, threads: render_threads(a.threads) };
-        render_to(&opts, &a.dataset, a.room_seed, &frames_path)?;
+        render_to(&a.rooms, a.frames, a.size, a.seed, &frames_path)?;
     }
     learn.args(["--device", "cpu", "probe-encoder", "--frames"]).arg(&frames_path).arg("--out").arg(&a.out);
     for e in &a.encoders {
