@@ -54,7 +54,7 @@ pub struct BuildArgs {
     #[arg(long)]
     pub threads: Option<usize>,
     /// How cleanly the people point: `clean` (the committed study's level) or `realistic`
-    /// (arm-aimed and eye–fingertip-aligned pointing, larger error; README "Gesture realism").
+    /// (arm-aimed and eye–fingertip-aligned pointing, larger error; docs/usage.md "Gesture realism").
     #[arg(long, default_value = "clean", value_parser = parse_pointing)]
     pub pointing: Pointing,
     /// Where the robot starts: `dissertation` (mean geodesic distance to the target 1.52 m as
