@@ -438,13 +438,9 @@ mod tests {
     #[test]
     fn push_checks_sizes_and_labels() {
         let (mut s, other) = (tiny(), tiny());
-        let e = s
-            .push(&FrameRef { rgb: &[0; 11], ..other.frame(1) })
-            .unwrap_err();
+        let e = s.push(&FrameRef { rgb: &[0; 11], ..other.frame(1) }).unwrap_err();
         assert!(e.to_string().contains("frame 2 rgb"), "{e}");
-        let e = s
-            .push(&FrameRef { cell_class: &[5], ..other.frame(1) })
-            .unwrap_err();
+        let e = s.push(&FrameRef { cell_class: &[5], ..other.frame(1) }).unwrap_err();
         assert!(e.to_string().contains("label 5"), "{e}");
         assert_eq!(s.len(), 2);
     }

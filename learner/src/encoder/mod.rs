@@ -41,7 +41,7 @@ mod tests {
                 cell_class: &class,
                 cell_depth: &[100; 4],
             })
-                .unwrap();
+            .unwrap();
         }
         let p = dir.join("syn.frames");
         set.write(&p).unwrap();

@@ -259,11 +259,20 @@ struct Model {
 }
 
 enum Head {
-    Semantic { class: nn::Conv2D, depth: nn::Conv2D, grid: i64 },
+    Semantic {
+        class: nn::Conv2D,
+        depth: nn::Conv2D,
+        grid: i64,
+    },
     /// One 1×1 conv: each feature cell's 64 values → its STRIDE×STRIDE×4 pixels.
-    Reconstruct { pixels: nn::Conv2D },
+    Reconstruct {
+        pixels: nn::Conv2D,
+    },
     /// 1×1 conv, ReLU, 1×1 conv: each cell's features → the space its similarities are taken in.
-    Contrast { hidden: nn::Conv2D, out: nn::Conv2D },
+    Contrast {
+        hidden: nn::Conv2D,
+        out: nn::Conv2D,
+    },
 }
 
 impl Model {
@@ -285,7 +294,13 @@ impl Model {
                 ),
             },
             Objective::Contrast => Head::Contrast {
-                hidden: nn::conv2d(root / "projection_hidden", FEATURE_CHANNELS, FEATURE_CHANNELS, 1, Default::default()),
+                hidden: nn::conv2d(
+                    root / "projection_hidden",
+                    FEATURE_CHANNELS,
+                    FEATURE_CHANNELS,
+                    1,
+                    Default::default(),
+                ),
                 out: nn::conv2d(root / "projection_out", FEATURE_CHANNELS, PROJECTION, 1, Default::default()),
             },
         };
@@ -479,8 +494,9 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
     tch::set_num_threads(o.threads);
     let vs = nn::VarStore::new(dev);
     let root = vs.root();
-    let model =
-        crate::device::seeded(farm::seed::mix(o.seed, &[KEY_INIT]) as i64, || Model::new(&root, o.objective, h.grid as i64));
+    let model = crate::device::seeded(farm::seed::mix(o.seed, &[KEY_INIT]) as i64, || {
+        Model::new(&root, o.objective, h.grid as i64)
+    });
     let cells = (h.height as i64 / STRIDE, h.width as i64 / STRIDE);
     let mut opt = nn::Adam::default().build(&vs, o.lr).expect("adam");
     let mut class_weights = vec![1f32; CLASSES as usize];
@@ -525,7 +541,8 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
                         j.push(rng.random_range(-off..off) as f32);
                         j.push(rng.random_range(1.0 - dg..1.0 + dg) as f32);
                     }
-                    let hide = (0..hidden.len()).map(|_| if rng.random_bool(CONTRAST_HIDE) { 1.0 } else { 0.0 }).collect();
+                    let hide =
+                        (0..hidden.len()).map(|_| if rng.random_bool(CONTRAST_HIDE) { 1.0 } else { 0.0 }).collect();
                     views.push((j, hide));
                 }
                 anchors = rand::seq::index::sample(&mut rng, hidden.len(), ANCHORS.min(hidden.len()))
@@ -549,7 +566,8 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
                     (model.reconstruct(&hide_cells(&x, &hide)) - &whole).abs().mean(Kind::Float)
                 }
                 Objective::Contrast => {
-                    let keep = (Tensor::from_slice(&keep_rgb).to_device(dev), Tensor::from_slice(&keep_depth).to_device(dev));
+                    let keep =
+                        (Tensor::from_slice(&keep_rgb).to_device(dev), Tensor::from_slice(&keep_depth).to_device(dev));
                     let z: Vec<Tensor> = views
                         .iter()
                         .map(|(jitter, hide)| {

@@ -147,8 +147,9 @@ fn category_probe(f: &Tensor, class: &Tensor, train: &[i64], held: &[i64], o: &P
     let (train_rows, held_rows) = (rows(train), rows(held));
     let x = standardise(&x, &Tensor::from_slice(&train_rows));
     let vs = nn::VarStore::new(Device::Cpu);
-    let linear =
-        crate::device::seeded(farm::seed::mix(o.seed, &[KEY_PROBE]) as i64, || nn::linear(vs.root(), d, CLASSES as i64, Default::default()));
+    let linear = crate::device::seeded(farm::seed::mix(o.seed, &[KEY_PROBE]) as i64, || {
+        nn::linear(vs.root(), d, CLASSES as i64, Default::default())
+    });
     let mut opt = nn::Adam::default().build(&vs, 3e-3).expect("adam");
     let mut weights = vec![1f32; CLASSES as usize];
     weights[CLASS_OTHER as usize] = 0.3;
