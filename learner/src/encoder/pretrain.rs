@@ -39,6 +39,8 @@ use super::net::{
 /// Keys of the pretraining's random streams.
 const KEY_INIT: u64 = 0xE4C0_0100;
 const KEY_EPOCH: u64 = 0xE4C0_0101;
+/// The default weight of the "other" cell class (the probes weigh it the same).
+pub(super) const OTHER_WEIGHT: f64 = 0.3;
 
 /// What the trunk is trained to give.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -123,7 +125,7 @@ impl PretrainOptions {
             mask: 0.0,
             batch: 64,
             lr: 2e-3,
-            other_weight: 0.3,
+            other_weight: OTHER_WEIGHT,
             depth_weight: 2.0,
             drop_rgb: 0.15,
             drop_depth: 0.15,
@@ -230,15 +232,23 @@ struct Data {
     held: Vec<i64>,
 }
 
+/// A frame set's pixels in the wire's form: RGB u8 `[N, H, W, 3]`, depth as Int16 bit patterns
+/// `[N, H, W]` (what `encoder_input` takes).
+pub(super) fn frame_tensors(set: &FrameSet) -> (Tensor, Tensor) {
+    let (n, hh, ww) = (set.len() as i64, set.header.height as i64, set.header.width as i64);
+    let depth: Vec<i16> = set.depth.iter().map(|&x| x as i16).collect();
+    (Tensor::from_slice(&set.rgb).view([n, hh, ww, 3]), Tensor::from_slice(&depth).view([n, hh, ww]))
+}
+
 impl Data {
     fn new(set: &FrameSet) -> Data {
-        let h = &set.header;
-        let (n, hh, ww, g) = (set.len() as i64, h.height as i64, h.width as i64, h.grid as i64);
+        let (n, g) = (set.len() as i64, set.header.grid as i64);
         let as_i16 = |v: &[u16]| v.iter().map(|&x| x as i16).collect::<Vec<i16>>();
         let (held, train): (Vec<i64>, Vec<i64>) = (0..n).partition(|&i| set.is_held_out(i as usize));
+        let (rgb, depth) = frame_tensors(set);
         Data {
-            rgb: Tensor::from_slice(&set.rgb).view([n, hh, ww, 3]),
-            depth: Tensor::from_slice(&as_i16(&set.depth)).view([n, hh, ww]),
+            rgb,
+            depth,
             class: Tensor::from_slice(&set.cell_class).view([n, g, g]).to_kind(Kind::Int64),
             cell_depth: Tensor::from_slice(&as_i16(&set.cell_depth))
                 .view([n, g, g])

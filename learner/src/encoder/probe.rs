@@ -22,6 +22,7 @@ use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Reduction, Tensor, nn, nn::Module, nn::OptimizerConfig};
 
 use super::net::{RgbdEncoder, STRIDE, encoder_input, load_weights, sha256_hex};
+use super::pretrain::{OTHER_WEIGHT, frame_tensors};
 
 const KEY_PROBE: u64 = 0xE4C0_0200;
 /// Ridge penalties tried for the facing probe (times the number of features).
@@ -108,11 +109,8 @@ pub enum ProbeError {
 
 /// Features `[N, D, g, g]` of every frame: the trunk's, or the pixels of each cell.
 fn features(set: &FrameSet, trunk: Option<&RgbdEncoder>) -> Tensor {
-    let h = &set.header;
-    let (n, hh, ww) = (set.len() as i64, h.height as i64, h.width as i64);
-    let as_i16: Vec<i16> = set.depth.iter().map(|&x| x as i16).collect();
-    let rgb = Tensor::from_slice(&set.rgb).view([n, hh, ww, 3]);
-    let depth = Tensor::from_slice(&as_i16).view([n, hh, ww]);
+    let n = set.len() as i64;
+    let (rgb, depth) = frame_tensors(set);
     tch::no_grad(|| {
         let chunks: Vec<Tensor> = (0..n)
             .step_by(256)
@@ -152,7 +150,7 @@ fn category_probe(f: &Tensor, class: &Tensor, train: &[i64], held: &[i64], o: &P
     });
     let mut opt = nn::Adam::default().build(&vs, 3e-3).expect("adam");
     let mut weights = vec![1f32; CLASSES as usize];
-    weights[CLASS_OTHER as usize] = 0.3;
+    weights[CLASS_OTHER as usize] = OTHER_WEIGHT as f32;
     let weights = Tensor::from_slice(&weights);
     let mut order = train_rows;
     for epoch in 0..o.epochs {
@@ -188,7 +186,7 @@ fn angle_error(a: &Tensor, b: &Tensor) -> Tensor {
     ((a - b + 540.0).remainder(360.0) - 180.0).abs()
 }
 
-/// Ridge regression of `y` on the rows `on` of `x`, in the dual form (the features outnumber the
+/// Ridge regression of targets `y` on rows `x`, in the dual form (the features may outnumber the
 /// frames): the Gram matrix is made once, each penalty is one solve.
 struct Ridge {
     mx: Tensor,
