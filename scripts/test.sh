@@ -6,5 +6,7 @@ bash scripts/setup.sh
 # structure first (a second): no import cycle between files of a crate, no oversized file
 python3 scripts/check_structure.py
 source "${GESTHOR_DEPS:-$HOME/.cache/gesthor}/env.sh"
+# `cargo test` reuses every dependency `cargo build` compiled only if their features agree
+bash scripts/check_features.sh
 cargo build --release --workspace --locked
 cargo test --release --workspace --locked -- --test-threads="${GESTHOR_TEST_THREADS:-2}"
