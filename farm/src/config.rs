@@ -194,6 +194,20 @@ pub enum Encoder {
     Pretrained,
 }
 
+/// How the robot perceives a gesture: what the gesture network reads, 100 frames of it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GestureInput {
+    /// The 95 muscle values of the humanoid, in the person's own frame (§4.3.3).
+    #[default]
+    Muscles,
+    /// Beyond the dissertation: ten body points (head, hips; each side's shoulder, elbow, wrist
+    /// and index fingertip) in metres in the robot's camera frame, taken when the gesture starts
+    /// being shown — what a pose estimator on the robot gives. A pointing arm then says where to
+    /// go without first being turned by the person's facing.
+    Keypoints,
+}
+
 /// `[model]`: the network (§4.3.3).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -209,6 +223,8 @@ pub struct ModelConfig {
     pub depth: bool,
     /// Feed the person's pose relative to the robot (the released code did; the text does not).
     pub person_pose: bool,
+    /// How the gesture is perceived (`muscles`: the dissertation; `keypoints`: beyond it).
+    pub gesture_input: GestureInput,
     /// Width of every feature and hidden layer.
     pub hidden: i64,
     /// GRU layers (the dissertation: 2; the released code: 1).
@@ -224,6 +240,7 @@ impl Default for ModelConfig {
             rgb: true,
             depth: true,
             person_pose: false,
+            gesture_input: GestureInput::Muscles,
             hidden: 512,
             gru_layers: 2,
         }

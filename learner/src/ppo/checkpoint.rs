@@ -10,7 +10,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
-use farm::config::RunConfig;
+use farm::config::{GestureInput, RunConfig};
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::SeedableRng;
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
@@ -64,6 +64,11 @@ pub fn config_hash(cfg: &RunConfig) -> String {
         s.hidden,
         s.gru_layers
     );
+    // appended only when not the dissertation's muscles, so that earlier checkpoints still load
+    let key = match cfg.model.gesture_input {
+        GestureInput::Muscles => key,
+        GestureInput::Keypoints => format!("{key};gesture_input=keypoints"),
+    };
     let digest = Sha256::digest(key.as_bytes());
     farm::files::hex(&digest[..8])
 }

@@ -11,7 +11,7 @@ use super::schedule;
 use crate::camera::{Camera, Intrinsics};
 use crate::dataset::build::RoomContext;
 use crate::geometry::{Part, angle_diff_deg, xz};
-use crate::gesture::{self, Motion};
+use crate::gesture::{self, Motion, keypoints};
 use crate::humanoid::Humanoid;
 use crate::nav::{Goal, NavGrid, expert_action};
 use crate::physics::Physics;
@@ -20,7 +20,7 @@ use crate::robot::{self, Action, RobotPose};
 use crate::scene::object_id;
 use crate::task::{StepFacts, StepResult, Task};
 use crate::visibility;
-use farm::config::RunConfig;
+use farm::config::{GestureInput, RunConfig};
 
 /// Motion frames the person advances per environment step (the gesture loops).
 const FRAMES_PER_STEP: usize = 3;
@@ -40,6 +40,9 @@ pub struct Env {
     humanoid: Humanoid,
     referencing: Motion,
     intervention: (u8, Arc<Motion>),
+    /// With `model.gesture_input = "keypoints"`: the gesture shown now as the robot saw it when
+    /// it started (its kind, then `FRAMES × GESTURE_DIMS` values).
+    seen: Option<(u8, Box<[f32]>)>,
     frame: usize,
     shortest_path: f32,
     /// Pixels of the target in the frame last shown to the robot.
@@ -79,7 +82,7 @@ impl Env {
         let mut task = Task::new(cfg.task.clone());
         task.reset(goal.distance_2d(pose.xz()));
         let k = Intrinsics::reference(cfg.env.fov_deg);
-        Ok(Env {
+        let mut env = Env {
             cfg: cfg.clone(),
             k,
             humanoid: Humanoid::seeded(program.seed),
@@ -93,6 +96,7 @@ impl Env {
             task,
             referencing: motion,
             intervention,
+            seen: None,
             frame: 0,
             shortest_path,
             visible_pixels: 0,
@@ -100,7 +104,9 @@ impl Env {
             last: StepResult::default(),
             last_action: None,
             collided: false,
-        })
+        };
+        env.see_gesture();
+        Ok(env)
     }
 
     pub fn camera(&self) -> Camera {
@@ -152,6 +158,40 @@ impl Env {
             gesture_kind::INTERVENTION => Some(&self.intervention.1),
             _ => None,
         }
+    }
+
+    /// Writes the gesture the robot perceives now (`FRAMES × GESTURE_DIMS` half floats, zero
+    /// where none is shown), in the form `model.gesture_input` names.
+    pub fn write_gesture(&self, out: &mut [u16]) {
+        let values: &[f32] = match (&self.seen, self.perceived()) {
+            (_, None) => return out.fill(0),
+            (Some((_, seen)), Some(_)) => seen,
+            (None, Some(m)) => m.as_flat(),
+        };
+        for (dst, src) in out.iter_mut().zip(values) {
+            *dst = half::f16::from_f32(*src).to_bits();
+        }
+    }
+
+    /// With keypoints: when another gesture starts being shown, the robot takes its body points
+    /// from where it stands now.
+    fn see_gesture(&mut self) {
+        if self.cfg.model.gesture_input != GestureInput::Keypoints {
+            return;
+        }
+        let kind = self.gesture_kind();
+        if self.seen.as_ref().is_some_and(|(k, _)| *k == kind) {
+            return;
+        }
+        let Some(motion) = self.perceived() else {
+            self.seen = None;
+            return;
+        };
+        let p = &self.program;
+        let world = keypoints::world(&self.humanoid, motion, Point3::from(p.human_pos), p.human_yaw);
+        let mut values = vec![0.0; gesture::FRAMES * shm_schema::GESTURE_DIMS].into_boxed_slice();
+        keypoints::write_seen(&world, &self.camera(), shm_schema::GESTURE_DIMS, &mut values);
+        self.seen = Some((kind, values));
     }
 
     pub fn intervention_index(&self) -> u8 {
@@ -229,6 +269,7 @@ impl Env {
         if self.gesture_kind() == gesture_kind::INTERVENTION {
             self.intervention_steps += 1;
         }
+        self.see_gesture();
         self.last
     }
 

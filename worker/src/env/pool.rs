@@ -7,7 +7,6 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 
 use anyhow::Context;
-use half::f16;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
@@ -313,14 +312,7 @@ impl EnvPool {
             match &self.envs[i] {
                 Slot::Running(e) => {
                     e.fill_record(&mut rec, self.spec.expert_hints);
-                    match e.perceived() {
-                        Some(m) => {
-                            for (dst, src) in g.iter_mut().zip(m.as_flat()) {
-                                *dst = f16::from_f32(*src).to_bits();
-                            }
-                        }
-                        None => g.fill(0),
-                    }
+                    e.write_gesture(g);
                 }
                 Slot::Idle => {
                     rec.idle = 1;
@@ -494,6 +486,49 @@ mod tests {
             pool.step(&[1, 2], buf.bytes_mut()).unwrap(); // keep turning: faces every way
         }
         assert!(saw[NONE as usize] && saw[INTERVENTION as usize] && !saw[REFERENCING as usize]);
+    }
+
+    /// Keypoints: a gesture reads the same while it is shown and is taken again, from the robot's
+    /// new heading, when it is shown anew; only the body points' 30 values of a row are set.
+    #[test]
+    fn keypoints_are_taken_when_a_gesture_starts() {
+        let mut cfg = config(Method::Both, 2);
+        cfg.model.gesture_input = farm::config::GestureInput::Keypoints;
+        let Some(mut pool) = pool(&cfg, ProgramSource::Sample) else { return };
+        let mut buf = PayloadBuf::new(&pool.layout());
+        pool.reset(buf.bytes_mut()).unwrap();
+        let mut last: Vec<Option<(u8, Vec<u16>)>> = vec![None; 2];
+        let mut pointing: Vec<Option<Vec<u16>>> = vec![None; 2];
+        let (mut kept, mut retaken) = (0, 0);
+        for t in 0..48 {
+            for (i, r) in view(&pool, &buf).records().to_vec().iter().enumerate() {
+                let g = view(&pool, &buf).gesture_bits(i).to_vec();
+                assert!(
+                    g.chunks(GESTURE_DIMS).all(|row| row[crate::gesture::keypoints::DIMS..].iter().all(|b| *b == 0))
+                );
+                assert_eq!(g.iter().any(|b| *b != 0), r.gesture_kind != NONE);
+                if r.episode_start == 1 {
+                    pointing[i] = None;
+                }
+                if let Some((kind, before)) = &last[i]
+                    && r.episode_start == 0
+                    && *kind == r.gesture_kind
+                {
+                    assert!(&g == before, "a gesture changed while shown");
+                    kept += 1;
+                } else if r.gesture_kind == REFERENCING {
+                    // shown anew: taken from where the robot turned to since
+                    retaken += usize::from(pointing[i].as_ref().is_some_and(|p| *p != g));
+                    pointing[i] = Some(g.clone());
+                }
+                last[i] = Some((r.gesture_kind, g));
+            }
+            // a turn left, then right: intervention comes and goes, and pointing is shown again
+            // at the other side's heading
+            let turn = if t < 20 { action::ROTATE_LEFT } else { action::ROTATE_RIGHT };
+            pool.step(&[turn, turn], buf.bytes_mut()).unwrap();
+        }
+        assert!(kept > 0 && retaken > 0, "kept {kept}, retaken {retaken}");
     }
 
     #[test]
