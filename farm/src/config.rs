@@ -530,11 +530,15 @@ mod tests {
             c.with_overrides(&sets(&["ppo.lr=1e-4", "env.width=96", "run.method=vis_sem", "env.width = 80"])).unwrap();
         assert_eq!((o.ppo.lr, o.env.width, o.run.method), (1e-4, 80, Method::VisSem));
         assert_eq!(o.ppo.rollout, c.ppo.rollout, "the rest untouched");
+        assert_eq!(c.model.gesture_input, GestureInput::Muscles, "the dissertation's by default");
+        let k = c.with_overrides(&sets(&["model.gesture_input=keypoints"])).unwrap();
+        assert_eq!(k.model.gesture_input, GestureInput::Keypoints);
         for (bad, says) in [
             ("ppo.lrr=1", "ppo.lrr"),
             ("ppo.clip=-5", "ppo.clip"),
             ("env.width", "KEY=VALUE"),
             ("env.width=abc", "env.width"),
+            ("model.gesture_input=skeleton", "model.gesture_input"),
         ] {
             let err = c.with_overrides(&sets(&[bad])).unwrap_err().to_string();
             assert!(err.contains(says) && !err.contains('\n'), "{bad}: {err}");
