@@ -202,9 +202,9 @@ pub enum GestureInput {
     #[default]
     Muscles,
     /// Beyond the dissertation: ten body points (head, hips; each side's shoulder, elbow, wrist
-    /// and index fingertip) in metres in the robot's camera frame, taken when the gesture starts
-    /// being shown — what a pose estimator on the robot gives. A pointing arm then says where to
-    /// go without first being turned by the person's facing.
+    /// and index fingertip) in metres in the robot's camera frame from where it stands at each
+    /// step — what a pose estimator on the robot gives. A pointing arm then says where to go
+    /// without first being turned by the person's facing.
     Keypoints,
 }
 

@@ -40,9 +40,9 @@ pub struct Env {
     humanoid: Humanoid,
     referencing: Motion,
     intervention: (u8, Arc<Motion>),
-    /// With `model.gesture_input = "keypoints"`: the gesture shown now as the robot saw it when
-    /// it started (its kind, then `FRAMES × GESTURE_DIMS` values).
-    seen: Option<(u8, Box<[f32]>)>,
+    /// With `model.gesture_input = "keypoints"`: the gesture shown now, as body points in the
+    /// world (its kind, then every frame's points), posed once when it starts being shown.
+    seen: Option<(u8, Vec<[Point3<f32>; keypoints::KEYPOINTS]>)>,
     frame: usize,
     shortest_path: f32,
     /// Pixels of the target in the frame last shown to the robot.
@@ -161,11 +161,17 @@ impl Env {
     }
 
     /// Writes the gesture the robot perceives now (`FRAMES × GESTURE_DIMS` half floats, zero
-    /// where none is shown), in the form `model.gesture_input` names.
+    /// where none is shown), in the form `model.gesture_input` names: the muscles, or the body
+    /// points as the robot's camera sees them from where it stands now.
     pub fn write_gesture(&self, out: &mut [u16]) {
+        let mut seen = Vec::new();
         let values: &[f32] = match (&self.seen, self.perceived()) {
             (_, None) => return out.fill(0),
-            (Some((_, seen)), Some(_)) => seen,
+            (Some((_, world)), Some(_)) => {
+                seen.resize(gesture::FRAMES * shm_schema::GESTURE_DIMS, 0.0);
+                keypoints::write_seen(world, &self.camera(), shm_schema::GESTURE_DIMS, &mut seen);
+                &seen
+            }
             (None, Some(m)) => m.as_flat(),
         };
         for (dst, src) in out.iter_mut().zip(values) {
@@ -173,8 +179,7 @@ impl Env {
         }
     }
 
-    /// With keypoints: when another gesture starts being shown, the robot takes its body points
-    /// from where it stands now.
+    /// With keypoints: poses the body points of a gesture when it starts being shown.
     fn see_gesture(&mut self) {
         if self.cfg.model.gesture_input != GestureInput::Keypoints {
             return;
@@ -183,15 +188,10 @@ impl Env {
         if self.seen.as_ref().is_some_and(|(k, _)| *k == kind) {
             return;
         }
-        let Some(motion) = self.perceived() else {
-            self.seen = None;
-            return;
-        };
-        let p = &self.program;
-        let world = keypoints::world(&self.humanoid, motion, Point3::from(p.human_pos), p.human_yaw);
-        let mut values = vec![0.0; gesture::FRAMES * shm_schema::GESTURE_DIMS].into_boxed_slice();
-        keypoints::write_seen(&world, &self.camera(), shm_schema::GESTURE_DIMS, &mut values);
-        self.seen = Some((kind, values));
+        self.seen = self.perceived().map(|motion| {
+            let p = &self.program;
+            (kind, keypoints::world(&self.humanoid, motion, Point3::from(p.human_pos), p.human_yaw))
+        });
     }
 
     pub fn intervention_index(&self) -> u8 {

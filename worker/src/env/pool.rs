@@ -488,47 +488,39 @@ mod tests {
         assert!(saw[NONE as usize] && saw[INTERVENTION as usize] && !saw[REFERENCING as usize]);
     }
 
-    /// Keypoints: a gesture reads the same while it is shown and is taken again, from the robot's
-    /// new heading, when it is shown anew; only the body points' 30 values of a row are set.
+    /// Keypoints: the body points follow the robot — the head is where the record says the
+    /// person stands relative to the robot, at every step of a turn — and only their 30 values
+    /// of a row are set.
     #[test]
-    fn keypoints_are_taken_when_a_gesture_starts() {
+    fn keypoints_are_seen_from_where_the_robot_stands() {
         let mut cfg = config(Method::Both, 2);
         cfg.model.gesture_input = farm::config::GestureInput::Keypoints;
         let Some(mut pool) = pool(&cfg, ProgramSource::Sample) else { return };
         let mut buf = PayloadBuf::new(&pool.layout());
         pool.reset(buf.bytes_mut()).unwrap();
-        let mut last: Vec<Option<(u8, Vec<u16>)>> = vec![None; 2];
-        let mut pointing: Vec<Option<Vec<u16>>> = vec![None; 2];
-        let (mut kept, mut retaken) = (0, 0);
-        for t in 0..48 {
+        let mut shown = [0; 3];
+        for _ in 0..32 {
             for (i, r) in view(&pool, &buf).records().to_vec().iter().enumerate() {
-                let g = view(&pool, &buf).gesture_bits(i).to_vec();
+                let g: Vec<f32> =
+                    view(&pool, &buf).gesture_bits(i).iter().map(|b| half::f16::from_bits(*b).to_f32()).collect();
                 assert!(
-                    g.chunks(GESTURE_DIMS).all(|row| row[crate::gesture::keypoints::DIMS..].iter().all(|b| *b == 0))
+                    g.chunks(GESTURE_DIMS).all(|row| row[crate::gesture::keypoints::DIMS..].iter().all(|v| *v == 0.0))
                 );
-                assert_eq!(g.iter().any(|b| *b != 0), r.gesture_kind != NONE);
-                if r.episode_start == 1 {
-                    pointing[i] = None;
+                shown[r.gesture_kind as usize] += 1;
+                if r.gesture_kind == NONE {
+                    assert!(g.iter().all(|v| *v == 0.0));
+                    continue;
                 }
-                if let Some((kind, before)) = &last[i]
-                    && r.episode_start == 0
-                    && *kind == r.gesture_kind
-                {
-                    assert!(&g == before, "a gesture changed while shown");
-                    kept += 1;
-                } else if r.gesture_kind == REFERENCING {
-                    // shown anew: taken from where the robot turned to since
-                    retaken += usize::from(pointing[i].as_ref().is_some_and(|p| *p != g));
-                    pointing[i] = Some(g.clone());
-                }
-                last[i] = Some((r.gesture_kind, g));
+                let (head_right, head_forward) = (g[0], g[2]);
+                let [right, forward, _] = r.person_rel;
+                assert!(
+                    (head_right - right).abs() < 0.35 && (head_forward - forward).abs() < 0.35,
+                    "head seen at ({head_right:.2}, {head_forward:.2}), the person stands at ({right:.2}, {forward:.2})"
+                );
             }
-            // a turn left, then right: intervention comes and goes, and pointing is shown again
-            // at the other side's heading
-            let turn = if t < 20 { action::ROTATE_LEFT } else { action::ROTATE_RIGHT };
-            pool.step(&[turn, turn], buf.bytes_mut()).unwrap();
+            pool.step(&[action::ROTATE_LEFT, action::MOVE_AHEAD], buf.bytes_mut()).unwrap();
         }
-        assert!(kept > 0 && retaken > 0, "kept {kept}, retaken {retaken}");
+        assert!(shown[REFERENCING as usize] > 0 && shown[INTERVENTION as usize] > 0, "{shown:?}");
     }
 
     #[test]

@@ -4,8 +4,9 @@
 //! policy can turn into a direction only by knowing the person's facing; these say it in the
 //! robot's frame.
 //!
-//! The points are taken once, when the gesture starts being shown, from where the robot stands
-//! then: the gesture input stays constant while the same gesture is shown (as the muscles do).
+//! The person performs the gesture all the while it is shown (§4.4.1: the referencing gesture
+//! all episode); the robot sees its 100 frames from where it stands at each step, so the points
+//! move with the robot as a tracked person would.
 
 use nalgebra::Point3;
 
