@@ -26,6 +26,9 @@ pub const MAX_ENVS: usize = 64;
 /// Frames and muscle values of a gesture (§3.3.1).
 pub const GESTURE_FRAMES: usize = 100;
 pub const GESTURE_DIMS: usize = 95;
+/// Values of a gesture row that hold body points (`model.gesture_input = "keypoints"`: ten
+/// points × right, up, forward); the rest of the row is zero.
+pub const GESTURE_KEYPOINT_DIMS: usize = 30;
 /// How many stops an episode summary keeps (metrics at 1, 2, 3 stops).
 pub const SUMMARY_STOPS: usize = 3;
 /// Target categories the policy can be asked for (T3.3 lists 37 distinct ones); the value of

@@ -318,6 +318,30 @@ mod tests {
         assert_eq!(a.values, b.values);
     }
 
+    /// With keypoints the gesture layer reads the first 30 values of each frame: the rest of the
+    /// 95-wide row changes nothing, the 30 do; and its checkpoints are not the muscles' ones.
+    #[test]
+    fn keypoints_read_thirty_values_a_frame() {
+        let mut cfg = tiny_config("both");
+        cfg.model.gesture_input = farm::config::GestureInput::Keypoints;
+        let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+        assert_eq!(p.net.gesture_layer().unwrap().ws.size(), [32, 100 * 30]);
+        let mut o = random_obs(2, 16, 3);
+        o.envs.iter_mut().for_each(|e| e.gesture = GestureKind::Referencing);
+        let act = |p: &mut Agent, o: &crate::obs::OwnedObs| {
+            p.reset();
+            p.act_deterministic(&o.batch()).unwrap().values
+        };
+        let a = act(&mut p, &o);
+        let dims = shm_schema::GESTURE_DIMS;
+        o.gesture.chunks_mut(dims).for_each(|row| row[30..].fill(half::f16::from_f32(0.9)));
+        assert_eq!(a, act(&mut p, &o), "values past the 30 are not read");
+        o.gesture.chunks_mut(dims).for_each(|row| row[..30].fill(half::f16::from_f32(0.9)));
+        assert_ne!(a, act(&mut p, &o), "the 30 are");
+        let muscles = tiny_config("both");
+        assert_ne!(crate::ppo::checkpoint::config_hash(&cfg), crate::ppo::checkpoint::config_hash(&muscles));
+    }
+
     #[test]
     fn sequence_evaluation_matches_step_by_step_acting() {
         // the PPO re-run over whole sequences (fused GRU between resets) must give the values
@@ -440,13 +464,9 @@ mod tests {
         let first = random_obs(2, 16, 40);
         for t in 0..6u64 {
             let mut o = random_obs(2, 16, 50 + t);
-            // env 0 keeps its gesture all along; env 1 shows a new one every other step
+            // env 0 keeps its gesture all along; env 1 shows a new one at every step
             let g = o.gesture.len() / 2;
             o.gesture[..g].copy_from_slice(&first.gesture[..g]);
-            if t % 2 == 1 {
-                let prev = random_obs(2, 16, 50 + t - 1);
-                o.gesture[g..].copy_from_slice(&prev.gesture[g..]);
-            }
             o.envs.iter_mut().for_each(|e| e.episode_start = t == 0);
             let (x, st) = p.prepare(&o.batch()).unwrap();
             let f = p.forward(&x, st);
@@ -455,35 +475,37 @@ mod tests {
             p.commit(f, &o.batch());
         }
         let table = r.gestures().unwrap();
-        assert_eq!(table.len(), 1 + 3, "env 0: one gesture; env 1: three");
-        let idx = Tensor::from_slice(&[1i64, 0]);
-        let distinct = r.minibatch(&idx).unwrap();
-        let rows = distinct
-            .gesture
-            .as_ref()
-            .unwrap()
-            .index_select(0, &distinct.gesture_index.as_ref().unwrap().flatten(0, -1));
-        let plain = Inputs {
-            gesture: Some(rows.view([6, 2, shm_schema::GESTURE_FRAMES as i64, shm_schema::GESTURE_DIMS as i64])),
-            gesture_index: None,
-            ..distinct.map(|t| t.shallow_clone())
-        };
-        let keep = Tensor::ones([6, 2], (Kind::Float, Device::Cpu));
-        let any = [false; 6];
-        let run = |x: &Inputs| {
-            for mut v in p.vs.trainable_variables() {
-                v.zero_grad();
+        assert_eq!(table.len(), 1 + 6, "env 0: one gesture; env 1: six");
+        // both envs: 12 rows of 7 gestures (encoded, then gathered); env 1 alone: 6 rows of 7
+        // (gathered, then encoded)
+        for envs in [&[1i64, 0][..], &[1]] {
+            let idx = Tensor::from_slice(envs);
+            let distinct = r.minibatch(&idx).unwrap();
+            let rows = distinct
+                .gesture
+                .as_ref()
+                .unwrap()
+                .index_select(0, &distinct.gesture_index.as_ref().unwrap().flatten(0, -1));
+            let shape = [6, envs.len() as i64, shm_schema::GESTURE_FRAMES as i64, shm_schema::GESTURE_DIMS as i64];
+            let plain =
+                Inputs { gesture: Some(rows.view(shape)), gesture_index: None, ..distinct.map(|t| t.shallow_clone()) };
+            let keep = Tensor::ones([6, envs.len() as i64], (Kind::Float, Device::Cpu));
+            let any = [false; 6];
+            let run = |x: &Inputs| {
+                for mut v in p.vs.trainable_variables() {
+                    v.zero_grad();
+                }
+                let (logits, values) = p.net.evaluate(x, &h0.index_select(1, &idx), &keep, &any);
+                (logits.sum(Kind::Float) + values.square().sum(Kind::Float)).backward();
+                let grads: Vec<Tensor> = p.vs.trainable_variables().iter().map(|v| v.grad().copy()).collect();
+                (logits.detach(), values.detach(), grads)
+            };
+            let (l1, v1, g1) = run(&distinct);
+            let (l2, v2, g2) = run(&plain);
+            assert!(l1.allclose(&l2, 1e-5, 1e-6, false) && v1.allclose(&v2, 1e-5, 1e-6, false), "{envs:?}");
+            for (a, b) in g1.iter().zip(&g2) {
+                assert!(a.allclose(b, 1e-4, 1e-6, false), "{envs:?}: gradients differ");
             }
-            let (logits, values) = p.net.evaluate(x, &h0.index_select(1, &idx), &keep, &any);
-            (logits.sum(Kind::Float) + values.square().sum(Kind::Float)).backward();
-            let grads: Vec<Tensor> = p.vs.trainable_variables().iter().map(|v| v.grad().copy()).collect();
-            (logits.detach(), values.detach(), grads)
-        };
-        let (l1, v1, g1) = run(&distinct);
-        let (l2, v2, g2) = run(&plain);
-        assert!(l1.allclose(&l2, 1e-5, 1e-6, false) && v1.allclose(&v2, 1e-5, 1e-6, false));
-        for (a, b) in g1.iter().zip(&g2) {
-            assert!(a.allclose(b, 1e-4, 1e-6, false), "gradients differ");
         }
     }
 }

@@ -4,7 +4,7 @@
 //! ```text
 //! RGB   224²×3 ─ ResNet-18 (frozen) ─ conv5 512×7×7 ─ 1×1 conv 512→128 ─ 1×1 conv 128→64 ─ FC 512 ┐
 //! depth 224²×1 ─ (replicated to 3 channels, same trunk) ─ ... ─────────────────────────── FC 512 ┤
-//! gesture 100×95 (zero when none is shown) ─ flatten ─ FC 512 ────────────────────────────────────┤ concat
+//! gesture 100×95 (zero when none is shown; keypoints: 100×30) ─ flatten ─ FC 512 ──────────────────┤ concat
 //! target category ─ embedding 37→512 ─────────────────────────────────────────────────────────────┤ → GRU (2×512)
 //! person pose (dx, dz, yaw/360), optional ─ FC 3→512 ─────────────────────────────────────────────┘   ├ actor  512-512-4
 //!                                                                                                      └ critic 512-512-1
@@ -25,7 +25,7 @@
 //! (1×1 conv 64→16, FC → hidden), one visual feature instead of two.
 
 use farm::config::Encoder;
-use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, TARGET_CATEGORIES, action};
+use shm_schema::{GESTURE_FRAMES, TARGET_CATEGORIES, action};
 use tch::nn::{self, RNN};
 use tch::{Device, Kind, Tensor};
 
@@ -81,7 +81,7 @@ impl PolicyNet {
         let depth = (spec.depth && !spec.fused()).then(|| visual("depth", 1));
         let gesture = spec
             .gesture
-            .then(|| nn::linear(&root / "gesture", (GESTURE_FRAMES * GESTURE_DIMS) as i64, h, Default::default()));
+            .then(|| nn::linear(&root / "gesture", GESTURE_FRAMES as i64 * spec.gesture_dims, h, Default::default()));
         let target =
             spec.semantic.then(|| nn::embedding(&root / "target", TARGET_CATEGORIES as i64, h, Default::default()));
         let pose = spec.pose.then(|| nn::linear(&root / "pose", 3, h, Default::default()));
@@ -138,7 +138,7 @@ impl PolicyNet {
             }
             let gesture = s.gesture.then(|| {
                 let mask = inputs::gesture_mask(obs, device).to_kind(Kind::Half).view([-1, 1, 1]);
-                inputs::gesture_tensor(obs, device) * mask
+                inputs::gesture_tensor(obs, device).narrow(2, 0, s.gesture_dims) * mask
             });
             Inputs {
                 rgb,
@@ -173,7 +173,10 @@ impl PolicyNet {
         if let (Some(l), Some(t)) = (&self.gesture, &x.gesture) {
             parts.push(match (gesture, &x.gesture_index) {
                 (Some(g), _) => g,
-                // distinct gestures are encoded once, then gathered for every row that shows them
+                // distinct gestures are encoded once, then gathered for every row that shows them;
+                // where the rows are fewer than the distinct gestures (a gesture that changes
+                // every step, as keypoints seen from a moving robot), the rows are encoded instead
+                (None, Some(i)) if t.size()[0] > i.numel() as i64 => gesture_memo::encode(l, &t.index_select(0, i)),
                 (None, Some(i)) => gesture_memo::encode(l, t).index_select(0, i),
                 (None, None) => gesture_memo::encode(l, t),
             });

@@ -2,7 +2,7 @@
 //! on, which visual encoder, the frame size and the widths. Everything that builds, stores or
 //! checks a network reads it from here.
 
-use farm::config::{Encoder, Method, RunConfig};
+use farm::config::{Encoder, GestureInput, Method, RunConfig};
 
 /// What the network looks like for a run: which inputs, which encoder, how wide.
 #[derive(Clone, Debug, PartialEq)]
@@ -14,6 +14,9 @@ pub struct NetSpec {
     pub rgb: bool,
     pub depth: bool,
     pub gesture: bool,
+    /// Values a gesture frame holds: the 95 muscles, or the keypoints' 30 (the network reads the
+    /// first `gesture_dims` of each 95-wide row).
+    pub gesture_dims: i64,
     pub semantic: bool,
     pub pose: bool,
     pub height: i64,
@@ -32,6 +35,10 @@ impl NetSpec {
             rgb: m.rgb,
             depth: m.depth,
             gesture: cfg.run.method.gesture(),
+            gesture_dims: match m.gesture_input {
+                GestureInput::Muscles => shm_schema::GESTURE_DIMS,
+                GestureInput::Keypoints => shm_schema::GESTURE_KEYPOINT_DIMS,
+            } as i64,
             semantic: cfg.run.method.semantic(),
             pose: m.person_pose,
             height: cfg.env.height as i64,
@@ -69,7 +76,8 @@ impl NetSpec {
         for (on, name) in [
             (self.rgb, "rgb"),
             (self.depth, "depth"),
-            (self.gesture, "gesture"),
+            (self.gesture && self.gesture_dims == shm_schema::GESTURE_DIMS as i64, "gesture"),
+            (self.gesture && self.gesture_dims != shm_schema::GESTURE_DIMS as i64, "gesture-keypoints"),
             (self.semantic, "target"),
             (self.pose, "person-pose"),
         ] {

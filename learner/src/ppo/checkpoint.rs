@@ -10,7 +10,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
-use farm::config::{GestureInput, RunConfig};
+use farm::config::RunConfig;
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::SeedableRng;
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
@@ -64,10 +64,10 @@ pub fn config_hash(cfg: &RunConfig) -> String {
         s.hidden,
         s.gru_layers
     );
-    // appended only when not the dissertation's muscles, so that earlier checkpoints still load
-    let key = match cfg.model.gesture_input {
-        GestureInput::Muscles => key,
-        GestureInput::Keypoints => format!("{key};gesture_input=keypoints"),
+    // appended only when not the dissertation's 95 muscles, so that earlier checkpoints still load
+    let key = match s.gesture_dims == shm_schema::GESTURE_DIMS as i64 {
+        true => key,
+        false => format!("{key};gesture_dims={}", s.gesture_dims),
     };
     let digest = Sha256::digest(key.as_bytes());
     farm::files::hex(&digest[..8])

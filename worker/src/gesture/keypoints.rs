@@ -20,6 +20,7 @@ pub const KEYPOINTS: usize = 10;
 
 /// Values per frame: right, up and forward (metres) of each point.
 pub const DIMS: usize = KEYPOINTS * 3;
+const _: () = assert!(DIMS == shm_schema::GESTURE_KEYPOINT_DIMS);
 
 /// The body points of one pose, in the world.
 fn points(pose: &crate::humanoid::SkeletonPose) -> [Point3<f32>; KEYPOINTS] {
