@@ -161,6 +161,11 @@ pub struct TaskConfig {
     pub intervention_angle_deg: f32,
     /// Distance-to-success threshold of DTS (the dissertation writes 1.5 m).
     pub dts_threshold: f32,
+    /// A check, not a setting to train with: each program shows the referencing gesture of the
+    /// program this many places on in its split (0: its own). A policy that reads where the
+    /// gesture points loses what it gained from it; one that reads only that a gesture is shown
+    /// does not.
+    pub gesture_shift: u64,
 }
 
 impl Default for TaskConfig {
@@ -177,6 +182,7 @@ impl Default for TaskConfig {
             progress_reward: 0.0,
             intervention_angle_deg: 90.0,
             dts_threshold: 1.5,
+            gesture_shift: 0,
         }
     }
 }

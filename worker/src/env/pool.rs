@@ -192,7 +192,9 @@ impl EnvPool {
         let file = self.dataset.require(split)?;
         let program = Program::from_record(index, &file.record(index as usize))
             .with_context(|| format!("{}: program {index} is invalid", self.dataset.dir.display()))?;
-        let motion = Motion::from_flat(&file.motion(index as usize)).context("motion has the wrong size")?;
+        // `task.gesture_shift`: another program's referencing gesture, to check what a policy reads
+        let shown = (index + self.cfg.task.gesture_shift) % file.len() as u64;
+        let motion = Motion::from_flat(&file.motion(shown as usize)).context("motion has the wrong size")?;
         let room = self.rooms.get(program.scene_id())?;
         // Evaluation pairs each program with a fixed intervention gesture; training varies it.
         let key = match self.spec.programs {
@@ -521,6 +523,26 @@ mod tests {
             pool.step(&[action::ROTATE_LEFT, action::MOVE_AHEAD], buf.bytes_mut()).unwrap();
         }
         assert!(shown[REFERENCING as usize] > 0 && shown[INTERVENTION as usize] > 0, "{shown:?}");
+    }
+
+    /// `task.gesture_shift = 1`: program 0 runs as itself (its room, target, record) but shows
+    /// program 1's referencing gesture.
+    #[test]
+    fn a_gesture_shift_shows_the_next_programs_gesture() {
+        let first_step = |shift: u64, program: u64| {
+            let mut cfg = config(Method::Referencing, 1);
+            cfg.task.gesture_shift = shift;
+            let mut pool = pool(&cfg, ProgramSource::Sequence(vec![program]))?;
+            let mut buf = PayloadBuf::new(&pool.layout());
+            pool.reset(buf.bytes_mut()).unwrap();
+            let v = view(&pool, &buf);
+            Some((v.records()[0].program, v.gesture_bits(0).to_vec()))
+        };
+        let (Some(own0), Some(own1), Some(shifted)) = (first_step(0, 0), first_step(0, 1), first_step(1, 0)) else {
+            return;
+        };
+        assert_ne!(own0.1, own1.1, "two programs, two gestures");
+        assert_eq!(shifted, (0, own1.1), "program 0, program 1's gesture");
     }
 
     #[test]
