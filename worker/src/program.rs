@@ -72,6 +72,15 @@ impl Program {
         Point3::from(self.target_pos)
     }
 
+    /// The person relative to a robot at `pose`: right (m), forward (m), their yaw less the
+    /// robot's / 360 (`model.person_pose`).
+    pub fn person_relative(&self, pose: &RobotPose) -> [f32; 3] {
+        let d = self.human_xz() - pose.xz();
+        let h = pose.heading();
+        let right = nalgebra::Vector2::new(h.y, -h.x);
+        [d.dot(&right), d.dot(&h), crate::geometry::angle_diff_deg(pose.yaw, self.human_yaw) / 360.0]
+    }
+
     /// Fixed-size binary form (see `dataset`).
     pub fn to_record(&self) -> ProgramRecord {
         ProgramRecord {

@@ -26,7 +26,7 @@ use super::pretrain::{OTHER_WEIGHT, frame_tensors};
 
 const KEY_PROBE: u64 = 0xE4C0_0200;
 /// Ridge penalties tried for the facing probe (times the number of features).
-const RIDGE: [f64; 6] = [1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0];
+pub(crate) const RIDGE: [f64; 6] = [1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0];
 
 /// What to probe.
 #[derive(Clone, Debug)]
@@ -128,7 +128,7 @@ fn features(set: &FrameSet, trunk: Option<&RgbdEncoder>) -> Tensor {
 }
 
 /// Standardises `x` `[N, D]` by the mean and deviation of its rows `train`.
-fn standardise(x: &Tensor, train: &Tensor) -> Tensor {
+pub(crate) fn standardise(x: &Tensor, train: &Tensor) -> Tensor {
     let t = x.index_select(0, train);
     let mean = t.mean_dim(0, true, Kind::Float);
     let std = t.std_dim(0, false, true) + 1e-4;
@@ -177,40 +177,47 @@ fn category_probe(f: &Tensor, class: &Tensor, train: &[i64], held: &[i64], o: &P
 }
 
 /// Degrees of the angle of (cos, sin) rows.
-fn degrees(cs: &Tensor) -> Tensor {
+pub(crate) fn degrees(cs: &Tensor) -> Tensor {
     cs.select(1, 1).atan2(&cs.select(1, 0)).rad2deg()
 }
 
 /// |a − b| in degrees, wrapped to 0..180.
-fn angle_error(a: &Tensor, b: &Tensor) -> Tensor {
+pub(crate) fn angle_error(a: &Tensor, b: &Tensor) -> Tensor {
     ((a - b + 540.0).remainder(360.0) - 180.0).abs()
 }
 
-/// Ridge regression of targets `y` on rows `x`, in the dual form (the features may outnumber the
-/// frames): the Gram matrix is made once, each penalty is one solve.
-struct Ridge {
+/// Ridge regression of targets `y` on rows `x`: in the dual form where the features outnumber
+/// the rows, else the primal. The Gram matrix is made once, each penalty is one solve.
+pub(crate) struct Ridge {
     mx: Tensor,
     my: Tensor,
-    /// Centred training rows `[n, d]`, centred targets `[n, 2]`, their Gram matrix `[n, n]`.
+    /// Centred training rows `[n, d]`, centred targets `[n, 2]`, and `xc·xcᵀ` `[n, n]` (dual) or
+    /// `xcᵀ·xc` `[d, d]` (primal).
     xc: Tensor,
     yc: Tensor,
     gram: Tensor,
+    dual: bool,
 }
 
 impl Ridge {
-    fn new(x: &Tensor, y: &Tensor) -> Ridge {
+    pub(crate) fn new(x: &Tensor, y: &Tensor) -> Ridge {
         let (mx, my) = (x.mean_dim(0, true, Kind::Double), y.mean_dim(0, true, Kind::Double));
         let (xc, yc) = (x - &mx, y - &my);
-        let gram = xc.matmul(&xc.tr());
-        Ridge { mx, my, xc, yc, gram }
+        let dual = xc.size()[1] > xc.size()[0];
+        let gram = if dual { xc.matmul(&xc.tr()) } else { xc.tr().matmul(&xc) };
+        Ridge { mx, my, xc, yc, gram, dual }
     }
 
     /// Predictions for the rows `x` with penalty `lambda`.
-    fn predict(&self, x: &Tensor, lambda: f64) -> Tensor {
+    pub(crate) fn predict(&self, x: &Tensor, lambda: f64) -> Tensor {
         let n = self.gram.size()[0];
         let a = &self.gram + Tensor::eye(n, (Kind::Double, Device::Cpu)) * lambda;
-        let alpha = Tensor::linalg_solve(&a, &self.yc, true);
-        (x - &self.mx).matmul(&self.xc.tr()).matmul(&alpha) + &self.my
+        let w = if self.dual {
+            self.xc.tr().matmul(&Tensor::linalg_solve(&a, &self.yc, true))
+        } else {
+            Tensor::linalg_solve(&a, &self.xc.tr().matmul(&self.yc), true)
+        };
+        (x - &self.mx).matmul(&w) + &self.my
     }
 }
 
@@ -387,5 +394,18 @@ mod tests {
         let want = Tensor::from_slice(&[1.0f64, -2.0]).view([2, 1]);
         let got = r.predict(&probe, 1e-6);
         assert!(got.allclose(&want, 1e-4, 1e-4, false), "{got}");
+        // more features than rows takes the dual form: the same predictions as the primal
+        let wide = crate::device::seeded(2, || Tensor::randn([6, 9], (Kind::Double, Device::Cpu)));
+        let (yw, at) = (wide.select(1, 0).unsqueeze(1), wide.narrow(0, 0, 2));
+        let dual = Ridge::new(&wide, &yw).predict(&at, 0.5);
+        let (mx, my) = (wide.mean_dim(0, true, Kind::Double), yw.mean_dim(0, true, Kind::Double));
+        let (xc, yc) = (&wide - &mx, &yw - &my);
+        let w = Tensor::linalg_solve(
+            &(xc.tr().matmul(&xc) + Tensor::eye(9, (Kind::Double, Device::Cpu)) * 0.5),
+            &xc.tr().matmul(&yc),
+            true,
+        );
+        let direct = (&at - &mx).matmul(&w) + &my;
+        assert!(dual.allclose(&direct, 1e-8, 1e-8, false), "dual {dual} against primal {direct}");
     }
 }

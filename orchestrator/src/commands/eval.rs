@@ -325,6 +325,11 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         dts_threshold: a.dts_threshold,
     };
     let mut md = evaluation.markdown();
+    let trajectories = out.join(EvalMode::Normal.name()).join("trajectories.jsonl");
+    if evaluation.passes.contains_key(&EvalMode::Normal) && trajectories.is_file() {
+        let trajs = crate::report::trajectory::read(&trajectories)?;
+        md += &crate::report::first_turn::FirstTurns::of(&trajs, &index, cfg.env.fov_deg).markdown();
+    }
     if baseline && !a.expert {
         md += "\n";
         md += &evaluation.calibration().unwrap_or_default();

@@ -3,14 +3,14 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Point3, Vector2};
+use nalgebra::Point3;
 
 use shm_schema::{EnvRecord, EpisodeSummary, SUMMARY_STOPS, StopSummary, action, gesture_kind};
 
 use super::schedule;
 use crate::camera::{Camera, Intrinsics};
 use crate::dataset::build::RoomContext;
-use crate::geometry::{Part, angle_diff_deg, xz};
+use crate::geometry::{Part, xz};
 use crate::gesture::{self, Motion, keypoints};
 use crate::humanoid::Humanoid;
 use crate::nav::{Goal, NavGrid, expert_action};
@@ -275,10 +275,7 @@ impl Env {
 
     /// The person relative to the robot: right (m), forward (m), yaw difference / 360.
     pub fn person_relative(&self) -> [f32; 3] {
-        let d = self.program.human_xz() - self.pose.xz();
-        let h = self.pose.heading();
-        let right = Vector2::new(h.y, -h.x);
-        [d.dot(&right), d.dot(&h), angle_diff_deg(self.pose.yaw, self.program.human_yaw) / 360.0]
+        self.program.person_relative(&self.pose)
     }
 
     /// Summary of the episode so far (complete once it is done).

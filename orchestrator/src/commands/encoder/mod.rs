@@ -163,7 +163,7 @@ fn render_to(rooms: &Rooms, frames: usize, size: u32, seed: u64, path: &Path) ->
 }
 
 /// The `learner` program, with torch's threads waiting passively.
-fn learner_command(bin_dir: Option<&Path>) -> anyhow::Result<(PathBuf, std::process::Command)> {
+pub(crate) fn learner_command(bin_dir: Option<&Path>) -> anyhow::Result<(PathBuf, std::process::Command)> {
     let learner = crate::supervise::binaries::sibling_in(bin_dir, "learner")?;
     let mut learn = std::process::Command::new(&learner);
     if std::env::var_os(OMP_WAIT_ENV).is_none() {

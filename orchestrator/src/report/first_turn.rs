@@ -1,0 +1,120 @@
+//! Which way a policy turns first, by the side the target is on: the first use a referencing
+//! gesture has. Counted over the episodes whose target is out of view at the start (more than
+//! half the field of view off the heading) and whose first move is a turn.
+
+use std::fmt::Write;
+
+use farm::metrics::Trajectory;
+use worker::program::Program;
+use worker::robot::Action;
+
+/// Counts of first turns (right, all) for targets on the robot's left and on its right.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FirstTurns {
+    pub left: (usize, usize),
+    pub right: (usize, usize),
+    /// Out-of-view episodes whose first move was ahead (or that never moved).
+    pub no_turn: usize,
+}
+
+/// The target's bearing from the robot's start (degrees, + to the right).
+pub fn start_bearing(p: &Program) -> f32 {
+    let s = p.robot_start();
+    let t = worker::camera::Camera::new(nalgebra::Point3::new(s.x, 0.0, s.z), s.yaw).to_eye(&p.target_center());
+    t.x.atan2(t.z).to_degrees()
+}
+
+impl FirstTurns {
+    pub fn of(trajectories: &[Trajectory], programs: &[Program], fov_deg: f32) -> FirstTurns {
+        let mut f = FirstTurns::default();
+        for t in trajectories {
+            let bearing = start_bearing(&programs[t.program as usize]);
+            if bearing.abs() <= fov_deg / 2.0 {
+                continue;
+            }
+            let first = t.steps.iter().map(|s| s.action).find(|&a| a != Action::Stop as u8 && a <= Action::Stop as u8);
+            let side = if bearing > 0.0 { &mut f.right } else { &mut f.left };
+            match first {
+                Some(a) if a == Action::RotateRight as u8 => *side = (side.0 + 1, side.1 + 1),
+                Some(a) if a == Action::RotateLeft as u8 => side.1 += 1,
+                _ => f.no_turn += 1,
+            }
+        }
+        f
+    }
+
+    /// Share of first turns toward the target.
+    pub fn toward(&self) -> f64 {
+        let toward = self.right.0 + (self.left.1 - self.left.0);
+        toward as f64 / (self.left.1 + self.right.1).max(1) as f64
+    }
+
+    pub fn markdown(&self) -> String {
+        let pct = |(k, n): (usize, usize)| 100.0 * k as f64 / n.max(1) as f64;
+        let mut md = String::from("\n## The first turn: which way the policy turns when the target is out of view\n\n");
+        md += "Episodes whose target is outside the field of view at the start and whose first move is a turn.\n\n";
+        md += "| target on the left: turns right first | target on the right: turns right first | first turn toward the target | first move ahead |\n|---:|---:|---:|---:|\n";
+        writeln!(
+            md,
+            "| {:.1}% of {} | {:.1}% of {} | {:.1}% | {} |",
+            pct(self.left),
+            self.left.1,
+            pct(self.right),
+            self.right.1,
+            100.0 * self.toward(),
+            self.no_turn
+        )
+        .unwrap();
+        md
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use farm::metrics::TrajectoryStep;
+
+    use super::*;
+
+    fn program(yaw: f32, target: [f32; 3]) -> Program {
+        serde_json::from_value(serde_json::json!({
+            "id": 0, "scene": "FloorPlan1", "scene_type": "Kitchen", "target": "Bread", "target_object": 0,
+            "target_pos": target, "instances": 1, "human_pos": [1.0, 0.0, 1.0], "human_yaw": 0.0,
+            "robot_pos": [0.0, 0.0, 0.0], "robot_yaw": yaw, "geodesic": 1.0, "target_geodesic": 1.0,
+            "starts_successful": false, "robot_human_distance": 1.4, "gesture_accuracy": 1.0, "hand": "Right",
+            "style": 0, "seed": 1
+        }))
+        .expect("a program")
+    }
+
+    fn trajectory(program: u64, actions: &[Action]) -> Trajectory {
+        let step =
+            |a: &Action| TrajectoryStep { x: 0.0, z: 0.0, yaw: 0.0, action: *a as u8, gesture: 1, intervention: 0 };
+        Trajectory { program, steps: actions.iter().map(step).collect(), ..Trajectory::default() }
+    }
+
+    /// Yaw is clockwise from above: facing +z, +x is on the right. Stops before the first move
+    /// are skipped; targets in view are not counted.
+    #[test]
+    fn turns_are_counted_by_the_targets_side() {
+        let programs = [
+            program(0.0, [2.0, 0.5, 0.0]),  // right
+            program(0.0, [-2.0, 0.5, 0.0]), // left
+            program(90.0, [0.0, 0.5, 2.0]), // facing +x, +z is on the left
+            program(0.0, [0.0, 0.5, 2.0]),  // ahead: in view
+            program(0.0, [0.5, 0.5, -2.0]), // behind, a little right
+        ];
+        assert!((start_bearing(&programs[0]) - 90.0).abs() < 1e-3 && (start_bearing(&programs[2]) + 90.0).abs() < 1e-3);
+        let (l, r, s, m) = (Action::RotateLeft, Action::RotateRight, Action::Stop, Action::MoveAhead);
+        let trajs = [
+            trajectory(0, &[s, r, m]),
+            trajectory(1, &[l, l]),
+            trajectory(2, &[r]),
+            trajectory(3, &[l]),
+            trajectory(4, &[m, r]),
+        ];
+        let f = FirstTurns::of(&trajs, &programs, 90.0);
+        assert_eq!(f, FirstTurns { left: (1, 2), right: (1, 1), no_turn: 1 });
+        assert!((f.toward() - 2.0 / 3.0).abs() < 1e-9);
+        assert!(f.markdown().contains("| 50.0% of 2 | 100.0% of 1 | 66.7% | 1 |"), "{}", f.markdown());
+    }
+}
