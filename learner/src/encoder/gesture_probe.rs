@@ -92,6 +92,11 @@ pub struct GestureProbeError {
     message: String,
 }
 
+/// The mean of a tensor's values (booleans count as 0 and 1).
+fn mean(t: &Tensor) -> f64 {
+    t.to_kind(Kind::Double).mean(Kind::Double).double_value(&[])
+}
+
 /// The inputs probed: name and columns `[N, D]` (f64) of the file's tensors.
 fn inputs(t: &std::collections::HashMap<String, Tensor>) -> Vec<(&'static str, Tensor)> {
     let (muscles, keypoints, person) = (&t["muscles"], &t["keypoints"], &t["person"]);
@@ -139,15 +144,13 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
     let ix = |v: &[i64]| Tensor::from_slice(v);
     let (train_t, held_t, choose_t, fit_t) = (ix(&train), ix(&held), ix(&choose), ix(&fit));
     let want = truth.index_select(0, &held_t);
-    let mean = degrees(&y.index_select(0, &train_t).mean_dim(0, true, Kind::Double)).expand_as(&want);
+    let average = degrees(&y.index_select(0, &train_t).mean_dim(0, true, Kind::Double)).expand_as(&want);
     let side_of = |deg: &Tensor| deg.sign();
-    let right_share = |deg: &Tensor, want: &Tensor| {
-        side_of(deg).eq_tensor(&side_of(want)).to_kind(Kind::Double).mean(Kind::Double).double_value(&[])
-    };
-    let left = side_of(&truth.index_select(0, &train_t)).lt(0.0).to_kind(Kind::Double).mean(Kind::Double);
-    let common = if left.double_value(&[]) > 0.5 { -1.0 } else { 1.0 };
-    let baseline_side = side_of(&want).eq(common).to_kind(Kind::Double).mean(Kind::Double).double_value(&[]);
-    let ahead_share = want.abs().le(45.0).to_kind(Kind::Double).mean(Kind::Double).double_value(&[]);
+    let right_share = |deg: &Tensor, want: &Tensor| mean(&side_of(deg).eq_tensor(&side_of(want)));
+    let left = mean(&side_of(&truth.index_select(0, &train_t)).lt(0.0));
+    let common = if left > 0.5 { -1.0 } else { 1.0 };
+    let baseline_side = mean(&side_of(&want).eq(common));
+    let ahead_share = mean(&want.abs().le(45.0));
 
     let mut probes = Vec::new();
     for (name, x) in inputs(&t) {
@@ -157,7 +160,7 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
         // ridge: penalty on the chosen fifth, then fitted on every training program
         let r = Ridge::new(&rows(&fit_t), &y.index_select(0, &fit_t));
         let (xc, wc) = (rows(&choose_t), truth.index_select(0, &choose_t));
-        let e = |l: f64| angle_error(&degrees(&r.predict(&xc, l * d)), &wc).mean(Kind::Double).double_value(&[]);
+        let e = |l: f64| mean(&angle_error(&degrees(&r.predict(&xc, l * d)), &wc));
         let lambda = *RIDGE.iter().min_by(|&&a, &&b| e(a).total_cmp(&e(b))).expect("penalties");
         let ridge =
             degrees(&Ridge::new(&rows(&train_t), &y.index_select(0, &train_t)).predict(&rows(&held_t), lambda * d));
@@ -165,10 +168,10 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
         let p = InputProbe {
             input: name.to_string(),
             features: d as usize,
-            ridge_error_deg: angle_error(&ridge, &want).mean(Kind::Double).double_value(&[]),
+            ridge_error_deg: mean(&angle_error(&ridge, &want)),
             ridge_side: right_share(&ridge, &want),
             ridge_lambda: lambda,
-            mlp_error_deg: angle_error(&mlp, &want).mean(Kind::Double).double_value(&[]),
+            mlp_error_deg: mean(&angle_error(&mlp, &want)),
             mlp_side: right_share(&mlp, &want),
             mlp_epochs: epochs,
         };
@@ -182,7 +185,7 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
         seed: o.seed,
         training_programs: train.len(),
         held_out_programs: held.len(),
-        baseline_error_deg: angle_error(&mean, &want).mean(Kind::Double).double_value(&[]),
+        baseline_error_deg: mean(&angle_error(&average, &want)),
         baseline_side,
         ahead_share,
         probes,
@@ -235,7 +238,7 @@ fn mlp(
             opt.backward_step(&loss);
         }
         let (c, h) = tch::no_grad(|| (net.forward(&xc), net.forward(&xh)));
-        let e = angle_error(&degrees(&c.to_kind(Kind::Double)), &wc).mean(Kind::Double).double_value(&[]);
+        let e = mean(&angle_error(&degrees(&c.to_kind(Kind::Double)), &wc));
         if e < best.0 {
             best = (e, degrees(&h.to_kind(Kind::Double)), epoch);
         }

@@ -5,6 +5,7 @@
 use std::fmt::Write;
 
 use farm::metrics::Trajectory;
+use worker::geometry::{angle_diff_deg, yaw_of};
 use worker::program::Program;
 use worker::robot::Action;
 
@@ -20,8 +21,8 @@ pub struct FirstTurns {
 /// The target's bearing from the robot's start (degrees, + to the right).
 pub fn start_bearing(p: &Program) -> f32 {
     let s = p.robot_start();
-    let t = worker::camera::Camera::new(nalgebra::Point3::new(s.x, 0.0, s.z), s.yaw).to_eye(&p.target_center());
-    t.x.atan2(t.z).to_degrees()
+    let t = p.target_center();
+    angle_diff_deg(s.yaw, yaw_of(nalgebra::Vector2::new(t.x, t.z) - s.xz().coords))
 }
 
 impl FirstTurns {

@@ -14,6 +14,7 @@ use half::f16;
 use nalgebra::Point3;
 use safetensors::{Dtype, tensor::TensorView};
 
+use farm::config::EnvConfig;
 use farm::files::with_ext;
 use shm_schema::GESTURE_KEYPOINT_DIMS;
 use worker::dataset::{Dataset, Verify};
@@ -55,10 +56,10 @@ struct Row {
     room: i32,
 }
 
-fn row(p: &Program, motion: Vec<f32>, camera_height: f32) -> anyhow::Result<Row> {
+fn row(p: &Program, motion: Vec<f32>, env: &EnvConfig) -> anyhow::Result<Row> {
     let m = worker::gesture::Motion::from_flat(&motion).context("motion size")?;
     let pose = p.robot_start();
-    let camera = worker::camera::Camera::new(Point3::new(pose.x, camera_height, pose.z), pose.yaw);
+    let camera = pose.camera(env);
     let world = keypoints::world(&Humanoid::seeded(p.seed), &m, Point3::from(p.human_pos), p.human_yaw);
     let mut seen = vec![0.0; FRAMES * GESTURE_KEYPOINT_DIMS];
     keypoints::write_seen(&world, &camera, GESTURE_KEYPOINT_DIMS, &mut seen);
@@ -76,7 +77,7 @@ fn row(p: &Program, motion: Vec<f32>, camera_height: f32) -> anyhow::Result<Row>
 
 pub fn probe(a: ProbeArgs) -> anyhow::Result<()> {
     let ds = Dataset::open(&a.dataset, Verify::Quick)?;
-    let camera_height = farm::config::EnvConfig::default().camera_height;
+    let env = EnvConfig::default();
     let (train, val) = (ds.require(Split::Train)?, ds.require(Split::Val)?);
     let n_train = if a.train == 0 { train.len() } else { a.train.min(train.len()) };
     let n_held = a.held_out.min(val.len());
@@ -93,7 +94,7 @@ pub fn probe(a: ProbeArgs) -> anyhow::Result<()> {
             let file = if split == Split::Train { train } else { val };
             let p = Program::from_record(i as u64, &file.record(i)).context("invalid program record")?;
             bar.set(k as u64 + 1, "");
-            row(&p, file.motion(i), camera_height)
+            row(&p, file.motion(i), &env)
         })
         .collect::<anyhow::Result<Vec<Row>>>()?;
     bar.finish();
