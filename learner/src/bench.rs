@@ -230,9 +230,15 @@ pub fn update_once(t: &mut Trainer) -> crate::logs::metrics::UpdateMetrics {
     t.update(&bootstrap)
 }
 
-/// `learner bench`: the tiny network's figures, and with `faithful` the dissertation's (its
-/// ResNet-18 weights random, written to a temporary directory), each handed to `out` as measured.
-pub fn run(device: Device, faithful: bool, reps: usize, mut out: impl FnMut(&Figure)) -> anyhow::Result<()> {
+/// `learner bench`: the tiny network's figures, and with `faithful` the dissertation's at its
+/// sizes (its ResNet-18 weights random, written to a temporary directory), each handed to `out`
+/// as measured.
+pub fn run(
+    device: Device,
+    faithful: Option<FaithfulSizes>,
+    reps: usize,
+    mut out: impl FnMut(&Figure),
+) -> anyhow::Result<()> {
     let tiny = tiny_config();
     out(&forward("tiny (64², small CNN, 256, GRU 1)", &tiny, 32, device, reps)?);
     out(&update("tiny (64², small CNN, 256, GRU 1)", &tiny, 10, device, reps)?);
@@ -244,13 +250,66 @@ pub fn run(device: Device, faithful: bool, reps: usize, mut out: impl FnMut(&Fig
     out(&forward("tiny-frozen (pretrained RGB-D encoder, 256, GRU 1)", &frozen, 32, device, reps)?);
     out(&update("tiny, tiny PPO", &with_tiny_ppo(tiny.clone()), 32, device, reps)?);
     out(&update("tiny-frozen, tiny PPO", &with_tiny_ppo(frozen), 32, device, reps)?);
-    if faithful {
+    if let Some(sizes) = faithful {
         let dir = tempfile::tempdir()?;
         let weights = random_resnet_weights(dir.path())?;
         let cfg = faithful_config(&weights);
-        let reps_slow = reps.clamp(1, 3);
-        out(&forward("faithful (224², frozen ResNet-18, 512, GRU 2)", &cfg, 32, device, reps_slow)?);
-        out(&update("faithful, stored conv5 features (GRU + heads + 1x1 convs)", &cfg, 10, device, reps_slow)?);
+        let reps_slow = if device.is_cuda() { reps } else { reps.clamp(1, 3) };
+        for &n in &sizes.act {
+            if device.is_cuda() {
+                for f in transfer(&cfg, n, device, reps_slow) {
+                    out(&f);
+                }
+            }
+            out(&forward("faithful (224², frozen ResNet-18, 512, GRU 2)", &cfg, n, device, reps_slow)?);
+        }
+        for &(envs, minibatches) in &sizes.update {
+            let mut c = cfg.clone();
+            c.ppo.minibatches = minibatches;
+            out(&update("faithful, stored conv5 features (GRU + heads + 1x1 convs)", &c, envs, device, reps_slow)?);
+        }
     }
     Ok(())
+}
+
+/// The faithful network's batch sizes for `learner bench`: acting rounds of `act` envs, and PPO
+/// updates of `(envs, minibatches)` (each env 128 steps).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaithfulSizes {
+    pub act: Vec<usize>,
+    pub update: Vec<(usize, usize)>,
+}
+
+impl Default for FaithfulSizes {
+    /// One acting round of 32 envs; §4.3.2's update of 10 envs in one minibatch.
+    fn default() -> Self {
+        FaithfulSizes { act: vec![32], update: vec![(10, 1)] }
+    }
+}
+
+/// The frames of one round of `batch` envs onto a GPU (224² RGB u8 and 16-bit depth): straight
+/// from pageable memory, as the workers' shared memory is, and through the pinned staging buffer
+/// acting uses (`crate::inputs::Staging`).
+pub fn transfer(cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> Vec<Figure> {
+    let o = random_obs(batch, cfg.env.width as usize, 1);
+    let mb = (o.rgb.len() + 2 * o.depth.len()) as f64 / 1e6;
+    let staging = crate::inputs::Staging::default();
+    let ways: [(&str, &dyn Fn() -> (Tensor, Tensor)); 2] = [
+        ("pageable", &|| {
+            (crate::inputs::rgb_tensor(&o.batch(), device), crate::inputs::depth_tensor(&o.batch(), device))
+        }),
+        ("pinned staging", &|| (staging.rgb(&o.batch(), device), staging.depth(&o.batch(), device))),
+    ];
+    ways.iter()
+        .map(|(way, copy)| {
+            let ms = median_ms(
+                || {
+                    let _ = copy();
+                    tch::Cuda::synchronize(0);
+                },
+                reps,
+            );
+            Figure { name: format!("frames to the GPU, batch {batch}, {mb:.0} MB, {way}"), ms, reps }
+        })
+        .collect()
 }

@@ -123,10 +123,20 @@ pub fn select(choice: DeviceChoice) -> Result<Device, NoCuda> {
     }
 }
 
-/// Prepares a device for work: cuDNN autotuning on CUDA (our shapes are fixed per run).
+/// torch's CPU threads when the network runs on a GPU, unless `OMP_NUM_THREADS` says otherwise.
+/// The host's share of the work is small there, and torch's pool spins between its parallel
+/// sections on cores the workers render with: on an H100 with 16 workers, 16 threads made PPO
+/// updates 1.9× slower than 2 (BENCHMARKS.md, "On the H100").
+pub const GPU_CPU_THREADS: i32 = 2;
+
+/// Prepares a device for work: on CUDA, cuDNN autotuning (our shapes are fixed per run) and
+/// [`GPU_CPU_THREADS`] CPU threads.
 pub fn configure(device: Device) {
     if device.is_cuda() {
         tch::Cuda::cudnn_set_benchmark(true);
+        if std::env::var_os("OMP_NUM_THREADS").is_none() {
+            tch::set_num_threads(GPU_CPU_THREADS);
+        }
     }
 }
 

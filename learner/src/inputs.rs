@@ -3,7 +3,11 @@
 //!
 //! Frames and gestures are read in place from the batch's buffers with `from_blob` (shared memory,
 //! in the farm) and copied once: onto the GPU, or into the rollout storage. On the CPU with one
-//! frame group no host copy is made at all, so [`Prepared`] carries the batch's lifetime.
+//! frame group no host copy is made at all, so [`Prepared`] carries the batch's lifetime. Frames
+//! bound for a GPU may pass through a page-locked [`Staging`] buffer instead (one DMA for all
+//! groups; `learner bench --faithful` times both ways).
+
+use std::sync::Mutex;
 
 use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES};
 use tch::{Device, Kind, Tensor};
@@ -100,11 +104,37 @@ pub fn depth_unit(raw: &Tensor) -> Tensor {
     (raw.to_kind(Kind::Int).bitwise_and(0xFFFF).to_kind(Kind::Float) / 65535.0).unsqueeze(1)
 }
 
+/// Page-locked host buffers for the frames on their way to a GPU, one per field, kept from batch
+/// to batch (allocated at the first, again when the batch's shape changes). A copy from pageable
+/// memory — the workers' shared memory — goes through the driver's own small bounce buffer piece
+/// by piece; from pinned memory it is one DMA per field, after one host copy into it.
+#[derive(Debug, Default)]
+pub(crate) struct Staging {
+    rgb: Mutex<Option<Tensor>>,
+    depth: Mutex<Option<Tensor>>,
+}
+
+impl Staging {
+    /// The batch's RGB on `device`: through the pinned buffer on a GPU, else as [`rgb_tensor`].
+    pub(crate) fn rgb(&self, obs: &EnvBatch, device: Device) -> Tensor {
+        rgb_gather(obs, device, Some(&self.rgb))
+    }
+
+    /// The batch's depth on `device`, as [`Staging::rgb`].
+    pub(crate) fn depth(&self, obs: &EnvBatch, device: Device) -> Tensor {
+        depth_gather(obs, device, Some(&self.depth))
+    }
+}
+
 /// RGB as one u8 tensor `[N, H, W, 3]` on `device` (see `gather` for when it is a copy).
 pub(crate) fn rgb_tensor(obs: &EnvBatch, device: Device) -> Tensor {
+    rgb_gather(obs, device, None)
+}
+
+fn rgb_gather(obs: &EnvBatch, device: Device, pinned: Option<&Mutex<Option<Tensor>>>) -> Tensor {
     // (may alias the batch's buffer, see `gather`)
     let (h, w) = (obs.height as i64, obs.width as i64);
-    gather(obs, device, |f| {
+    gather(obs, device, pinned, |f| {
         // SAFETY: `EnvBatch::validate` checked the slice holds E*H*W*3 bytes; the tensor lives no longer
         // than the batch's buffers (`Prepared<'a>`), or is copied (`to_device`, `cat`).
         unsafe { Tensor::from_blob(f.rgb.as_ptr(), &[f.envs as i64, h, w, 3], &[], Kind::Uint8, Device::Cpu) }
@@ -114,8 +144,12 @@ pub(crate) fn rgb_tensor(obs: &EnvBatch, device: Device) -> Tensor {
 /// Depth as raw 16-bit patterns in an Int16 tensor `[N, H, W]` (torch has no u16; the model
 /// reinterprets the bits).
 pub(crate) fn depth_tensor(obs: &EnvBatch, device: Device) -> Tensor {
+    depth_gather(obs, device, None)
+}
+
+fn depth_gather(obs: &EnvBatch, device: Device, pinned: Option<&Mutex<Option<Tensor>>>) -> Tensor {
     let (h, w) = (obs.height as i64, obs.width as i64);
-    gather(obs, device, |f| unsafe {
+    gather(obs, device, pinned, |f| unsafe {
         // SAFETY: as for rgb; u16 and i16 have the same size and alignment.
         Tensor::from_blob(f.depth.as_ptr() as *const u8, &[f.envs as i64, h, w], &[], Kind::Int16, Device::Cpu)
     })
@@ -124,7 +158,7 @@ pub(crate) fn depth_tensor(obs: &EnvBatch, device: Device) -> Tensor {
 /// Gestures `[N, 100, 95]` in half precision on `device`.
 pub(crate) fn gesture_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     let shape = |e: usize| [e as i64, GESTURE_FRAMES as i64, GESTURE_DIMS as i64];
-    let t = gather(obs, device, |f| match f.gesture {
+    let t = gather(obs, device, None, |f| match f.gesture {
         // SAFETY: as for rgb.
         GestureView::F16(s) => unsafe {
             Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Half, Device::Cpu)
@@ -154,11 +188,42 @@ pub(crate) fn pose_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     Tensor::from_slice(&p).view([obs.n() as i64, 3]).to_device(device)
 }
 
-/// One tensor for all groups: on the GPU a copy; on the CPU with one group, the caller's
-/// buffer itself (no host copy) — hence [`Prepared`] carries the batch's lifetime.
-fn gather(obs: &EnvBatch, device: Device, view: impl Fn(&FrameView) -> Tensor) -> Tensor {
-    let mut parts: Vec<Tensor> = obs.frames.iter().filter(|f| f.envs > 0).map(|f| view(f).to_device(device)).collect();
-    if parts.len() == 1 { parts.pop().unwrap() } else { Tensor::cat(&parts, 0) }
+/// One tensor for all groups: on the GPU a copy (through `pinned` when given); on the CPU with
+/// one group, the caller's buffer itself (no host copy) — hence [`Prepared`] carries the batch's
+/// lifetime.
+fn gather(
+    obs: &EnvBatch,
+    device: Device,
+    pinned: Option<&Mutex<Option<Tensor>>>,
+    view: impl Fn(&FrameView) -> Tensor,
+) -> Tensor {
+    let groups = obs.frames.iter().filter(|f| f.envs > 0).map(view);
+    match pinned {
+        Some(slot) if device.is_cuda() => {
+            let parts: Vec<Tensor> = groups.collect();
+            let mut shape = parts[0].size();
+            shape[0] = parts.iter().map(|p| p.size()[0]).sum();
+            let kind = parts[0].kind();
+            let mut slot = slot.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+            if slot.as_ref().is_none_or(|b| b.size() != shape || b.kind() != kind) {
+                *slot = Some(Tensor::empty(shape.as_slice(), (kind, Device::Cpu)).pin_memory(device));
+            }
+            let buffer = slot.as_ref().expect("allocated above");
+            let mut at = 0;
+            for p in &parts {
+                let rows = p.size()[0];
+                let mut rows_of = buffer.narrow(0, at, rows);
+                rows_of.copy_(p);
+                at += rows;
+            }
+            // a blocking copy: the buffer is free again for the next batch when this returns
+            buffer.to_device(device)
+        }
+        _ => {
+            let mut parts: Vec<Tensor> = groups.map(|t| t.to_device(device)).collect();
+            if parts.len() == 1 { parts.pop().unwrap() } else { Tensor::cat(&parts, 0) }
+        }
+    }
 }
 
 #[cfg(test)]

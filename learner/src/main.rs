@@ -82,6 +82,13 @@ enum Command {
         /// Also the dissertation's network (frozen ResNet-18 at 224², GRU 2×512) — slow on a CPU.
         #[arg(long)]
         faithful: bool,
+        /// With --faithful: the acting rounds' sizes (envs per forward), e.g. 20,128,256; on a
+        /// GPU each also times its frames' copy to the device.
+        #[arg(long, value_delimiter = ',', default_value = "32")]
+        act: Vec<usize>,
+        /// With --faithful: PPO updates as ENVSxMINIBATCHES (128 steps an env), e.g. 20x2,256x8.
+        #[arg(long, value_delimiter = ',', default_value = "10x1", value_parser = envs_by_minibatches)]
+        update: Vec<(usize, usize)>,
         #[arg(long, default_value_t = 5)]
         reps: usize,
     },
@@ -277,9 +284,10 @@ fn run(cli: Cli) -> Result<()> {
             println!("{}", device::report(dev));
             smoke::run_in_dir(dev, updates, envs, &run_dir, resume)?
         }
-        Command::Bench { faithful, reps } => {
+        Command::Bench { faithful, act, update, reps } => {
             println!("{}", device::report(dev));
-            bench::run(dev, faithful, reps, |f| println!("{f}"))?
+            let sizes = faithful.then_some(bench::FaithfulSizes { act, update });
+            bench::run(dev, sizes, reps, |f| println!("{f}"))?
         }
         Command::Weights { path } => println!("{}", learner::net::resnet::check_weights(&path)?),
         Command::PretrainEncoder(a) => {
@@ -310,4 +318,39 @@ fn run(cli: Cli) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// `ENVSxMINIBATCHES`, e.g. `256x8`: a PPO update's envs and how many minibatches they split into.
+fn envs_by_minibatches(s: &str) -> Result<(usize, usize), String> {
+    let (e, m) = s.split_once('x').ok_or_else(|| format!("`{s}`: give ENVSxMINIBATCHES, e.g. 256x8"))?;
+    let count = |v: &str| {
+        v.parse::<usize>().ok().filter(|n| *n > 0).ok_or_else(|| format!("`{s}`: `{v}` is not a positive count"))
+    };
+    let (envs, minibatches) = (count(e)?, count(m)?);
+    if minibatches > envs {
+        return Err(format!("`{s}`: more minibatches than envs"));
+    }
+    Ok((envs, minibatches))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn update_sizes_parse_and_bad_ones_say_why() {
+        assert_eq!(envs_by_minibatches("256x8"), Ok((256, 8)));
+        for (bad, why) in [("256", "ENVSxMINIBATCHES"), ("0x1", "`0`"), ("4x8", "more minibatches"), ("ax2", "`a`")] {
+            let e = envs_by_minibatches(bad).unwrap_err();
+            assert!(e.contains(why), "{bad}: {e}");
+        }
+        let cli = Cli::try_parse_from(["learner", "bench", "--faithful", "--act", "20,256", "--update", "20x2,256x4"]);
+        match cli.map(|c| c.command) {
+            Ok(Command::Bench { act, update, .. }) => {
+                assert_eq!(act, [20, 256]);
+                assert_eq!(update, [(20, 2), (256, 4)]);
+            }
+            other => panic!("{:?}", other.err()),
+        }
+    }
 }

@@ -195,6 +195,11 @@ impl FrozenTrunk {
             let t = Resnet18::new(&(half.root() / "resnet"));
             half.bfloat16();
             half.freeze();
+            for (_, mut v) in half.variables() {
+                if v.dim() == 4 {
+                    v.set_data(&channels_last(&v));
+                }
+            }
             (half, t)
         });
         for (name, v) in vs.variables() {
@@ -209,7 +214,7 @@ impl FrozenTrunk {
     pub(crate) fn features(&self, x: &Tensor) -> Tensor {
         let x = resnet_input(x);
         match &self.bf16 {
-            Some((_, t)) => t.forward(&x.to_kind(Kind::BFloat16)),
+            Some((_, t)) => t.forward(&channels_last(&x.to_kind(Kind::BFloat16))),
             None => self.trunk.forward(&x),
         }
     }
@@ -229,6 +234,13 @@ impl FrozenTrunk {
             });
         }
     }
+}
+
+/// `x` `[B, C, H, W]` with its channels innermost in memory (torch's channels-last format): the
+/// layout in which bf16 convolutions run on the GPU's tensor cores without a transposition around
+/// every layer. Same shape and values.
+pub(crate) fn channels_last(x: &Tensor) -> Tensor {
+    x.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
 }
 
 /// The actor and critic heads: a plain MLP.
@@ -279,8 +291,8 @@ mod tests {
         }
     }
 
-    /// The bf16 copy of the frozen trunk (used on CUDA) follows the f32 weights: checked on the
-    /// CPU, which runs bf16 convolutions too.
+    /// The bf16 copy of the frozen trunk (used on CUDA) follows the f32 weights, in channels-last
+    /// layout: checked on the CPU, which runs bf16 convolutions too.
     #[test]
     fn bf16_trunk_copy_tracks_the_f32_weights() {
         let vs = nn::VarStore::new(Device::Cpu);
@@ -300,6 +312,9 @@ mod tests {
         let (full, half) =
             tch::no_grad(|| (f.trunk.forward(&resnet::imagenet_normalize(&x)), f.features(&x).to_kind(Kind::Float)));
         assert_eq!(f.feature_kind(), Kind::BFloat16);
+        // its convolution weights stay channels-last through the refresh (the tensor cores' layout)
+        let half_vars = f.bf16.as_ref().unwrap().0.variables();
+        assert!(half_vars.values().filter(|v| v.dim() == 4).all(|v| v.stride()[1] == 1));
         let err = (&full - &half).abs().max().double_value(&[]);
         let scale = full.abs().max().double_value(&[]);
         assert!(err < 0.05 * scale.max(1.0), "bf16 error {err} vs scale {scale}");

@@ -29,7 +29,7 @@ use shm_schema::{GESTURE_FRAMES, TARGET_CATEGORIES, action};
 use tch::nn::{self, RNN};
 use tch::{Device, Kind, Tensor};
 
-use crate::inputs::{self, Inputs, depth_unit, rgb_unit};
+use crate::inputs::{self, Inputs, Staging, depth_unit, rgb_unit};
 use crate::net::gesture_memo;
 use crate::net::layers::{ConvHead, FrozenTrunk, Mlp, Pretrained, SmallCnn, Visual};
 use crate::net::resnet::{self, Resnet18};
@@ -52,6 +52,8 @@ pub struct PolicyNet {
     gru: nn::GRU,
     actor: Mlp,
     critic: Mlp,
+    /// Pinned host buffers the frames pass through to a GPU.
+    staging: Staging,
 }
 
 impl PolicyNet {
@@ -105,6 +107,7 @@ impl PolicyNet {
             gru,
             actor: Mlp::new(&(&root / "actor"), h, h, 2, action::COUNT as i64, 0.01),
             critic: Mlp::new(&(&root / "critic"), h, h, 2, 1, 1.0),
+            staging: Staging::default(),
         }
     }
 
@@ -115,9 +118,9 @@ impl PolicyNet {
             let visual = self
                 .pretrained
                 .as_ref()
-                .map(|p| p.features(&inputs::rgb_tensor(obs, device), &inputs::depth_tensor(obs, device)));
-            let mut rgb = (s.rgb && visual.is_none()).then(|| inputs::rgb_tensor(obs, device));
-            let mut depth = (s.depth && visual.is_none()).then(|| inputs::depth_tensor(obs, device));
+                .map(|p| p.features(&self.staging.rgb(obs, device), &self.staging.depth(obs, device)));
+            let mut rgb = (s.rgb && visual.is_none()).then(|| self.staging.rgb(obs, device));
+            let mut depth = (s.depth && visual.is_none()).then(|| self.staging.depth(obs, device));
             if let Some(f) = &self.frozen {
                 let n = obs.n() as i64;
                 let mut images = Vec::new();

@@ -37,6 +37,9 @@ pub struct BenchTrainArgs {
     /// Also write the table (Markdown) here, e.g. docs/bench/train.md.
     #[arg(long)]
     pub table: Option<PathBuf>,
+    /// Override a config value, as `up --set` (repeatable), e.g. `--set env.envs_per_worker=16`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
 }
 
 /// What one bench run measured.
@@ -172,7 +175,7 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     process::install_termination_handler()?;
     anyhow::ensure!(a.workers > 0, "--workers: give a positive count");
     anyhow::ensure!(a.frames > 0, "--frames: give a positive count");
-    let mut cfg = up::load_config(a.config.as_deref())?;
+    let mut cfg = up::load_config(a.config.as_deref())?.with_overrides(&a.set)?;
     cfg.checkpoint.every_updates = u64::MAX;
     launch::resolve_dataset(&mut cfg, false)?;
     launch::resolve_encoder(&mut cfg)?;
@@ -197,6 +200,9 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     let mut command = format!("orchestrator bench train --workers {} --frames {}", a.workers, a.frames);
     if let Some(c) = &a.config {
         let _ = write!(command, " --config {}", c.display());
+    }
+    for kv in &a.set {
+        let _ = write!(command, " --set {kv}");
     }
     let md = report(&bench, &cfg, &command);
     print!("{md}");

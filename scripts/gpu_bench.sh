@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# The faithful config's throughput on a GPU machine (BENCHMARKS.md, "On the H100"): the learner's
+# acting and update at several batch sizes, then `bench train` end to end at §4.3.2's 20 envs and
+# at GPU-sized rounds (its last row, configs/faithful-gpu, was measured by hand in that lease). For a machine with CUDA PyTorch and no Rust: the binaries are built
+# elsewhere and found in $GESTHOR_BIN_DIR (default target/release); libtorch is the machine's
+# PyTorch; a Vulkan loader carried as Debian packages in .gl/ is unpacked when there.
+#
+#   GESTHOR_BIN_DIR=.bin bash scripts/gpu_bench.sh OUT_DIR
+set -uo pipefail
+out=${1:?give the folder the tables go to}
+mkdir -p "$out"
+bin=${GESTHOR_BIN_DIR:-target/release}
+export GESTHOR_BIN_DIR=$bin
+
+torch_lib=$(python3 -c "import os, torch; print(os.path.join(os.path.dirname(torch.__file__), 'lib'))") || exit 1
+export LD_LIBRARY_PATH=$torch_lib:${LD_LIBRARY_PATH:-}
+if [ -d .gl ] && ! ldconfig -p | grep -q libvulkan.so.1; then
+  for f in .gl/*.deb; do dpkg -x "$f" /; done
+  ldconfig
+fi
+nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$out/gpu.txt"
+nproc | tee -a "$out/gpu.txt"
+
+step() { echo "== $(date -u +%T) $*" | tee -a "$out/steps.txt"; }
+
+step dataset
+"$bin/orchestrator" dataset build --out data/gond >/dev/null || exit 1
+# random torchvision weights, frozen: the same work as ImageNet's (none can be downloaded there)
+mkdir -p data/weights
+python3 -c "import torch, torchvision; torch.save(torchvision.models.resnet18().state_dict(), 'data/weights/resnet18-imagenet.pth')" || exit 1
+
+step learner bench
+timeout 150 "$bin/learner" bench --faithful --act 20,64,128,256,512 --update 20x2,256x8,256x4,256x2 --reps 5 2>&1 | tee "$out/learner-bench.txt"
+
+# end to end: §4.3.2's 20 envs (the command of the 1,629 frames/s), rounds of 256, and
+# configs/faithful-gpu (rounds of 512)
+nvidia-smi dmon -s u -d 1 > "$out/dmon.txt" 2>&1 &
+dmon=$!
+step train 5x4
+timeout 120 "$bin/orchestrator" bench train --config configs/faithful/both.toml --workers 5 --frames 30000 \
+  --out /tmp/bench-20 --table "$out/train-20.md" 2>&1 | grep -v "^\[bench\] [0-9]" | tail -3
+step train 16x16
+timeout 150 "$bin/orchestrator" bench train --config configs/faithful/both.toml --workers 16 \
+  --set env.envs_per_worker=16 --set ppo.minibatches=8 --frames 200000 \
+  --out /tmp/bench-256 --table "$out/train-256.md" 2>&1 | grep -v "^\[bench\] [0-9]" | tail -3
+step train faithful-gpu 16x32
+timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.toml --workers 16 --frames 300000 \
+  --out /tmp/bench-512 --table "$out/train-512.md" 2>&1 | grep -v "^\[bench\] [0-9]" | tail -3
+step done
+kill $dmon 2>/dev/null
+cat "$out"/train-*.md
