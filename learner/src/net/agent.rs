@@ -211,7 +211,7 @@ impl Agent {
             let feats = self.net.encode_with(x, gesture).unsqueeze(0);
             let keep: Vec<f32> = starts.iter().map(|s| if *s { 0.0 } else { 1.0 }).collect();
             let keep = Tensor::from_slice(&keep).to_device(self.device).view([1, -1]);
-            let (out, hidden) = self.net.recurrent(&feats, &self.hidden, &keep, &[true]);
+            let (out, hidden) = self.net.step(&feats, &self.hidden, &keep);
             let (logits, values) = self.net.heads(&out.squeeze_dim(0));
             let logits =
                 Vec::<f32>::try_from(logits.to_kind(Kind::Float).to_device(Device::Cpu).flatten(0, -1)).unwrap();
@@ -379,10 +379,8 @@ mod tests {
             target: stack(|x| x.target.as_ref()),
             pose: None,
         };
-        let keep: Vec<f32> = starts.iter().flatten().map(|s| if *s { 0.0 } else { 1.0 }).collect();
-        let keep = Tensor::from_slice(&keep).view([5, 2]);
-        let any: Vec<bool> = starts.iter().map(|s| s[0] || s[1]).collect();
-        let (_, values) = tch::no_grad(|| p.net.evaluate(&x, &h0, &keep, &any));
+        let starts: Vec<bool> = starts.iter().flatten().copied().collect();
+        let (_, values) = tch::no_grad(|| p.net.evaluate(&x, &h0, &starts));
         let values = Vec::<f32>::try_from(values.flatten(0, -1)).unwrap();
         for (a, b) in acted.iter().zip(&values) {
             assert!((a - b).abs() < 1e-5, "{acted:?} vs {values:?}");
@@ -489,13 +487,12 @@ mod tests {
             let shape = [6, envs.len() as i64, shm_schema::GESTURE_FRAMES as i64, shm_schema::GESTURE_DIMS as i64];
             let plain =
                 Inputs { gesture: Some(rows.view(shape)), gesture_index: None, ..distinct.map(|t| t.shallow_clone()) };
-            let keep = Tensor::ones([6, envs.len() as i64], (Kind::Float, Device::Cpu));
-            let any = [false; 6];
+            let starts = vec![false; 6 * envs.len()];
             let run = |x: &Inputs| {
                 for mut v in p.vs.trainable_variables() {
                     v.zero_grad();
                 }
-                let (logits, values) = p.net.evaluate(x, &h0.index_select(1, &idx), &keep, &any);
+                let (logits, values) = p.net.evaluate(x, &h0.index_select(1, &idx), &starts);
                 (logits.sum(Kind::Float) + values.square().sum(Kind::Float)).backward();
                 let grads: Vec<Tensor> = p.vs.trainable_variables().iter().map(|v| v.grad().copy()).collect();
                 (logits.detach(), values.detach(), grads)

@@ -5,6 +5,7 @@
 //! - [`resnet`]: ResNet-18 up to conv5 and the torchvision weights the user supplies;
 //! - [`layers`]: the building blocks (visual encoders, the frozen trunk, the MLPs);
 //! - `gesture_memo`: acting's gesture features, kept per env from one step to the next;
+//! - `stretches`: PPO's GRU over whole sequences, each env cut at its own episode starts, one call;
 //! - [`network`]: the layers wired together ([`network::PolicyNet`]);
 //! - [`agent`]: the acting agent ([`agent::Agent`]): the network, its variables, each env's memory.
 
@@ -15,3 +16,4 @@ pub mod network;
 pub mod pth;
 pub mod resnet;
 pub mod spec;
+pub(crate) mod stretches;

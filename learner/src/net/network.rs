@@ -34,6 +34,7 @@ use crate::net::gesture_memo;
 use crate::net::layers::{ConvHead, FrozenTrunk, Mlp, Pretrained, SmallCnn, Visual};
 use crate::net::resnet::{self, Resnet18};
 use crate::net::spec::NetSpec;
+use crate::net::stretches;
 use crate::obs::EnvBatch;
 
 /// The network. Variables live in the [`crate::net::agent::Agent`]'s var store under `resnet.` (the
@@ -50,6 +51,8 @@ pub struct PolicyNet {
     target: Option<nn::Embedding>,
     pose: Option<nn::Linear>,
     gru: nn::GRU,
+    /// `gru`'s variables in torch's flat order, for PPO's packed call.
+    gru_weights: Vec<Tensor>,
     actor: Mlp,
     critic: Mlp,
     /// Pinned host buffers the frames pass through to a GPU.
@@ -95,6 +98,7 @@ impl PolicyNet {
             ..Default::default()
         };
         let gru = nn::gru(&root / "gru", spec.input_width(), h, gru_cfg);
+        let gru_weights = stretches::flat_weights(vs, "gru", spec.gru_layers);
         PolicyNet {
             spec: spec.clone(),
             frozen,
@@ -105,6 +109,7 @@ impl PolicyNet {
             target,
             pose,
             gru,
+            gru_weights,
             actor: Mlp::new(&(&root / "actor"), h, h, 2, action::COUNT as i64, 0.01),
             critic: Mlp::new(&(&root / "critic"), h, h, 2, 1, 1.0),
             staging: Staging::default(),
@@ -193,23 +198,11 @@ impl PolicyNet {
         Tensor::cat(&parts, 1)
     }
 
-    /// The GRU over `[T, B, D]` from `h0` `[L, B, H]`, zeroing an env's state where `keep[t, b]`
-    /// is 0 (an episode starts at t). Runs the fused GRU over the stretches between resets.
-    pub(crate) fn recurrent(&self, x: &Tensor, h0: &Tensor, keep: &Tensor, any_start: &[bool]) -> (Tensor, Tensor) {
-        let t_len = x.size()[0];
-        let mut h = h0.shallow_clone();
-        let mut outs = Vec::new();
-        let mut t0 = 0i64;
-        for t in 1..=t_len {
-            if t == t_len || any_start[t as usize] {
-                h = &h * keep.get(t0).view([1, -1, 1]);
-                let (o, s) = self.gru.seq_init(&x.narrow(0, t0, t - t0), &nn::GRUState(h));
-                outs.push(o);
-                h = s.0;
-                t0 = t;
-            }
-        }
-        (Tensor::cat(&outs, 0), h)
+    /// The GRU on one step `[1, B, D]` from the memory `h` `[L, B, H]`, zeroed for the envs where
+    /// `keep` `[1, B]` is 0 (an episode starts).
+    pub(crate) fn step(&self, x: &Tensor, h: &Tensor, keep: &Tensor) -> (Tensor, Tensor) {
+        let (out, h) = self.gru.seq_init(x, &nn::GRUState(h * keep.view([1, -1, 1])));
+        (out, h.0)
     }
 
     /// GRU output → (logits `[.., action::COUNT]`, value `[..]`).
@@ -217,12 +210,13 @@ impl PolicyNet {
         (self.actor.forward(h), self.critic.forward(h).squeeze_dim(-1))
     }
 
-    /// Whole sequences for PPO: inputs `[T, B, ..]` → (logits `[T, B, action::COUNT]`, values `[T, B]`).
-    pub fn evaluate(&self, x: &Inputs, h0: &Tensor, keep: &Tensor, any_start: &[bool]) -> (Tensor, Tensor) {
+    /// Whole sequences for PPO: inputs `[T, B, ..]` from the memory `h0` `[L, B, H]`, reset where
+    /// `starts[t * B + b]` → (logits `[T, B, action::COUNT]`, values `[T, B]`).
+    pub fn evaluate(&self, x: &Inputs, h0: &Tensor, starts: &[bool]) -> (Tensor, Tensor) {
         let size = x.fields().iter().find_map(|(_, t)| t.map(|t| t.size())).expect("network has inputs");
         let (t, b) = (size[0], size[1]);
         let feats = self.encode(&x.map(|v| v.flatten(0, 1))).view([t, b, -1]);
-        let (out, _) = self.recurrent(&feats, h0, keep, any_start);
+        let (out, _) = stretches::gru_over_stretches(&self.gru_weights, self.spec.gru_layers, &feats, h0, starts);
         self.heads(&out)
     }
 
@@ -297,8 +291,8 @@ mod tests {
         }
         let idx = Tensor::from_slice(&[0i64, 1]);
         let x = r.minibatch(&idx).unwrap();
-        let keep = Tensor::from_slice(&[0f32, 0., 1., 1., 1., 1., 1., 1.]).view([4, 2]);
-        let (logits, values) = p.net.evaluate(&x, &h0, &keep, &[true, false, false, false]);
+        let starts = [true, true, false, false, false, false, false, false];
+        let (logits, values) = p.net.evaluate(&x, &h0, &starts);
         let got = Vec::<f32>::try_from(values.detach().flatten(0, -1)).unwrap();
         for (a, b) in acted_values.iter().zip(&got) {
             assert!((a - b).abs() < 1e-5, "{acted_values:?} vs {got:?}");

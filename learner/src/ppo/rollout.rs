@@ -198,7 +198,7 @@ impl Rollout {
 }
 
 /// `bool` host flags as 0/1 floats.
-pub fn as_f32(v: &[bool]) -> Vec<f32> {
+fn as_f32(v: &[bool]) -> Vec<f32> {
     v.iter().map(|b| if *b { 1.0 } else { 0.0 }).collect()
 }
 

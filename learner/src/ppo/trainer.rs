@@ -21,7 +21,7 @@ use crate::logs::metrics::{EpisodeWindow, UpdateMetrics};
 use crate::net::agent::{ActMode, Actions, Agent, AgentError};
 use crate::obs::{EnvBatch, EnvStep, ObsError};
 use crate::ppo::optim::Adam;
-use crate::ppo::rollout::{FeedbackCounts, Rollout, as_f32, flags};
+use crate::ppo::rollout::{FeedbackCounts, Rollout, flags};
 
 /// Adam's ε: 1e-5, the usual choice for PPO (torch's default is 1e-8).
 const ADAM_EPS: f64 = 1e-5;
@@ -187,7 +187,6 @@ impl Trainer {
             let b_val = r.to_device(&r.values);
             let b_act = r.to_device(&r.actions);
             let b_valid = flags(r, &r.valid);
-            let b_keep = r.to_device(&as_f32(&r.starts).iter().map(|s| 1.0 - s).collect::<Vec<f32>>());
             let per_mb = n.div_ceil(hp.minibatches);
             let mut envs: Vec<i64> = (0..n as i64).collect();
             let mut sums = [0.0f64; 6];
@@ -202,16 +201,15 @@ impl Trainer {
                     }
                     let idx = Tensor::from_slice(mb).to_device(r.device());
                     let sel = |t: &Tensor| t.index_select(1, &idx);
-                    let any_start: Vec<bool> =
-                        (0..t_len).map(|t| mb.iter().any(|&k| r.starts[t * n + k as usize])).collect();
+                    let starts: Vec<bool> =
+                        (0..t_len).flat_map(|t| mb.iter().map(move |&k| r.starts[t * n + k as usize])).collect();
                     let valid = sel(&b_valid);
 
                     // Re-run the network over the minibatch's whole sequences.
                     let (logits, values) = self.agent.net.evaluate(
                         &r.minibatch(&idx).expect("a full rollout has inputs"),
                         &r.h0.index_select(1, &idx),
-                        &sel(&b_keep),
-                        &any_start,
+                        &starts,
                     );
                     let logp_all = logits.log_softmax(-1, Kind::Float);
                     let new_logp = logp_all.gather(-1, &sel(&b_act).unsqueeze(-1), false).squeeze_dim(-1);
