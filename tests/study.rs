@@ -236,3 +236,91 @@ fn a_published_study_continues_from_its_records_without_its_folder() {
     assert!(err.contains("both-seed1/record.json") && err.contains("field `config`"), "{err}");
     assert_eq!(std::fs::read_to_string(docs.join("records/both-seed1/record.json")).unwrap(), record);
 }
+
+/// When run `name` of study `out` started training, and when it wrote its last checkpoint.
+fn trained_between(out: &Path, name: &str) -> (u64, u64) {
+    let run = out.join("runs").join(name);
+    let info: Value = serde_json::from_str(&std::fs::read_to_string(run.join("run.json")).unwrap()).unwrap();
+    let last = mtimes(&run.join("checkpoints")).last().unwrap().1;
+    (info["started"].as_u64().unwrap(), last.duration_since(SystemTime::UNIX_EPOCH).unwrap().as_secs())
+}
+
+#[test]
+fn a_parallel_study_trains_two_models_at_once_into_one_folder() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = configs(tmp.path());
+    let (out, docs) = (tmp.path().join("study"), tmp.path().join("docs"));
+    let o = study(&cfg, &out, "both,vis_sem").args(["--parallel", "2", "--publish"]).arg(&docs).output().unwrap();
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{log}");
+    assert!(log.contains("2 runs (256 frames each, 2 workers; 2 at once)"), "{log}");
+    // side by side: each training started before the other had written its last checkpoint
+    let (both, vis_sem) = (trained_between(&out, "both-seed1"), trained_between(&out, "vis_sem-seed1"));
+    assert!(both.0 <= vis_sem.1 && vis_sem.0 <= both.1, "one after the other: {both:?} {vis_sem:?}\n{log}");
+    // both finished, recorded and in the one set of tables, in the plan's order
+    for name in ["both-seed1", "vis_sem-seed1"] {
+        for f in ["record.json", "test.csv", "val.csv", "train.csv", "curve.jsonl"] {
+            assert!(docs.join("records").join(name).join(f).is_file(), "no records/{name}/{f}\n{log}");
+        }
+        let info: Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("runs").join(name).join("run.json")).unwrap())
+                .unwrap();
+        let run_id = info["run_id"].as_str().unwrap();
+        assert!(gesthor_tests::shm_leftovers(run_id).is_empty(), "{name}'s crew left shared memory");
+    }
+    for dir in [&out, &docs] {
+        let table = std::fs::read_to_string(dir.join("T4.2.md")).unwrap();
+        for row in ["| VisSem | 1 |", "| +Both | 1 |", "| +Both > VisSem |"] {
+            assert!(table.contains(row), "no `{row}` in {}:\n{table}", dir.display());
+        }
+        let results: Value = serde_json::from_str(&std::fs::read_to_string(dir.join("study.json")).unwrap()).unwrap();
+        let stems: Vec<&str> = results.as_array().unwrap().iter().map(|r| r["stem"].as_str().unwrap()).collect();
+        assert_eq!(stems, ["both", "vis_sem"], "{results}");
+    }
+    assert!(processes_mentioning(&out.display().to_string()).is_empty(), "a step outlived the study");
+
+    // the same command again: everything is recorded, nothing is trained again
+    let before =
+        (mtimes(&out.join("runs/both-seed1/checkpoints")), mtimes(&out.join("runs/vis_sem-seed1/checkpoints")));
+    let o = study(&cfg, &out, "both,vis_sem").args(["--parallel", "2", "--publish"]).arg(&docs).output().unwrap();
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && log.matches(": recorded in").count() == 2, "{log}");
+    let after = (mtimes(&out.join("runs/both-seed1/checkpoints")), mtimes(&out.join("runs/vis_sem-seed1/checkpoints")));
+    assert_eq!(before, after, "{log}");
+}
+
+#[test]
+fn a_parallel_study_sent_sigterm_stops_every_model_in_flight() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = configs(tmp.path());
+    let out = tmp.path().join("study");
+    // thousands of updates each, far more than run before the kill
+    let mut child = study_of(&cfg, &out, "both,vis_sem", 200_000)
+        .args(["--parallel", "2"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let metrics = |name: &str| out.join("runs").join(name).join("metrics.jsonl");
+    let started = Instant::now();
+    while ["both-seed1", "vis_sem-seed1"].iter().any(|n| std::fs::metadata(metrics(n)).map_or(0, |m| m.len()) == 0) {
+        assert!(started.elapsed() < DEADLINE, "the two models never both finished an update");
+        assert!(child.try_wait().unwrap().is_none(), "the study ended before both models' first update");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGTERM).unwrap();
+    let o = child.wait_with_output().unwrap();
+    let log = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{log}");
+    assert!(log.contains("stopped by a signal; run the same command again to continue"), "{log}");
+    assert!(processes_mentioning(&out.display().to_string()).is_empty(), "a step outlived the study");
+    // each stopped short of its budget and wrote a checkpoint to resume from
+    for name in ["both-seed1", "vis_sem-seed1"] {
+        let kept = mtimes(&out.join("runs").join(name).join("checkpoints"));
+        assert!(!kept.is_empty(), "{name} kept no checkpoint\n{log}");
+        let up_log = std::fs::read_to_string(out.join("runs").join(format!("{name}.log"))).unwrap();
+        assert!(!up_log.contains("budget reached"), "{name}'s step ran to its end:\n{up_log}");
+    }
+}

@@ -280,13 +280,6 @@ pub struct FaithfulSizes {
     pub update: Vec<(usize, usize)>,
 }
 
-impl Default for FaithfulSizes {
-    /// One acting round of 32 envs; §4.3.2's update of 10 envs in one minibatch.
-    fn default() -> Self {
-        FaithfulSizes { act: vec![32], update: vec![(10, 1)] }
-    }
-}
-
 /// The frames of one round of `batch` envs onto a GPU (224² RGB u8 and 16-bit depth): straight
 /// from pageable memory, as the workers' shared memory is, and through the pinned staging buffer
 /// acting uses (`crate::inputs::Staging`).

@@ -19,13 +19,19 @@
 //! OUT/T4.2.md … T4.7.md, .csv, study.json, sr_spl.png, learning_curves.png
 //! ```
 //!
+//! With `--parallel N`, N models are in flight at once (`lanes`), each with its own steps; the
+//! tables are rewritten as each finishes, one writer at a time, and list the models in the plan's
+//! order.
+//!
 //! With `--publish DIR` (e.g. docs/study) the tables and figures go into DIR as well, with each
 //! finished model's record (`records`): a model recorded there is not trained again, so the
 //! study continues from a clone on a machine without OUT.
 
 pub mod ablations;
+mod lanes;
 mod progress;
 pub mod records;
+mod steps;
 pub mod summary;
 
 use std::path::{Path, PathBuf};
@@ -35,10 +41,9 @@ use anyhow::Context;
 use clap::Args;
 use farm::config::{Method, RunConfig};
 use farm::rooms::{SceneId, SceneType, Split};
-use nix::sys::signal::Signal;
 
-use crate::supervise::child;
-use progress::{Kind, Progress};
+use progress::{Kind, Lane, Progress};
+use steps::{Eval, evaluate, orchestrator, s};
 use summary::{METHODS, RunResult, StudyMethod};
 
 #[derive(Args, Debug, Clone)]
@@ -89,6 +94,13 @@ pub struct StudyArgs {
     /// recorded here is taken as done, so a clone continues the study without OUT.
     #[arg(long)]
     pub publish: Option<PathBuf>,
+    /// Models trained at once, each its own crew of --workers workers and a learner, all on this
+    /// machine's cores and GPU, publishing into the one --out (and --publish); 1: one after
+    /// another. It changes only the wall time: each model keeps its config, seed and frame
+    /// budget. On a machine of few cores (two) more than 1 mostly makes the crews compete for
+    /// the same cores.
+    #[arg(long, default_value_t = 1, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
+    pub parallel: usize,
 }
 
 /// One training run of the study.
@@ -253,45 +265,6 @@ pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
     Ok((runs, random))
 }
 
-/// Runs `orchestrator ARGS` (this binary) to the end; a child stopped by a signal stops the study.
-fn orchestrator(args: &[String], log: &Path) -> anyhow::Result<()> {
-    if let Some(parent) = log.parent() {
-        std::fs::create_dir_all(parent)?;
-    }
-    let exe = std::env::current_exe().context("finding the orchestrator binary")?;
-    let argv: Vec<std::ffi::OsString> = args.iter().map(Into::into).collect();
-    // Like `up`'s own children: a study killed outright stops its step too (SIGTERM: `up` then
-    // writes its checkpoint), so no orphan keeps writing into the folder the rerun continues;
-    // and the step, in a process group of its own, gets each termination signal the study gets,
-    // once: a `kill` of the study alone stops the step (it used to run to its end), and a Ctrl-C,
-    // which reaches only the study's group, still arrives once, as from a terminal (a second
-    // Ctrl-C means "now" to `up`, so it must not arrive twice).
-    let step =
-        child::spawn(&exe, &argv, &[], log, Signal::SIGTERM).with_context(|| format!("starting {}", exe.display()))?;
-    let mut forwarded = 0;
-    let ended = loop {
-        if let Some(ended) = child::reap(step.pid) {
-            break ended;
-        }
-        while forwarded < farm::process::termination_count() {
-            if let Some(sig) = farm::process::termination_signal() {
-                child::signal(&step, sig);
-            }
-            forwarded += 1;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    };
-    if farm::process::termination_count() > 0 {
-        anyhow::bail!("stopped by a signal; run the same command again to continue");
-    }
-    anyhow::ensure!(ended.success(), "`orchestrator {}` failed ({ended}); see {}", args.join(" "), log.display());
-    Ok(())
-}
-
-fn s(p: &Path) -> String {
-    p.display().to_string()
-}
-
 /// Trains `run` to its frame budget: from scratch, or on from its newest checkpoint.
 fn train(a: &StudyArgs, run: &Run) -> anyhow::Result<()> {
     let fpu = run.frames_per_update(a.workers);
@@ -325,71 +298,6 @@ fn train(a: &StudyArgs, run: &Run) -> anyhow::Result<()> {
     }
 }
 
-/// One `orchestrator eval` of the study.
-struct Eval<'a> {
-    /// `--checkpoint FILE` or `--config FILE`.
-    what: [String; 2],
-    split: Split,
-    programs: usize,
-    modes: &'a [&'a str],
-    /// Only these rooms (empty: the split's all).
-    rooms: Vec<String>,
-    out: PathBuf,
-}
-
-impl Eval<'_> {
-    fn work(&self) -> f64 {
-        (self.programs * self.modes.len()) as f64
-    }
-
-    /// Its tables are there, with a row of every pass.
-    fn complete(&self) -> bool {
-        crate::report::tables::read_rows(&self.out.join("tables.csv"))
-            .is_ok_and(|rows| self.modes.iter().all(|m| rows.iter().any(|r| r.mode == *m)))
-    }
-
-    /// Runs it unless complete (a partial one is redone); whether it ran.
-    fn run(&self, workers: usize) -> anyhow::Result<bool> {
-        if self.complete() {
-            return Ok(false);
-        }
-        if self.out.exists() {
-            std::fs::remove_dir_all(&self.out).with_context(|| format!("clearing {}", self.out.display()))?;
-        }
-        let mut args: Vec<String> = vec!["eval".into()];
-        args.extend(self.what.iter().cloned());
-        args.extend(
-            [
-                "--split",
-                self.split.name(),
-                "--max-programs",
-                &self.programs.to_string(),
-                "--modes",
-                &self.modes.join(","),
-                "--workers",
-                &workers.to_string(),
-                "--out",
-                &s(&self.out),
-            ]
-            .map(String::from),
-        );
-        if !self.rooms.is_empty() {
-            args.extend(["--scenes".into(), self.rooms.join(",")]);
-        }
-        orchestrator(&args, &self.out.with_extension("log"))?;
-        Ok(true)
-    }
-}
-
-/// Runs `e` and counts it as a step.
-fn evaluate(a: &StudyArgs, e: &Eval, progress: &mut Progress, what: &str) -> anyhow::Result<bool> {
-    progress.doing(what);
-    let t = Instant::now();
-    let ran = e.run(a.workers)?;
-    progress.step(Kind::Eval, e.work(), ran.then(|| t.elapsed().as_secs_f64()), what);
-    Ok(ran)
-}
-
 const TEST_MODES: [&str; 2] = ["normal", "blind"];
 
 pub fn run(a: StudyArgs) -> anyhow::Result<()> {
@@ -414,123 +322,38 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         steps.push((Kind::Eval, a.val_programs as f64));
     }
     steps.extend((0..random_seeds).map(|_| (Kind::Eval, a.test_programs as f64)));
-    let mut progress = Progress::new(&steps);
+    let lanes = a.parallel.min(runs.len()).max(1);
+    let progress = Progress::new(&steps, lanes);
     eprintln!(
-        "[study] {} runs ({} frames each, {} workers) and Random × {random_seeds} seeds in {}",
+        "[study] {} runs ({} frames each, {} workers{}) and Random × {random_seeds} seeds in {}",
         runs.len(),
         a.frames,
         a.workers,
+        if lanes > 1 { format!("; {lanes} at once") } else { String::new() },
         a.out.display()
     );
-    let mut results = Vec::new();
     let random_names: Vec<String> = (1..=random_seeds).map(|k| format!("Random seed {k}")).collect();
     let settings =
         records::Settings { checkpoints: a.checkpoints, val_programs: a.val_programs, test_programs: a.test_programs };
-    for (i, (run, planned)) in runs.iter().zip(steps.chunks(4)).enumerate() {
-        let name = run.name();
-        let pending =
-            || -> Vec<String> { runs[i + 1..].iter().map(Run::name).chain(random_names.iter().cloned()).collect() };
-        if let Some(p) = &a.publish
-            && let Some(r) = records::read(p, &run.file_name(), &run.cfg, settings)?
-        {
-            for (k, (kind, work)) in planned.iter().enumerate() {
-                progress.step(*kind, *work, None, if k == 0 { "recorded" } else { "" });
-            }
-            eprintln!("[study] {name}: recorded in {}", p.join("records").join(run.file_name()).display());
-            results.push(r);
-            report(&a, &runs, &results, &pending())?;
-            continue;
-        }
-        let trained = run.trained(a.workers);
-        let t = Instant::now();
-        if !trained {
-            progress.doing(&format!("training {name}"));
-            train(&a, run)?;
-            anyhow::ensure!(run.trained(a.workers), "{}: the run ended before its last update", run.dir.display());
-        }
-        progress.step(
-            Kind::Train,
-            planned[0].1,
-            (!trained).then(|| t.elapsed().as_secs_f64()),
-            &format!("trained {name}"),
-        );
-
-        let (mut ran, mut work) = (false, 0.0);
-        let mut best: Option<(f64, PathBuf, u64)> = None;
-        let mut val_curve = Vec::new();
-        let t = Instant::now();
-        progress.doing(&format!("selecting {name} on val"));
-        for ckpt in run.candidates(a.workers) {
-            let e = Eval {
-                what: ["--checkpoint".into(), s(&ckpt)],
-                split: Split::Val,
-                programs: a.val_programs,
-                modes: &["normal"],
-                rooms: run.rooms(Split::Val),
-                out: run.select_dir(&ckpt),
-            };
-            ran |= e.run(a.workers)?;
-            work += e.work();
-            let sr1 = summary::first_stop(&e.out.join("tables.csv"))?.sr;
-            let frames = farm::checkpoints::frames(&ckpt).map_err(|e| anyhow::anyhow!("{}: {e}", ckpt.display()))?;
-            val_curve.push((frames, sr1));
-            if best.as_ref().is_none_or(|(b, _, _)| sr1 >= *b) {
-                best = Some((sr1, ckpt, frames));
-            }
-        }
-        let (val_sr1, chosen, chosen_frames) = best.with_context(|| format!("{}: no checkpoint", run.dir.display()))?;
-        progress.step(Kind::Eval, work, ran.then(|| t.elapsed().as_secs_f64()), &format!("selected {name} on val"));
-
-        // the test and train evaluations are of the selected checkpoint: redone when val chose another
-        let on = |split: Split, programs: usize, modes: &'static [&'static str], dir: &str| Eval {
-            what: ["--checkpoint".into(), s(&chosen)],
-            split,
-            programs,
-            modes,
-            rooms: run.rooms(split),
-            out: run.dir.join(dir),
-        };
-        let (test, fit) = (
-            on(Split::Test, a.test_programs, &TEST_MODES, "test"),
-            on(Split::Train, a.val_programs, &["normal"], "train"),
-        );
-        for e in [&test, &fit] {
-            let stale = std::fs::read_to_string(e.out.join("checkpoint")).ok().is_some_and(|c| c.trim() != s(&chosen));
-            if stale {
-                std::fs::remove_dir_all(&e.out)?;
-            }
-        }
-        evaluate(&a, &test, &mut progress, &format!("tested {name}"))?;
-        farm::files::write_atomic(&test.out.join("checkpoint"), s(&chosen).as_bytes())?;
-        evaluate(&a, &fit, &mut progress, &format!("evaluated {name} on train"))?;
-        farm::files::write_atomic(&fit.out.join("checkpoint"), s(&chosen).as_bytes())?;
-
-        let mut r = RunResult::read(
-            run.method.stem,
-            run.scene_type,
-            run.seed_index,
-            // named inside the study folder, as its record keeps it
-            chosen.strip_prefix(&a.out).unwrap_or(&chosen),
-            val_sr1,
-            &test.out.join("tables.csv"),
-        )?;
-        r.val_tables = Some(run.select_dir(&chosen).join("tables.csv"));
-        r.train_tables = Some(fit.out.join("tables.csv"));
-        r.val_curve = val_curve;
-        let update = farm::checkpoints::update_of(&chosen).unwrap_or(0);
-        r.budget = Some(summary::Budget {
-            frames: chosen_frames,
-            adam_steps: update * (run.cfg.ppo.epochs * run.cfg.ppo.minibatches) as u64,
-            frames_per_update: run.frames_per_update(a.workers),
-        });
-        if let Some(p) = &a.publish {
-            r = records::write(p, &run.file_name(), &run.cfg, settings, &r, Some(&run.dir.join("metrics.jsonl")))?;
-        }
-        results.push(r);
-        // every finished model's tables at once: a study stopped later loses only the model
-        // in progress
-        report(&a, &runs, &results, &pending())?;
-    }
+    // each model's result at its place in the plan: the tables list the models in the plan's
+    // order however the lanes finish
+    let mut done: Vec<Option<RunResult>> = vec![None; runs.len()];
+    let jobs: Vec<(&Run, &[(Kind, f64)])> = runs.iter().zip(steps.chunks(4)).collect();
+    lanes::run(
+        &jobs,
+        lanes,
+        |lane, (run, planned)| model(&a, run, planned, settings, &progress.lane(lane)),
+        |i, r| {
+            done[i] = Some(r);
+            let results: Vec<RunResult> = done.iter().flatten().cloned().collect();
+            let pending = runs.iter().zip(&done).filter(|(_, d)| d.is_none()).map(|(r, _)| r.name());
+            // every finished model's tables at once: a study stopped later loses only the
+            // models in flight
+            report(&a, &runs, &results, &pending.chain(random_names.iter().cloned()).collect::<Vec<_>>())
+        },
+    )?;
+    let mut results: Vec<RunResult> = done.into_iter().flatten().collect();
+    let lane = progress.lane(0);
     if let Some(cfg) = &random {
         for k in 1..=a.seeds {
             let mut c = cfg.clone();
@@ -539,7 +362,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             if let Some(p) = &a.publish
                 && let Some(r) = records::read(p, &name, &c, settings)?
             {
-                progress.step(Kind::Eval, a.test_programs as f64, None, "recorded");
+                lane.step(Kind::Eval, a.test_programs as f64, None, "recorded");
                 results.push(r);
                 continue;
             }
@@ -553,7 +376,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
                 rooms: vec![],
                 out: a.out.join("random").join(format!("seed{k}")),
             };
-            evaluate(&a, &e, &mut progress, &format!("Random seed {k} on test"))?;
+            evaluate(a.workers, &e, &lane, &format!("Random seed {k} on test"))?;
             let mut r = RunResult::read("random", None, k, Path::new("-"), f64::NAN, &e.out.join("tables.csv"))?;
             if let Some(p) = &a.publish {
                 r = records::write(p, &name, &c, settings, &r, None)?;
@@ -565,6 +388,106 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
     report(&a, &runs, &results, &[])?;
     eprintln!("[study] tables in {}", a.out.join("T4.2.md").display());
     Ok(())
+}
+
+/// One model's pipeline, as `lane`: train it, select its checkpoint on val, test that one and
+/// evaluate it on train, record it (`--publish`); a model recorded there is taken as it is.
+fn model(
+    a: &StudyArgs,
+    run: &Run,
+    planned: &[(Kind, f64)],
+    settings: records::Settings,
+    lane: &Lane,
+) -> anyhow::Result<RunResult> {
+    let name = run.name();
+    if let Some(p) = &a.publish
+        && let Some(r) = records::read(p, &run.file_name(), &run.cfg, settings)?
+    {
+        for (k, (kind, work)) in planned.iter().enumerate() {
+            lane.step(*kind, *work, None, if k == 0 { "recorded" } else { "" });
+        }
+        eprintln!("[study] {name}: recorded in {}", p.join("records").join(run.file_name()).display());
+        return Ok(r);
+    }
+    let trained = run.trained(a.workers);
+    let t = Instant::now();
+    if !trained {
+        lane.doing(&format!("training {name}"));
+        train(a, run)?;
+        anyhow::ensure!(run.trained(a.workers), "{}: the run ended before its last update", run.dir.display());
+    }
+    lane.step(Kind::Train, planned[0].1, (!trained).then(|| t.elapsed().as_secs_f64()), &format!("trained {name}"));
+
+    let (mut ran, mut work) = (false, 0.0);
+    let mut best: Option<(f64, PathBuf, u64)> = None;
+    let mut val_curve = Vec::new();
+    let t = Instant::now();
+    lane.doing(&format!("selecting {name} on val"));
+    for ckpt in run.candidates(a.workers) {
+        let e = Eval {
+            what: ["--checkpoint".into(), s(&ckpt)],
+            split: Split::Val,
+            programs: a.val_programs,
+            modes: &["normal"],
+            rooms: run.rooms(Split::Val),
+            out: run.select_dir(&ckpt),
+        };
+        ran |= e.run(a.workers)?;
+        work += e.work();
+        let sr1 = summary::first_stop(&e.out.join("tables.csv"))?.sr;
+        let frames = farm::checkpoints::frames(&ckpt).map_err(|e| anyhow::anyhow!("{}: {e}", ckpt.display()))?;
+        val_curve.push((frames, sr1));
+        if best.as_ref().is_none_or(|(b, _, _)| sr1 >= *b) {
+            best = Some((sr1, ckpt, frames));
+        }
+    }
+    let (val_sr1, chosen, chosen_frames) = best.with_context(|| format!("{}: no checkpoint", run.dir.display()))?;
+    lane.step(Kind::Eval, work, ran.then(|| t.elapsed().as_secs_f64()), &format!("selected {name} on val"));
+
+    // the test and train evaluations are of the selected checkpoint: redone when val chose another
+    let on = |split: Split, programs: usize, modes: &'static [&'static str], dir: &str| Eval {
+        what: ["--checkpoint".into(), s(&chosen)],
+        split,
+        programs,
+        modes,
+        rooms: run.rooms(split),
+        out: run.dir.join(dir),
+    };
+    let (test, fit) =
+        (on(Split::Test, a.test_programs, &TEST_MODES, "test"), on(Split::Train, a.val_programs, &["normal"], "train"));
+    for e in [&test, &fit] {
+        let stale = std::fs::read_to_string(e.out.join("checkpoint")).ok().is_some_and(|c| c.trim() != s(&chosen));
+        if stale {
+            std::fs::remove_dir_all(&e.out)?;
+        }
+    }
+    evaluate(a.workers, &test, lane, &format!("tested {name}"))?;
+    farm::files::write_atomic(&test.out.join("checkpoint"), s(&chosen).as_bytes())?;
+    evaluate(a.workers, &fit, lane, &format!("evaluated {name} on train"))?;
+    farm::files::write_atomic(&fit.out.join("checkpoint"), s(&chosen).as_bytes())?;
+
+    let mut r = RunResult::read(
+        run.method.stem,
+        run.scene_type,
+        run.seed_index,
+        // named inside the study folder, as its record keeps it
+        chosen.strip_prefix(&a.out).unwrap_or(&chosen),
+        val_sr1,
+        &test.out.join("tables.csv"),
+    )?;
+    r.val_tables = Some(run.select_dir(&chosen).join("tables.csv"));
+    r.train_tables = Some(fit.out.join("tables.csv"));
+    r.val_curve = val_curve;
+    let update = farm::checkpoints::update_of(&chosen).unwrap_or(0);
+    r.budget = Some(summary::Budget {
+        frames: chosen_frames,
+        adam_steps: update * (run.cfg.ppo.epochs * run.cfg.ppo.minibatches) as u64,
+        frames_per_update: run.frames_per_update(a.workers),
+    });
+    if let Some(p) = &a.publish {
+        r = records::write(p, &run.file_name(), &run.cfg, settings, &r, Some(&run.dir.join("metrics.jsonl")))?;
+    }
+    Ok(r)
 }
 
 /// Writes T4.2–T4.7 of the models evaluated so far into the study folder (and `--publish`);
@@ -623,6 +546,7 @@ mod tests {
             dataset: None,
             publish: None,
             set: Vec::new(),
+            parallel: 1,
         }
     }
 

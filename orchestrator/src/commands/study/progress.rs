@@ -1,7 +1,9 @@
 //! The study's progress: a bar on a terminal (one line per step otherwise), with an ETA summed
-//! per kind of step from each kind's rate in this invocation.
+//! per kind of step from each kind's rate in this invocation, and what each lane (a model in
+//! flight, `--parallel`) runs now.
 
 use std::io::IsTerminal;
+use std::sync::Mutex;
 
 /// Kinds of step, which go at different rates.
 #[derive(Clone, Copy)]
@@ -18,17 +20,32 @@ const PRIOR_SECONDS: [f64; 2] = [1.0 / 1000.0, 1.0 / 15.0];
 
 /// Where the study is, with an ETA summed per kind of step from each kind's rate in this
 /// invocation: a bar on a terminal, one line per step otherwise (studies run for hours, mostly
-/// unattended, into logs).
+/// unattended, into logs). The lanes report through it at once.
 pub struct Progress {
+    state: Mutex<State>,
+    /// Models in flight at once.
+    lanes: usize,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+struct State {
     done: usize,
     steps: usize,
     left: [f64; 2],
     spent: [(f64, f64); 2],
-    bar: Option<indicatif::ProgressBar>,
+    /// What each lane runs now (empty: between steps).
+    now: Vec<String>,
+}
+
+/// One lane's view of the progress.
+pub struct Lane<'a> {
+    progress: &'a Progress,
+    id: usize,
 }
 
 impl Progress {
-    pub fn new(plan: &[(Kind, f64)]) -> Progress {
+    /// For `plan`'s steps, run `lanes` at a time.
+    pub fn new(plan: &[(Kind, f64)], lanes: usize) -> Progress {
         let mut left = [0.0; 2];
         for (k, w) in plan {
             left[*k as usize] += w;
@@ -43,44 +60,35 @@ impl Progress {
             b.enable_steady_tick(std::time::Duration::from_secs(1));
             b
         });
-        Progress { done: 0, steps: plan.len(), left, spent: [(0.0, 0.0); 2], bar }
+        let lanes = lanes.max(1);
+        let state = State { done: 0, steps: plan.len(), left, spent: [(0.0, 0.0); 2], now: vec![String::new(); lanes] };
+        Progress { state: Mutex::new(state), lanes, bar }
     }
 
-    fn eta(&self) -> f64 {
+    pub fn lane(&self, id: usize) -> Lane<'_> {
+        Lane { progress: self, id }
+    }
+
+    fn state(&self) -> std::sync::MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    /// Seconds left: a lane's steps were timed beside the other lanes', so the study goes
+    /// `lanes` times as fast as one lane's rate (the prior is the machine's rate: lanes share it).
+    fn eta(&self, s: &State) -> f64 {
         (0..2)
             .map(|k| {
-                let (s, w) = self.spent[k];
-                self.left[k] * if w > 0.0 { s / w } else { PRIOR_SECONDS[k] }
+                let (secs, w) = s.spent[k];
+                s.left[k] * if w > 0.0 { secs / w / self.lanes as f64 } else { PRIOR_SECONDS[k] }
             })
             .sum()
     }
 
-    /// Shows what runs now.
-    pub fn doing(&self, what: &str) {
+    fn show(&self, s: &State) {
         if let Some(b) = &self.bar {
-            b.set_message(format!("{what}; about {} left", humantime(self.eta())));
-        }
-    }
-
-    /// A step of `work` units is over: run here in `seconds`, or found done (None).
-    pub fn step(&mut self, kind: Kind, work: f64, seconds: Option<f64>, what: &str) {
-        self.done += 1;
-        self.left[kind as usize] = (self.left[kind as usize] - work).max(0.0);
-        let Some(s) = seconds else {
-            if let Some(b) = &self.bar {
-                b.inc(1);
-            }
-            return;
-        };
-        let spent = &mut self.spent[kind as usize];
-        (spent.0, spent.1) = (spent.0 + s, spent.1 + work);
-        let line = format!("{}/{} done: {what}; about {} left", self.done, self.steps, humantime(self.eta()));
-        match &self.bar {
-            Some(b) => {
-                b.inc(1);
-                b.println(format!("[study] {line}"));
-            }
-            None => eprintln!("[study] {line}"),
+            let now: Vec<&str> = s.now.iter().filter(|w| !w.is_empty()).map(String::as_str).collect();
+            let sep = if now.is_empty() { "" } else { "; " };
+            b.set_message(format!("{}{sep}about {} left", now.join("; "), humantime(self.eta(s))));
         }
     }
 
@@ -91,7 +99,62 @@ impl Progress {
     }
 }
 
+impl Lane<'_> {
+    /// Shows what this lane runs now (beside what the others run).
+    pub fn doing(&self, what: &str) {
+        let p = self.progress;
+        let mut s = p.state();
+        s.now[self.id] = what.to_string();
+        p.show(&s);
+    }
+
+    /// A step of `work` units is over: run here in `seconds`, or found done (None).
+    pub fn step(&self, kind: Kind, work: f64, seconds: Option<f64>, what: &str) {
+        let p = self.progress;
+        let mut s = p.state();
+        s.done += 1;
+        s.left[kind as usize] = (s.left[kind as usize] - work).max(0.0);
+        s.now[self.id].clear();
+        let Some(secs) = seconds else {
+            if let Some(b) = &p.bar {
+                b.inc(1);
+            }
+            return;
+        };
+        let spent = &mut s.spent[kind as usize];
+        (spent.0, spent.1) = (spent.0 + secs, spent.1 + work);
+        let line = format!("{}/{} done: {what}; about {} left", s.done, s.steps, humantime(p.eta(&s)));
+        match &p.bar {
+            Some(b) => {
+                b.inc(1);
+                b.println(format!("[study] {line}"));
+                p.show(&s);
+            }
+            None => eprintln!("[study] {line}"),
+        }
+    }
+}
+
 fn humantime(s: f64) -> String {
     let m = (s / 60.0).round() as u64;
     if m >= 60 { format!("{} h {:02} min", m / 60, m % 60) } else { format!("{m} min") }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lanes_finish_the_work_that_many_times_as_fast() {
+        let plan = [(Kind::Train, 1000.0), (Kind::Train, 1000.0), (Kind::Eval, 100.0)];
+        let (one, two) = (Progress::new(&plan, 1), Progress::new(&plan, 2));
+        for p in [&one, &two] {
+            // 1,000 frames in 10 s a lane
+            p.lane(0).step(Kind::Train, 1000.0, Some(10.0), "trained");
+        }
+        let eta = |p: &Progress| p.eta(&p.state());
+        // the frames left at the measured rate, Random's programs at the prior rate
+        assert_eq!(eta(&one), 10.0 + 100.0 / 15.0);
+        assert_eq!(eta(&two), 5.0 + 100.0 / 15.0);
+    }
 }
