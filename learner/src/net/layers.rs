@@ -192,7 +192,7 @@ impl FrozenTrunk {
         let trunk = Resnet18::new(&(vs.root() / "resnet"));
         let bf16 = bf16.then(|| {
             let mut half = nn::VarStore::new(vs.device());
-            let t = Resnet18::new(&(half.root() / "resnet"));
+            let t = Resnet18::folded(&(half.root() / "resnet"));
             half.bfloat16();
             half.freeze();
             for (_, mut v) in half.variables() {
@@ -207,7 +207,9 @@ impl FrozenTrunk {
                 let _ = v.set_requires_grad(false);
             }
         }
-        FrozenTrunk { trunk, bf16 }
+        let trunk = FrozenTrunk { trunk, bf16 };
+        trunk.refresh(vs);
+        trunk
     }
 
     /// conv5 features of images in 0..1, `[B, C, H, W]`, in the kind the rollout stores.
@@ -223,13 +225,14 @@ impl FrozenTrunk {
         if self.bf16.is_some() { Kind::BFloat16 } else { Kind::Float }
     }
 
-    /// Copies the (f32) trunk weights into the bf16 copy; after loading weights.
+    /// Makes the bf16 copy from the (f32) trunk's weights, its batch norms folded into its
+    /// convolutions; after loading weights.
     pub(crate) fn refresh(&self, vs: &nn::VarStore) {
         if let Some((half, _)) = &self.bf16 {
             let src = vs.variables();
             tch::no_grad(|| {
                 for (name, mut dst) in half.variables() {
-                    dst.copy_(&src[&name].to_kind(dst.kind()));
+                    dst.copy_(&resnet::fold_batch_norms(&src, &name).to_kind(dst.kind()));
                 }
             });
         }
@@ -291,8 +294,8 @@ mod tests {
         }
     }
 
-    /// The bf16 copy of the frozen trunk (used on CUDA) follows the f32 weights, in channels-last
-    /// layout: checked on the CPU, which runs bf16 convolutions too.
+    /// The bf16 copy of the frozen trunk (used on CUDA) follows the f32 weights, its batch norms
+    /// folded in, in channels-last layout: checked on the CPU, which runs bf16 convolutions too.
     #[test]
     fn bf16_trunk_copy_tracks_the_f32_weights() {
         let vs = nn::VarStore::new(Device::Cpu);
@@ -300,9 +303,18 @@ mod tests {
         let f = crate::device::seeded(7, || FrozenTrunk::new(&vs, true));
         crate::device::seeded(8, || {
             tch::no_grad(|| {
+                // every batch norm's statistics and affine map away from their initial values
                 for (k, mut v) in vs.variables() {
-                    if k.starts_with("resnet.") && k.ends_with("running_var") {
-                        v.copy_(&(Tensor::rand_like(&v) + 0.5));
+                    if !k.starts_with("resnet.") || v.dim() != 1 {
+                        continue;
+                    }
+                    let r = Tensor::rand_like(&v);
+                    if k.ends_with("running_var") {
+                        v.copy_(&(r + 0.5));
+                    } else if k.ends_with("weight") {
+                        v.copy_(&(r * 0.5 + 0.75));
+                    } else {
+                        v.copy_(&((r - 0.5) * 0.2));
                     }
                 }
             })

@@ -38,25 +38,45 @@ pub fn imagenet_normalize(x: &Tensor) -> Tensor {
     (x - mean) / std
 }
 
+/// A convolution and its batch norm — or, in a folded trunk, the convolution alone with the
+/// norm's frozen affine map folded into its weights and a bias ([`fold_batch_norms`]).
 #[derive(Debug)]
 struct ConvBn {
     conv: nn::Conv2D,
-    bn: nn::BatchNorm,
+    bn: Option<nn::BatchNorm>,
 }
 
 impl ConvBn {
-    fn new(p: &nn::Path, conv: &str, bn: &str, c_in: i64, c_out: i64, k: i64, stride: i64, bn_zero: bool) -> ConvBn {
-        let cfg = nn::ConvConfig { stride, padding: k / 2, bias: false, ..Default::default() };
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        p: &nn::Path,
+        conv: &str,
+        bn: &str,
+        c_in: i64,
+        c_out: i64,
+        k: i64,
+        stride: i64,
+        bn_zero: bool,
+        folded: bool,
+    ) -> ConvBn {
+        let cfg = nn::ConvConfig { stride, padding: k / 2, bias: folded, ..Default::default() };
         let bn_cfg = nn::BatchNormConfig {
             ws_init: nn::Init::Const(if bn_zero { 0.0 } else { 1.0 }),
             bs_init: nn::Init::Const(0.0),
             ..Default::default()
         };
-        ConvBn { conv: nn::conv2d(p / conv, c_in, c_out, k, cfg), bn: nn::batch_norm2d(p / bn, c_out, bn_cfg) }
+        ConvBn {
+            conv: nn::conv2d(p / conv, c_in, c_out, k, cfg),
+            bn: (!folded).then(|| nn::batch_norm2d(p / bn, c_out, bn_cfg)),
+        }
     }
 
     fn forward(&self, x: &Tensor) -> Tensor {
-        x.apply(&self.conv).apply_t(&self.bn, false)
+        let y = x.apply(&self.conv);
+        match &self.bn {
+            Some(bn) => y.apply_t(bn, false),
+            None => y,
+        }
     }
 }
 
@@ -88,7 +108,21 @@ pub struct Resnet18 {
 impl Resnet18 {
     /// Builds the trunk under `p` with torchvision's names (`conv1`, `bn1`, `layer1.0.conv1`, ...).
     pub fn new(p: &nn::Path) -> Resnet18 {
-        let stem = ConvBn::new(p, "conv1", "bn1", 3, 64, 7, 2, false);
+        Resnet18::build(p, false)
+    }
+
+    /// The trunk without batch norms: each convolution has a bias instead, for weights made by
+    /// [`fold_batch_norms`] (a frozen trunk only: a third fewer kernels, none of them a pass of
+    /// its own over the activations).
+    pub fn folded(p: &nn::Path) -> Resnet18 {
+        Resnet18::build(p, true)
+    }
+
+    fn build(p: &nn::Path, folded: bool) -> Resnet18 {
+        let conv_bn = |q: &nn::Path, conv, bn, c_in, c_out, k, stride, bn_zero| {
+            ConvBn::new(q, conv, bn, c_in, c_out, k, stride, bn_zero, folded)
+        };
+        let stem = conv_bn(p, "conv1", "bn1", 3, 64, 7, 2, false);
         let mut blocks = Vec::new();
         let mut c_in = 64;
         for (layer, c_out) in [(1, 64), (2, 128), (3, 256), (4, 512)] {
@@ -96,10 +130,10 @@ impl Resnet18 {
                 let q = p / format!("layer{layer}") / i.to_string();
                 let stride = if layer > 1 && i == 0 { 2 } else { 1 };
                 let down = (stride != 1 || c_in != c_out)
-                    .then(|| ConvBn::new(&(&q / "downsample"), "0", "1", c_in, c_out, 1, stride, false));
+                    .then(|| conv_bn(&(&q / "downsample"), "0", "1", c_in, c_out, 1, stride, false));
                 blocks.push(BasicBlock {
-                    a: ConvBn::new(&q, "conv1", "bn1", c_in, c_out, 3, stride, false),
-                    b: ConvBn::new(&q, "conv2", "bn2", c_out, c_out, 3, 1, true),
+                    a: conv_bn(&q, "conv1", "bn1", c_in, c_out, 3, stride, false),
+                    b: conv_bn(&q, "conv2", "bn2", c_out, c_out, 3, 1, true),
                     down,
                 });
                 c_in = c_out;
@@ -114,6 +148,28 @@ impl Resnet18 {
             x = b.forward(&x);
         }
         x
+    }
+}
+
+/// The weights of a folded trunk ([`Resnet18::folded`]) from a trunk's with batch norms, both
+/// named as torchvision does under `prefix`: for each convolution `c` with norm `n` (eval mode,
+/// ε = 1e-5), s = γ / √(σ² + ε), weight' = weight · s per output channel, bias' = β − μ · s.
+/// `conv_var` is a variable of the folded trunk (`…conv1.weight`, `…downsample.0.bias`); the
+/// result is in f32.
+pub fn fold_batch_norms(vars: &HashMap<String, Tensor>, conv_var: &str) -> Tensor {
+    let (conv, field) = conv_var.rsplit_once('.').expect("a variable name has a field");
+    let bn = match conv.rsplit_once('.') {
+        Some((block, "conv1")) => format!("{block}.bn1"),
+        Some((block, "conv2")) => format!("{block}.bn2"),
+        Some((down, "0")) => format!("{down}.1"),
+        _ => conv.replace("conv1", "bn1"), // the stem: `<prefix>conv1`
+    };
+    let get = |name: String| vars.get(&name).unwrap_or_else(|| panic!("no {name} to fold")).to_kind(Kind::Float);
+    let scale = get(format!("{bn}.weight")) / (get(format!("{bn}.running_var")) + 1e-5).sqrt();
+    match field {
+        "weight" => get(format!("{conv}.weight")) * scale.view([-1, 1, 1, 1]),
+        "bias" => get(format!("{bn}.bias")) - get(format!("{bn}.running_mean")) * scale,
+        other => panic!("{conv_var}: a folded convolution has no `{other}`"),
     }
 }
 
@@ -211,6 +267,48 @@ pub fn check_weights(path: &Path) -> Result<String, WeightsError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The folded trunk, its weights from `fold_batch_norms`, gives what the trunk with its batch
+    /// norms gives (f32, every norm's statistics and affine map drawn at random), at the stem's
+    /// name without a prefix and under one.
+    #[test]
+    fn a_folded_trunk_equals_the_trunk_with_its_norms() {
+        for prefix in [None, Some("resnet")] {
+            let (vs, folded_vs) = (nn::VarStore::new(Device::Cpu), nn::VarStore::new(Device::Cpu));
+            fn at<'a>(v: &'a nn::VarStore, prefix: Option<&str>) -> nn::Path<'a> {
+                match prefix {
+                    Some(p) => v.root() / p,
+                    None => v.root(),
+                }
+            }
+            let (net, folded, x) = crate::device::seeded(9, || {
+                let net = Resnet18::new(&at(&vs, prefix));
+                tch::no_grad(|| {
+                    for (k, mut v) in vs.variables() {
+                        if v.dim() == 1 {
+                            let r = Tensor::rand_like(&v);
+                            v.copy_(&if k.ends_with("running_var") { r + 0.5 } else { r - 0.5 });
+                        }
+                    }
+                });
+                (
+                    net,
+                    Resnet18::folded(&at(&folded_vs, prefix)),
+                    Tensor::randn([2, 3, 64, 64], (Kind::Float, Device::Cpu)),
+                )
+            });
+            let src = vs.variables();
+            tch::no_grad(|| {
+                for (name, mut dst) in folded_vs.variables() {
+                    dst.copy_(&fold_batch_norms(&src, &name));
+                }
+            });
+            let (want, got) = tch::no_grad(|| (net.forward(&x), folded.forward(&x)));
+            let scale = want.abs().max().double_value(&[]);
+            let err = (&want - &got).abs().max().double_value(&[]);
+            assert!(err < 1e-4 * scale.max(1.0), "{prefix:?}: error {err} against {scale}");
+        }
+    }
 
     #[test]
     fn conv5_is_7x7_for_224_and_2x2_for_64() {
