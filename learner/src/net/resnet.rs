@@ -112,8 +112,8 @@ impl Resnet18 {
     }
 
     /// The trunk without batch norms: each convolution has a bias instead, for weights made by
-    /// [`fold_batch_norms`] (a frozen trunk only: a third fewer kernels, none of them a pass of
-    /// its own over the activations).
+    /// [`fold_batch_norms`] (a frozen trunk only: no batch-norm kernels, each of which was a pass
+    /// of its own over the activations).
     pub fn folded(p: &nn::Path) -> Resnet18 {
         Resnet18::build(p, true)
     }
