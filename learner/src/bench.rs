@@ -263,6 +263,13 @@ pub fn run(
             }
             out(&forward("faithful (224², frozen ResNet-18, 512, GRU 2)", &cfg, n, device, reps_slow)?);
         }
+        if device.is_cuda()
+            && let Some(&n) = sizes.act.iter().max()
+        {
+            for f in trunk(n, device, reps_slow) {
+                out(&f);
+            }
+        }
         for &(envs, minibatches) in &sizes.update {
             let mut c = cfg.clone();
             c.ppo.minibatches = minibatches;
@@ -278,6 +285,38 @@ pub fn run(
 pub struct FaithfulSizes {
     pub act: Vec<usize>,
     pub update: Vec<(usize, usize)>,
+}
+
+/// The frozen ResNet-18 alone on one acting round's images (RGB and depth of `batch` envs at
+/// 224²), in bf16 and channels-last as acting runs it: with its batch norms, and folded (on a
+/// GPU its convolutions fused with their ReLU and residual sum) — what `FrozenTrunk` runs now.
+pub fn trunk(batch: usize, device: Device, reps: usize) -> Vec<Figure> {
+    use crate::net::layers::channels_last;
+    use crate::net::resnet::Resnet18;
+    let x = channels_last(&Tensor::rand([2 * batch as i64, 3, 224, 224], (tch::Kind::BFloat16, device)));
+    [("with batch norms", false), ("folded, fused on a GPU", true)]
+        .into_iter()
+        .map(|(way, folded)| {
+            let mut vs = nn::VarStore::new(device);
+            let net = if folded { Resnet18::folded(&vs.root()) } else { Resnet18::new(&vs.root()) };
+            vs.bfloat16();
+            for (_, mut v) in vs.variables() {
+                if v.dim() == 4 {
+                    v.set_data(&channels_last(&v));
+                }
+            }
+            let ms = median_ms(
+                || {
+                    let _ = tch::no_grad(|| net.forward(&x));
+                    if device.is_cuda() {
+                        tch::Cuda::synchronize(0);
+                    }
+                },
+                reps,
+            );
+            Figure { name: format!("frozen ResNet-18, {} images of 224², bf16, {way}", 2 * batch), ms, reps }
+        })
+        .collect()
 }
 
 /// The frames of one round of `batch` envs onto a GPU (224² RGB u8 and 16-bit depth): straight
@@ -305,4 +344,17 @@ pub fn transfer(cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> V
             Figure { name: format!("frames to the GPU, batch {batch}, {mb:.0} MB, {way}"), ms, reps }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The trunk figures the GPU bench prints, made on the CPU: two, each a time.
+    #[test]
+    fn trunk_figures_run_on_the_cpu() {
+        let figures = trunk(1, Device::Cpu, 1);
+        assert_eq!(figures.len(), 2);
+        assert!(figures.iter().all(|f| f.ms > 0.0 && f.name.contains("2 images of 224²")), "{figures:?}");
+    }
 }

@@ -44,6 +44,28 @@ pub fn imagenet_normalize(x: &Tensor) -> Tensor {
 struct ConvBn {
     conv: nn::Conv2D,
     bn: Option<nn::BatchNorm>,
+    /// The convolution's stride and padding (tch keeps its config private), for the fused calls.
+    stride: i64,
+    padding: i64,
+}
+
+/// Set once cuDNN has refused a fused convolution here: the trunk then runs unfused.
+static FUSED_REFUSED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// `fused()`, or `plain()` where the fused call is not to be tried or was refused (said once).
+fn fused_or(fused: impl FnOnce() -> Result<Tensor, tch::TchError>, plain: impl FnOnce() -> Tensor) -> Tensor {
+    use std::sync::atomic::Ordering;
+    if !FUSED_REFUSED.load(Ordering::Relaxed) {
+        match fused() {
+            Ok(y) => return y,
+            Err(e) => {
+                if !FUSED_REFUSED.swap(true, Ordering::Relaxed) {
+                    tracing::warn!("fused cuDNN convolutions refused, the trunk runs unfused: {e}");
+                }
+            }
+        }
+    }
+    plain()
 }
 
 impl ConvBn {
@@ -68,6 +90,8 @@ impl ConvBn {
         ConvBn {
             conv: nn::conv2d(p / conv, c_in, c_out, k, cfg),
             bn: (!folded).then(|| nn::batch_norm2d(p / bn, c_out, bn_cfg)),
+            stride,
+            padding: k / 2,
         }
     }
 
@@ -77,6 +101,36 @@ impl ConvBn {
             Some(bn) => y.apply_t(bn, false),
             None => y,
         }
+    }
+
+    /// Whether this convolution may run as one cuDNN kernel with what follows it: folded (no
+    /// norm between) and on a GPU.
+    fn fusable(&self, x: &Tensor) -> bool {
+        self.bn.is_none() && x.device().is_cuda()
+    }
+
+    /// ReLU(conv(x)), in one kernel where it is fusable.
+    fn forward_relu(&self, x: &Tensor) -> Tensor {
+        let (s, p) = ([self.stride; 2], [self.padding; 2]);
+        if !self.fusable(x) {
+            return self.forward(x).relu();
+        }
+        fused_or(
+            || x.f_cudnn_convolution_relu(&self.conv.ws, self.conv.bs.as_ref(), s, p, [1, 1], 1),
+            || self.forward(x).relu(),
+        )
+    }
+
+    /// ReLU(conv(x) + z), in one kernel where it is fusable.
+    fn forward_add_relu(&self, x: &Tensor, z: &Tensor) -> Tensor {
+        let (s, p) = ([self.stride; 2], [self.padding; 2]);
+        if !self.fusable(x) {
+            return (self.forward(x) + z).relu();
+        }
+        fused_or(
+            || x.f_cudnn_convolution_add_relu(&self.conv.ws, z, 1.0, self.conv.bs.as_ref(), s, p, [1, 1], 1),
+            || (self.forward(x) + z).relu(),
+        )
     }
 }
 
@@ -89,12 +143,11 @@ struct BasicBlock {
 
 impl BasicBlock {
     fn forward(&self, x: &Tensor) -> Tensor {
-        let y = self.b.forward(&self.a.forward(x).relu());
         let shortcut = match &self.down {
             Some(d) => d.forward(x),
             None => x.shallow_clone(),
         };
-        (y + shortcut).relu()
+        self.b.forward_add_relu(&self.a.forward_relu(x), &shortcut)
     }
 }
 
@@ -113,7 +166,8 @@ impl Resnet18 {
 
     /// The trunk without batch norms: each convolution has a bias instead, for weights made by
     /// [`fold_batch_norms`] (a frozen trunk only: no batch-norm kernels, each of which was a pass
-    /// of its own over the activations).
+    /// of its own over the activations). On a GPU its convolutions run fused with the ReLU (and
+    /// the residual sum) that follow them, cuDNN's `convolution_relu` and `convolution_add_relu`.
     pub fn folded(p: &nn::Path) -> Resnet18 {
         Resnet18::build(p, true)
     }
@@ -143,7 +197,7 @@ impl Resnet18 {
     }
 
     pub fn forward(&self, x: &Tensor) -> Tensor {
-        let mut x = self.stem.forward(x).relu().max_pool2d([3, 3], [2, 2], [1, 1], [1, 1], false);
+        let mut x = self.stem.forward_relu(x).max_pool2d([3, 3], [2, 2], [1, 1], [1, 1], false);
         for b in &self.blocks {
             x = b.forward(&x);
         }
