@@ -4,8 +4,8 @@
 //! Frames and gestures are read in place from the batch's buffers with `from_blob` (shared memory,
 //! in the farm) and copied once: onto the GPU, or into the rollout storage. On the CPU with one
 //! frame group no host copy is made at all, so [`Prepared`] carries the batch's lifetime. Frames
-//! bound for a GPU may pass through a page-locked [`Staging`] buffer instead (one DMA for all
-//! groups; `learner bench --faithful` times both ways).
+//! and gestures bound for a GPU pass through page-locked [`Staging`] buffers instead (one DMA
+//! for all groups; `learner bench --faithful` times both ways for the frames).
 
 use std::sync::Mutex;
 
@@ -104,7 +104,7 @@ pub fn depth_unit(raw: &Tensor) -> Tensor {
     (raw.to_kind(Kind::Int).bitwise_and(0xFFFF).to_kind(Kind::Float) / 65535.0).unsqueeze(1)
 }
 
-/// Page-locked host buffers for the frames on their way to a GPU, one per field, kept from batch
+/// Page-locked host buffers for the frames and gestures on their way to a GPU, one per field, kept from batch
 /// to batch (allocated at the first, again when the batch's shape changes). A copy from pageable
 /// memory — the workers' shared memory — goes through the driver's own small bounce buffer piece
 /// by piece; from pinned memory it is one DMA per field, after one host copy into it.
@@ -112,6 +112,7 @@ pub fn depth_unit(raw: &Tensor) -> Tensor {
 pub(crate) struct Staging {
     rgb: Mutex<Option<Tensor>>,
     depth: Mutex<Option<Tensor>>,
+    gesture: Mutex<Option<Tensor>>,
 }
 
 impl Staging {
@@ -123,6 +124,11 @@ impl Staging {
     /// The batch's depth on `device`, as [`Staging::rgb`].
     pub(crate) fn depth(&self, obs: &EnvBatch, device: Device) -> Tensor {
         depth_gather(obs, device, Some(&self.depth))
+    }
+
+    /// The batch's gestures on `device`, as [`Staging::rgb`].
+    pub(crate) fn gesture(&self, obs: &EnvBatch, device: Device) -> Tensor {
+        gesture_gather(obs, device, Some(&self.gesture))
     }
 }
 
@@ -156,9 +162,9 @@ fn depth_gather(obs: &EnvBatch, device: Device, pinned: Option<&Mutex<Option<Ten
 }
 
 /// Gestures `[N, 100, 95]` in half precision on `device`.
-pub(crate) fn gesture_tensor(obs: &EnvBatch, device: Device) -> Tensor {
+fn gesture_gather(obs: &EnvBatch, device: Device, pinned: Option<&Mutex<Option<Tensor>>>) -> Tensor {
     let shape = |e: usize| [e as i64, GESTURE_FRAMES as i64, GESTURE_DIMS as i64];
-    let t = gather(obs, device, None, |f| match f.gesture {
+    let t = gather(obs, device, pinned, |f| match f.gesture {
         // SAFETY: as for rgb.
         GestureView::F16(s) => unsafe {
             Tensor::from_blob(s.as_ptr() as *const u8, &shape(f.envs), &[], Kind::Half, Device::Cpu)
@@ -249,7 +255,8 @@ mod tests {
         one.validate(5, (4, 6)).unwrap();
         many.validate(5, (4, 6)).unwrap();
         assert!(rgb_tensor(&one, Device::Cpu).equal(&rgb_tensor(&many, Device::Cpu)));
-        assert!(gesture_tensor(&one, Device::Cpu).equal(&gesture_tensor(&many, Device::Cpu)));
+        let staging = Staging::default();
+        assert!(staging.gesture(&one, Device::Cpu).equal(&staging.gesture(&many, Device::Cpu)));
         let d = depth_tensor(&many, Device::Cpu);
         assert_eq!(d.size(), vec![5, 4, 6]);
         // u16 patterns come back from the Int16 view

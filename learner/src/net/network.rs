@@ -146,7 +146,7 @@ impl PolicyNet {
             }
             let gesture = s.gesture.then(|| {
                 let mask = inputs::gesture_mask(obs, device).to_kind(Kind::Half).view([-1, 1, 1]);
-                inputs::gesture_tensor(obs, device).narrow(2, 0, s.gesture_dims) * mask
+                self.staging.gesture(obs, device).narrow(2, 0, s.gesture_dims) * mask
             });
             Inputs {
                 rgb,
