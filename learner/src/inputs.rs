@@ -104,10 +104,11 @@ pub fn depth_unit(raw: &Tensor) -> Tensor {
     (raw.to_kind(Kind::Int).bitwise_and(0xFFFF).to_kind(Kind::Float) / 65535.0).unsqueeze(1)
 }
 
-/// Page-locked host buffers for the frames and gestures on their way to a GPU, one per field, kept from batch
-/// to batch (allocated at the first, again when the batch's shape changes). A copy from pageable
-/// memory — the workers' shared memory — goes through the driver's own small bounce buffer piece
-/// by piece; from pinned memory it is one DMA per field, after one host copy into it.
+/// Page-locked host buffers for the frames and gestures on their way to a GPU, one per field,
+/// kept from batch to batch (allocated at the first, again when the batch's shape changes). A
+/// copy from pageable memory — the workers' shared memory — goes through the driver's own small
+/// bounce buffer piece by piece; from pinned memory it is one DMA per field, after one host copy
+/// into it.
 #[derive(Debug, Default)]
 pub(crate) struct Staging {
     rgb: Mutex<Option<Tensor>>,
