@@ -143,23 +143,8 @@ fn a_study_sent_sigterm_stops_its_running_step() {
     let cfg = configs(tmp.path());
     let out = tmp.path().join("study");
     // 64 frames an update: this budget is thousands of updates, far more than run before the kill
-    let mut child =
-        study_of(&cfg, &out, "vis_sem", 200_000).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    sigterm_once_training(study_of(&cfg, &out, "vis_sem", 200_000), &out, &["vis_sem-seed1"]);
     let ckpts = out.join("runs/vis_sem-seed1/checkpoints");
-    let metrics = out.join("runs/vis_sem-seed1/metrics.jsonl");
-    let started = Instant::now();
-    while std::fs::metadata(&metrics).map_or(0, |m| m.len()) == 0 {
-        assert!(started.elapsed() < DEADLINE, "VisSem never finished an update");
-        assert!(child.try_wait().unwrap().is_none(), "the study ended before VisSem's first update");
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    // the study alone, as `kill PID` does (its step runs in a process group of its own)
-    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGTERM).unwrap();
-    let o = child.wait_with_output().unwrap();
-    let log = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "{log}");
-    assert!(log.contains("stopped by a signal; run the same command again to continue"), "{log}");
-    assert!(processes_mentioning(&out.display().to_string()).is_empty(), "a step outlived the study");
     // the step stopped short of its budget (its first periodic checkpoint is half way) and wrote
     // a checkpoint to resume from
     let kept = mtimes(&ckpts);
@@ -237,6 +222,27 @@ fn a_published_study_continues_from_its_records_without_its_folder() {
     assert_eq!(std::fs::read_to_string(docs.join("records/both-seed1/record.json")).unwrap(), record);
 }
 
+/// Starts `study` (into `out`), sends it SIGTERM — the study alone, as `kill PID` does (its steps
+/// run in process groups of their own) — once each of `runs` has finished an update, and checks
+/// it stopped as a signal should: failing, saying how to continue, no step left running. Its log.
+fn sigterm_once_training(mut study: Command, out: &Path, runs: &[&str]) -> String {
+    let mut child = study.stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let metrics = |name: &str| out.join("runs").join(name).join("metrics.jsonl");
+    let started = Instant::now();
+    while runs.iter().any(|n| std::fs::metadata(metrics(n)).map_or(0, |m| m.len()) == 0) {
+        assert!(started.elapsed() < DEADLINE, "{runs:?} never all finished an update");
+        assert!(child.try_wait().unwrap().is_none(), "the study ended before {runs:?} each finished an update");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGTERM).unwrap();
+    let o = child.wait_with_output().unwrap();
+    let log = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(!o.status.success(), "{log}");
+    assert!(log.contains("stopped by a signal; run the same command again to continue"), "{log}");
+    assert!(processes_mentioning(&out.display().to_string()).is_empty(), "a step outlived the study");
+    log
+}
+
 /// When run `name` of study `out` started training, and when it wrote its last checkpoint.
 fn trained_between(out: &Path, name: &str) -> (u64, u64) {
     let run = out.join("runs").join(name);
@@ -297,25 +303,9 @@ fn a_parallel_study_sent_sigterm_stops_every_model_in_flight() {
     let cfg = configs(tmp.path());
     let out = tmp.path().join("study");
     // thousands of updates each, far more than run before the kill
-    let mut child = study_of(&cfg, &out, "both,vis_sem", 200_000)
-        .args(["--parallel", "2"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let metrics = |name: &str| out.join("runs").join(name).join("metrics.jsonl");
-    let started = Instant::now();
-    while ["both-seed1", "vis_sem-seed1"].iter().any(|n| std::fs::metadata(metrics(n)).map_or(0, |m| m.len()) == 0) {
-        assert!(started.elapsed() < DEADLINE, "the two models never both finished an update");
-        assert!(child.try_wait().unwrap().is_none(), "the study ended before both models' first update");
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    nix::sys::signal::kill(nix::unistd::Pid::from_raw(child.id() as i32), nix::sys::signal::Signal::SIGTERM).unwrap();
-    let o = child.wait_with_output().unwrap();
-    let log = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "{log}");
-    assert!(log.contains("stopped by a signal; run the same command again to continue"), "{log}");
-    assert!(processes_mentioning(&out.display().to_string()).is_empty(), "a step outlived the study");
+    let mut study = study_of(&cfg, &out, "both,vis_sem", 200_000);
+    study.args(["--parallel", "2"]);
+    let log = sigterm_once_training(study, &out, &["both-seed1", "vis_sem-seed1"]);
     // each stopped short of its budget and wrote a checkpoint to resume from
     for name in ["both-seed1", "vis_sem-seed1"] {
         let kept = mtimes(&out.join("runs").join(name).join("checkpoints"));
