@@ -580,7 +580,7 @@ fn eval_of_the_expert_scores_full_success_and_random_does_not() {
 
 /// `orchestrator bench train` on a few hundred frames: the table, and a profile in the run's
 /// last progress record with time in the learner's update and inference and in the workers'
-/// rendering and waiting.
+/// rendering and waiting; a `--set` changes the config, and the table's command says so.
 #[test]
 fn bench_train_reports_throughput_and_where_the_time_went() {
     let _g = serial();
@@ -592,10 +592,12 @@ fn bench_train_reports_throughput_and_where_the_time_went() {
         .arg(&cfg)
         .arg("--out")
         .arg(&out_dir)
+        .args(["--set", "env.envs_per_worker=3"])
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let md = std::fs::read_to_string(out_dir.join("bench_train.md")).unwrap();
+    assert!(md.contains("--set env.envs_per_worker=3") && md.contains("2 workers × 3 envs"), "{md}");
     // the learner names where it ran (CPU here, CUDA on a GPU machine)
     for row in ["Learner: device ", "end-to-end frames/s", "PPO update", "inference", "render", "waiting for actions"] {
         assert!(md.contains(row), "no `{row}` in\n{md}");
