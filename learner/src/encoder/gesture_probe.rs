@@ -190,14 +190,8 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
         ahead_share,
         probes,
     };
-    let write = |ext: &str, text: String| {
-        let p = farm::files::with_ext(out, ext);
-        farm::files::write_atomic(&p, text.as_bytes())
-            .map_err(|e| GestureProbeError { file: p.display().to_string(), message: format!("cannot write: {e}") })
-    };
-    write("json", serde_json::to_string_pretty(&report).expect("serialises") + "\n")?;
-    write("md", report.table())?;
-    print!("{}", report.table());
+    super::probe::write_report(out, &report, &report.table())
+        .map_err(|(file, message)| GestureProbeError { file, message })?;
     Ok(report)
 }
 

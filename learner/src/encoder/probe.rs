@@ -364,15 +364,22 @@ pub fn probe(o: &ProbeOptions, out: &Path) -> Result<ProbeReport, ProbeError> {
         held_out_rooms: h.held_out.clone(),
         probes,
     };
-    let write = |ext: &str, text: String| {
+    write_report(out, &report, &report.table()).map_err(|(file, message)| ProbeError::Unusable { file, message })?;
+    Ok(report)
+}
+
+/// A probe's report as `OUT.json` and its table as `OUT.md` (each written atomically), and the
+/// table printed; else the file that could not be written, and why.
+pub(super) fn write_report(out: &Path, report: &impl Serialize, table: &str) -> Result<(), (String, String)> {
+    let write = |ext: &str, text: &str| {
         let p = farm::files::with_ext(out, ext);
         farm::files::write_atomic(&p, text.as_bytes())
-            .map_err(|e| ProbeError::Unusable { file: p.display().to_string(), message: format!("cannot write: {e}") })
+            .map_err(|e| (p.display().to_string(), format!("cannot write: {e}")))
     };
-    write("json", serde_json::to_string_pretty(&report).expect("serialises") + "\n")?;
-    write("md", report.table())?;
-    print!("{}", report.table());
-    Ok(report)
+    write("json", &(serde_json::to_string_pretty(report).expect("serialises") + "\n"))?;
+    write("md", table)?;
+    print!("{table}");
+    Ok(())
 }
 
 #[cfg(test)]
