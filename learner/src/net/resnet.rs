@@ -216,7 +216,7 @@ pub fn fold_batch_norms(vars: &HashMap<String, Tensor>, conv_var: &str) -> Tenso
         Some((block, "conv1")) => format!("{block}.bn1"),
         Some((block, "conv2")) => format!("{block}.bn2"),
         Some((down, "0")) => format!("{down}.1"),
-        _ => conv.replace("conv1", "bn1"), // the stem: `<prefix>conv1`
+        _ => conv.replace("conv1", "bn1"), // the stem at the root, `conv1`
     };
     let get = |name: String| vars.get(&name).unwrap_or_else(|| panic!("no {name} to fold")).to_kind(Kind::Float);
     let scale = get(format!("{bn}.weight")) / (get(format!("{bn}.running_var")) + 1e-5).sqrt();
