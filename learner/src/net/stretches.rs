@@ -1,11 +1,11 @@
 //! The GRU over a minibatch's whole sequences as one call ([`gru_over_stretches`]).
 //!
 //! PPO re-runs the GRU over T steps × B envs, each env's memory reset where one of its episodes
-//! starts. A fused GRU cannot reset part of its batch mid-sequence, so the sequences were cut at
-//! every step where *any* env started an episode — with 128 envs in a minibatch, nearly one call
-//! per step. Here each env's steps are cut at its own starts into stretches, and the stretches
-//! run side by side as torch's packed sequences (longest first): one call, as long as the longest
-//! stretch, whatever the number of episodes.
+//! starts. A fused GRU cannot reset part of its batch mid-sequence; cutting the whole batch at
+//! every step where *any* env starts an episode would make, with 128 envs in a minibatch, nearly
+//! one call per step. So each env's steps are cut at its own starts into stretches, and the
+//! stretches run side by side as torch's packed sequences (longest first): one call, as long as
+//! the longest stretch, whatever the number of episodes.
 
 use tch::{Device, Tensor, nn};
 
