@@ -303,12 +303,7 @@ pub fn trunk(batch: usize, device: Device, reps: usize) -> Vec<Figure> {
         .map(|(way, folded)| {
             let mut vs = nn::VarStore::new(device);
             let net = if folded { Resnet18::folded(&vs.root()) } else { Resnet18::new(&vs.root()) };
-            vs.bfloat16();
-            for (_, mut v) in vs.variables() {
-                if v.dim() == 4 {
-                    v.set_data(&channels_last(&v));
-                }
-            }
+            crate::net::layers::bf16_channels_last(&mut vs);
             let ms = median_ms(
                 || {
                     let _ = tch::no_grad(|| net.forward(&x));

@@ -193,13 +193,8 @@ impl FrozenTrunk {
         let bf16 = bf16.then(|| {
             let mut half = nn::VarStore::new(vs.device());
             let t = Resnet18::folded(&(half.root() / "resnet"));
-            half.bfloat16();
+            bf16_channels_last(&mut half);
             half.freeze();
-            for (_, mut v) in half.variables() {
-                if v.dim() == 4 {
-                    v.set_data(&channels_last(&v));
-                }
-            }
             (half, t)
         });
         for (name, v) in vs.variables() {
@@ -278,6 +273,17 @@ impl FrozenTrunk {
 /// every layer. Same shape and values.
 pub(crate) fn channels_last(x: &Tensor) -> Tensor {
     x.permute([0, 2, 3, 1]).contiguous().permute([0, 3, 1, 2])
+}
+
+/// Makes every variable of `vs` bf16, its convolution weights channels-last: how a frozen trunk
+/// runs on the GPU's tensor cores.
+pub(crate) fn bf16_channels_last(vs: &mut nn::VarStore) {
+    vs.bfloat16();
+    for (_, mut v) in vs.variables() {
+        if v.dim() == 4 {
+            v.set_data(&channels_last(&v));
+        }
+    }
 }
 
 /// The actor and critic heads: a plain MLP.
