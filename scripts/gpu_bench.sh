@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The faithful config's throughput on a GPU machine (BENCHMARKS.md, "On the H100"): the learner's
-# acting and update at several batch sizes, then `bench train` end to end at §4.3.2's 20 envs and
-# at GPU-sized rounds (its last row, configs/faithful-gpu, was measured by hand in that lease). For a machine with CUDA PyTorch and no Rust: the binaries are built
+# acting and update at several batch sizes, PyTorch's own trunk and transfer for comparison, then
+# `bench train` end to end at §4.3.2's 20 envs and at configs/faithful-gpu's rounds of 512 envs
+# (one group, two groups). For a machine with CUDA PyTorch and no Rust: the binaries are built
 # elsewhere and found in $GESTHOR_BIN_DIR (default target/release); libtorch is the machine's
 # PyTorch; a Vulkan loader carried as Debian packages in .gl/ is unpacked when there.
 #
@@ -37,19 +38,21 @@ python3 -c "import torch, torchvision; torch.save(torchvision.models.resnet18().
 step learner bench
 timeout 150 "$bin/learner" bench --faithful --act 20,64,128,256,512 --update 20x2,256x8,256x4,256x2 --reps 5 2>&1 | tee "$out/learner-bench.txt"
 
-# end to end: §4.3.2's 20 envs (the command of the 1,629 frames/s), rounds of 256, and
-# configs/faithful-gpu (rounds of 512)
+step trunk and transfer ceilings
+timeout 60 python3 scripts/gpu_trunk_ceiling.py 256 512 2>&1 | tee "$out/ceiling.txt"
+
+# end to end: §4.3.2's 20 envs (the command of the 1,629 frames/s), and configs/faithful-gpu
+# (rounds of 512 envs) with one round for all and with its two groups of workers in turn
 nvidia-smi dmon -s u -d 1 > "$out/dmon.txt" 2>&1 &
 dmon=$!
 step train 5x4
 timeout 120 "$bin/orchestrator" bench train --config configs/faithful/both.toml --workers 5 --frames 30000 \
   --out /tmp/bench-20 --table "$out/train-20.md" 2>&1 | grep -v "^\[bench\] [0-9]" | tail -3
-step train 16x16
-timeout 150 "$bin/orchestrator" bench train --config configs/faithful/both.toml --workers 16 \
-  --set env.envs_per_worker=16 --set ppo.minibatches=8 --frames 200000 \
-  --out /tmp/bench-256 --table "$out/train-256.md" 2>&1 | grep -v "^\[bench\] [0-9]" | tail -3
-step train faithful-gpu 16x32
-timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.toml --workers 16 --frames 300000 \
+step train faithful-gpu 16x32, one group
+timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.toml --workers 16 --frames 150000 \
+  --set ppo.env_groups=1 --out /tmp/bench-512-g1 --table "$out/train-512-g1.md" 2>&1 | grep -v "^\[bench\] [0-9]" | tail -3
+step train faithful-gpu 16x32, two groups
+timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.toml --workers 16 --frames 150000 \
   --out /tmp/bench-512 --table "$out/train-512.md" 2>&1 | grep -v "^\[bench\] [0-9]" | tail -3
 step done
 kill $dmon 2>/dev/null

@@ -580,7 +580,9 @@ fn eval_of_the_expert_scores_full_success_and_random_does_not() {
 
 /// `orchestrator bench train` on a few hundred frames: the table, and a profile in the run's
 /// last progress record with time in the learner's update and inference and in the workers'
-/// rendering and waiting; a `--set` changes the config, and the table's command says so.
+/// rendering and waiting; a `--set` changes the config, and the table's command says so. Its
+/// rounds are taken by two groups of workers in turn (`ppo.env_groups`), each rollout's last
+/// step by both at once: the run learns (updates counted in the profile) and stops on budget.
 #[test]
 fn bench_train_reports_throughput_and_where_the_time_went() {
     let _g = serial();
@@ -592,12 +594,13 @@ fn bench_train_reports_throughput_and_where_the_time_went() {
         .arg(&cfg)
         .arg("--out")
         .arg(&out_dir)
-        .args(["--set", "env.envs_per_worker=3"])
+        .args(["--set", "env.envs_per_worker=3", "--set", "ppo.env_groups=2"])
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let md = std::fs::read_to_string(out_dir.join("bench_train.md")).unwrap();
     assert!(md.contains("--set env.envs_per_worker=3") && md.contains("2 workers × 3 envs"), "{md}");
+    assert!(md.contains("--set ppo.env_groups=2"), "{md}");
     // the learner names where it ran (CPU here, CUDA on a GPU machine)
     for row in ["Learner: device ", "end-to-end frames/s", "PPO update", "inference", "render", "waiting for actions"] {
         assert!(md.contains(row), "no `{row}` in\n{md}");

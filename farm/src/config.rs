@@ -282,6 +282,11 @@ pub struct PpoConfig {
     /// On CUDA, run the frozen ResNet-18 in bf16 and keep its features in bf16 (the trained
     /// layers stay f32).
     pub mixed_precision: bool,
+    /// Acting rounds taken by this many groups of workers in turn (contiguous blocks), so that
+    /// one group renders while the next is inferred — a GPU setting (1: one round for all). Envs,
+    /// actions and what is learned are those of one round for all; a rollout's last step is
+    /// still one round for all, as the update needs every env's next observation.
+    pub env_groups: usize,
 }
 
 impl Default for PpoConfig {
@@ -299,6 +304,7 @@ impl Default for PpoConfig {
             entropy_coef: 0.01,
             clip_value_loss: true,
             mixed_precision: true,
+            env_groups: 1,
         }
     }
 }
@@ -460,8 +466,8 @@ impl RunConfig {
             return e("task.success_distance", "must be positive".into());
         }
         let p = &self.ppo;
-        if p.rollout == 0 || p.epochs == 0 || p.minibatches == 0 {
-            return e("ppo", "rollout, epochs and minibatches must be at least 1".into());
+        if p.rollout == 0 || p.epochs == 0 || p.minibatches == 0 || p.env_groups == 0 {
+            return e("ppo", "rollout, epochs, minibatches and env_groups must be at least 1".into());
         }
         if !(p.lr > 0.0 && p.lr < 1.0) {
             return e("ppo.lr", format!("must be in (0, 1), got {}", p.lr));

@@ -13,7 +13,7 @@ use tch::{Device, Tensor, nn};
 
 use crate::LearnerError;
 use crate::net::agent::{Actions, Agent, AgentError};
-use crate::obs::{EnvStep, GestureKind, OwnedObs};
+use crate::obs::{EnvStep, GestureKind, ObsError, OwnedObs};
 use crate::ppo::trainer::Trainer;
 
 /// The tiny CPU network of `configs/tiny-e2e/both.toml`: 64×64, small CNN, hidden 256, 1-layer GRU.
@@ -119,23 +119,51 @@ fn median_ms(mut f: impl FnMut(), reps: usize) -> f64 {
     t[t.len() / 2]
 }
 
-/// Acting on one step of `batch` envs: frames in, actions out (the frozen trunk included).
-pub fn forward(name: &str, cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> Result<Figure, LearnerError> {
-    let mut p = Agent::new(cfg, batch, device)?;
-    let o = random_obs(batch, cfg.env.width as usize, 1);
+/// [`median_ms`] of a step that can fail: the first error, if any, instead of a time.
+fn median_ms_or_error<E: Into<LearnerError>>(
+    mut f: impl FnMut() -> Result<(), E>,
+    reps: usize,
+) -> Result<f64, LearnerError> {
     let mut err = None;
     let ms = median_ms(
         || {
-            if let Err(e) = p.act(&o.batch()) {
-                err = Some(e);
+            if let Err(e) = f() {
+                err.get_or_insert(e);
             }
         },
         reps,
     );
-    if let Some(e) = err {
-        return Err(e.into());
-    }
+    err.map_or(Ok(ms), |e| Err(e.into()))
+}
+
+/// Envs per worker in the benches' batches: frames arrive as workers send them, one group each
+/// (configs/faithful-gpu's 32 envs a worker).
+const WORKER_ENVS: usize = 32;
+
+/// Acting on one step of `batch` envs: frames in, actions out (the frozen trunk included).
+pub fn forward(name: &str, cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> Result<Figure, LearnerError> {
+    let mut p = Agent::new(cfg, batch, device)?;
+    let o = random_obs(batch, cfg.env.width as usize, 1);
+    let ms = median_ms_or_error(|| p.act(&o.batch_grouped(WORKER_ENVS)).map(drop), reps)?;
     Ok(Figure { name: format!("{name}: act, batch {batch}"), ms, reps })
+}
+
+/// A training step of `batch` envs as the farm's rounds run it (`Trainer::step` short of an
+/// update): acting, and storing the step in the rollout (its frozen features, gestures,
+/// feedback).
+pub fn train_step(
+    name: &str,
+    cfg: &RunConfig,
+    batch: usize,
+    device: Device,
+    reps: usize,
+) -> Result<Figure, LearnerError> {
+    let mut t = Trainer::new(cfg, batch, device)?;
+    // short of the rollout's end: the warm-up and every repetition store a step
+    let reps = reps.min(t.rollout.steps - 1);
+    let o = random_obs(batch, cfg.env.width as usize, 1);
+    let ms = median_ms_or_error(|| t.step(&o.batch_grouped(WORKER_ENVS)).map(drop), reps)?;
+    Ok(Figure { name: format!("{name}: act and store, batch {batch}"), ms, reps })
 }
 
 /// The visual encoders alone on one step of `batch` envs: frames in, visual features out (what
@@ -151,19 +179,14 @@ pub fn visual_forward(
     vision.run.method = Method::VisionOnly;
     let p = Agent::new(&vision, batch, device)?;
     let o = random_obs(batch, cfg.env.width as usize, 1);
-    let mut err = None;
-    let ms = median_ms(
-        || match p.prepare(&o.batch()) {
-            Ok((x, _)) => {
-                let _ = tch::no_grad(|| p.net.encode(&x));
-            }
-            Err(e) => err = Some(e),
+    let ms = median_ms_or_error(
+        || {
+            let (x, _) = p.prepare(&o.batch())?;
+            let _ = tch::no_grad(|| p.net.encode(&x));
+            Ok::<_, ObsError>(())
         },
         reps,
-    );
-    if let Some(e) = err {
-        return Err(e.into());
-    }
+    )?;
     Ok(Figure { name: format!("{name}: batch {batch} ({:.3} ms a frame)", ms / batch as f64), ms, reps })
 }
 
@@ -262,6 +285,7 @@ pub fn run(
                 }
             }
             out(&forward("faithful (224², frozen ResNet-18, 512, GRU 2)", &cfg, n, device, reps_slow)?);
+            out(&train_step("faithful (224², frozen ResNet-18, 512, GRU 2)", &cfg, n, device, reps_slow)?);
         }
         if device.is_cuda()
             && let Some(&n) = sizes.act.iter().max()
@@ -330,18 +354,22 @@ pub fn trunk_error(batch: usize, device: Device) -> f64 {
     f.bf16_error(&x).expect("a bf16 copy was asked for")
 }
 
-/// The frames of one round of `batch` envs onto a GPU (224² RGB u8 and 16-bit depth): straight
-/// from pageable memory, as the workers' shared memory is, and through the pinned staging buffer
-/// acting uses (`crate::inputs::Staging`).
+/// The frames of one round of `batch` envs onto a GPU (224² RGB u8 and 16-bit depth, in groups
+/// of 32 envs as workers send them): straight from pageable memory, as the workers' shared
+/// memory is, and through the pinned staging buffer acting uses (`crate::inputs::Staging`).
 pub fn transfer(cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> Vec<Figure> {
     let o = random_obs(batch, cfg.env.width as usize, 1);
     let mb = (o.rgb.len() + 2 * o.depth.len()) as f64 / 1e6;
     let staging = crate::inputs::Staging::default();
     let ways: [(&str, &dyn Fn() -> (Tensor, Tensor)); 2] = [
         ("pageable", &|| {
-            (crate::inputs::rgb_tensor(&o.batch(), device), crate::inputs::depth_tensor(&o.batch(), device))
+            let b = o.batch_grouped(WORKER_ENVS);
+            (crate::inputs::rgb_tensor(&b, device), crate::inputs::depth_tensor(&b, device))
         }),
-        ("pinned staging", &|| (staging.rgb(&o.batch(), device), staging.depth(&o.batch(), device))),
+        ("pinned staging", &|| {
+            let b = o.batch_grouped(WORKER_ENVS);
+            (staging.rgb(&b, device), staging.depth(&b, device))
+        }),
     ];
     ways.iter()
         .map(|(way, copy)| {
@@ -360,6 +388,16 @@ pub fn transfer(cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> V
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The training-step figure runs on the CPU and stops short of an update (the repetitions
+    /// are held under the rollout's length).
+    #[test]
+    fn train_step_figure_runs_on_the_cpu_short_of_an_update() {
+        let mut cfg = tiny_config();
+        cfg.ppo.rollout = 3;
+        let f = train_step("tiny", &cfg, 2, Device::Cpu, 9).unwrap();
+        assert!(f.ms > 0.0 && f.reps == 2, "{f}");
+    }
 
     /// The trunk figures the GPU bench prints, made on the CPU: two, each a time.
     #[test]

@@ -222,6 +222,22 @@ impl OwnedObs {
         }
     }
 
+    /// Envs `envs` alone, as one frame group (one group of an acting round).
+    pub fn batch_of(&self, envs: std::ops::Range<usize>) -> EnvBatch<'_> {
+        let (px, g) = (self.height * self.width, GESTURE_FRAMES * GESTURE_DIMS);
+        EnvBatch {
+            height: self.height,
+            width: self.width,
+            frames: vec![FrameView {
+                envs: envs.len(),
+                rgb: &self.rgb[envs.start * px * 3..envs.end * px * 3],
+                depth: &self.depth[envs.start * px..envs.end * px],
+                gesture: GestureView::F16(&self.gesture[envs.start * g..envs.end * g]),
+            }],
+            envs: &self.envs[envs],
+        }
+    }
+
     /// The batch split into groups of `per_group` envs, as workers would send it.
     pub fn batch_grouped(&self, per_group: usize) -> EnvBatch<'_> {
         let px = self.height * self.width;

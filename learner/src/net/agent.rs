@@ -186,32 +186,48 @@ impl Agent {
 
     /// Checks the batch, converts it to the stored form, and works out where memory resets.
     pub(crate) fn prepare<'a>(&self, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
-        obs.validate(self.n_envs, (self.spec.height as usize, self.spec.width as usize))?;
-        let starts = obs.envs.iter().zip(&self.force_reset).map(|(e, f)| e.episode_start || e.lost || *f).collect();
+        obs.validate(self.n_envs, self.hw())?;
+        self.prepare_at(0, obs)
+    }
+
+    /// [`Agent::prepare`] for envs `at..at + obs.n()` of the N (one group of an acting round).
+    pub(crate) fn prepare_at<'a>(&self, at: usize, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
+        let n = obs.n();
+        if at + n > self.n_envs {
+            return Err(ObsError::Shape(format!("envs {at}..{} of a policy made for {}", at + n, self.n_envs)));
+        }
+        obs.validate(n, self.hw())?;
+        let starts =
+            obs.envs.iter().zip(&self.force_reset[at..at + n]).map(|(e, f)| e.episode_start || e.lost || *f).collect();
         let inputs = if self.spec.random() { Inputs::none() } else { self.net.prepare(obs, self.device) };
         Ok((Prepared::new(inputs, obs), starts))
     }
 
+    fn hw(&self) -> (usize, usize) {
+        (self.spec.height as usize, self.spec.width as usize)
+    }
+
     /// The network on one step, from the current memory (reset where `starts`).
     pub(crate) fn forward(&mut self, x: &Inputs, starts: Vec<bool>) -> Forward {
-        let n = self.n_envs;
+        self.forward_at(0, x, starts)
+    }
+
+    /// [`Agent::forward`] for envs `at..at + starts.len()`, from their memory.
+    pub(crate) fn forward_at(&mut self, at: usize, x: &Inputs, starts: Vec<bool>) -> Forward {
+        let n = starts.len();
+        let memory = self.hidden.narrow(1, at as i64, n as i64).contiguous();
         if self.spec.random() {
-            return Forward {
-                logits: vec![0.0; n * action::COUNT],
-                values: vec![0.0; n],
-                hidden: self.hidden.shallow_clone(),
-                starts,
-            };
+            return Forward { logits: vec![0.0; n * action::COUNT], values: vec![0.0; n], hidden: memory, starts };
         }
         tch::no_grad(|| {
             let gesture = match (self.net.gesture_layer(), &x.gesture, &x.gesture_index) {
-                (Some(l), Some(g), None) => Some(self.gestures.features(l, g)),
+                (Some(l), Some(g), None) => Some(self.gestures.features(l, g, at, self.n_envs)),
                 _ => None,
             };
             let feats = self.net.encode_with(x, gesture).unsqueeze(0);
             let keep: Vec<f32> = starts.iter().map(|s| if *s { 0.0 } else { 1.0 }).collect();
             let keep = Tensor::from_slice(&keep).to_device(self.device).view([1, -1]);
-            let (out, hidden) = self.net.step(&feats, &self.hidden, &keep);
+            let (out, hidden) = self.net.step(&feats, &memory, &keep);
             let (logits, values) = self.net.heads(&out.squeeze_dim(0));
             let logits =
                 Vec::<f32>::try_from(logits.to_kind(Kind::Float).to_device(Device::Cpu).flatten(0, -1)).unwrap();
@@ -222,7 +238,7 @@ impl Agent {
 
     /// Picks actions from a forward's logits (host side, from the agent's own random stream).
     pub(crate) fn choose(&mut self, fwd: &Forward, mode: ActMode) -> Actions {
-        let n = self.n_envs;
+        let n = fwd.values.len();
         let mut out =
             Actions { actions: Vec::with_capacity(n), log_probs: Vec::with_capacity(n), values: fwd.values.clone() };
         let count = action::COUNT;
@@ -252,8 +268,18 @@ impl Agent {
 
     /// Makes a forward's memory the current one; lost envs reset at their next message.
     pub(crate) fn commit(&mut self, fwd: Forward, obs: &EnvBatch) {
-        self.hidden = fwd.hidden;
-        for (r, e) in self.force_reset.iter_mut().zip(obs.envs) {
+        self.commit_at(0, fwd, obs)
+    }
+
+    /// [`Agent::commit`] of a forward of envs `at..` ([`Agent::forward_at`]).
+    pub(crate) fn commit_at(&mut self, at: usize, fwd: Forward, obs: &EnvBatch) {
+        let n = fwd.starts.len();
+        if n == self.n_envs {
+            self.hidden = fwd.hidden;
+        } else {
+            tch::no_grad(|| self.hidden.narrow(1, at as i64, n as i64).copy_(&fwd.hidden));
+        }
+        for (r, e) in self.force_reset[at..at + n].iter_mut().zip(obs.envs) {
             *r = e.lost;
         }
     }

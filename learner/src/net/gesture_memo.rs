@@ -16,34 +16,45 @@ pub(crate) struct GestureMemo {
     shown: Option<Tensor>,
     /// `[N, hidden]`.
     features: Option<Tensor>,
-    /// The layer's (weight, bias) version counters the features were computed with.
+    /// Rows computed with the current layer (a round of one group of envs leaves the other
+    /// rows as they were).
+    fresh: Vec<bool>,
+    /// The layer's (weight, bias) version counters the fresh rows were computed with.
     versions: (i64, i64),
 }
 
 impl GestureMemo {
-    /// The layer's features of `g` `[N, 100, 95]`, `[N, hidden]`, reusing every row whose gesture
-    /// and layer are unchanged since the previous call. Without gradients (acting only).
-    pub(crate) fn features(&mut self, layer: &nn::Linear, g: &Tensor) -> Tensor {
+    /// The layer's features of `g` `[B, 100, 95]` — the gestures of envs `at..at + B` of `total`
+    /// — `[B, hidden]`, reusing every row whose gesture and layer are unchanged since it was last
+    /// computed. Without gradients (acting only).
+    pub(crate) fn features(&mut self, layer: &nn::Linear, g: &Tensor, at: usize, total: usize) -> Tensor {
         tch::no_grad(|| {
             let versions = (layer.ws.internal_version(), layer.bs.as_ref().map_or(0, |b| b.internal_version()));
-            let reusable = match (&self.shown, &self.features) {
-                (Some(s), Some(_)) => versions == self.versions && s.size() == g.size() && s.kind() == g.kind(),
-                _ => false,
-            };
-            if !reusable {
-                let f = encode(layer, g);
-                self.shown = Some(g.copy());
-                self.features = Some(f.copy());
-                self.versions = versions;
-                return f;
+            let mut all = g.size();
+            all[0] = total as i64;
+            if !self.shown.as_ref().is_some_and(|s| s.size() == all && s.kind() == g.kind()) {
+                let f = encode(layer, &g.narrow(0, 0, 1));
+                self.shown = Some(g.new_zeros(all.as_slice(), (g.kind(), g.device())));
+                self.features = Some(f.new_zeros([total as i64, f.size()[1]], (f.kind(), f.device())));
+                self.fresh = vec![false; total];
             }
-            let (shown, features) = (self.shown.as_mut().unwrap(), self.features.as_mut().unwrap());
-            let same = g.eq_tensor(shown).flatten(1, -1).all_dim(1, false);
-            let changed = same.logical_not().nonzero().squeeze_dim(1);
-            if changed.size()[0] > 0 {
-                let fresh = g.index_select(0, &changed);
-                let _ = features.index_copy_(0, &changed, &encode(layer, &fresh));
-                let _ = shown.index_copy_(0, &changed, &fresh);
+            if versions != self.versions {
+                self.fresh.iter_mut().for_each(|f| *f = false);
+                self.versions = versions;
+            }
+            let (at, n) = (at as i64, g.size()[0]);
+            let mut shown = self.shown.as_ref().unwrap().narrow(0, at, n);
+            let mut features = self.features.as_ref().unwrap().narrow(0, at, n);
+            let fresh = &mut self.fresh[at as usize..(at + n) as usize];
+            let same = g.eq_tensor(&shown).flatten(1, -1).all_dim(1, false).to_device(tch::Device::Cpu);
+            let same = Vec::<bool>::try_from(same).expect("a bool per env");
+            let changed: Vec<i64> = (0..n).filter(|&k| !(same[k as usize] && fresh[k as usize])).collect();
+            if !changed.is_empty() {
+                let rows = Tensor::from_slice(&changed).to_device(g.device());
+                let new = g.index_select(0, &rows);
+                let _ = features.index_copy_(0, &rows, &encode(layer, &new));
+                let _ = shown.index_copy_(0, &rows, &new);
+                changed.iter().for_each(|&k| fresh[k as usize] = true);
             }
             // the memo's own storage is updated in place next step: hand out a copy
             features.copy()
@@ -77,7 +88,7 @@ mod tests {
         let mut memo = GestureMemo::default();
         let mut g = draw(4, 4);
         let check = |memo: &mut GestureMemo, g: &Tensor| {
-            let got = memo.features(&l, g);
+            let got = memo.features(&l, g, 0, 4);
             let want = tch::no_grad(|| encode(&l, g));
             assert!(got.allclose(&want, 1e-5, 1e-6, false), "{got} vs {want}");
         };
@@ -98,6 +109,29 @@ mod tests {
         check(&mut memo, &g);
     }
 
+    /// Rounds of one group of envs at a time (`ppo.env_groups`): each group's rows are its own,
+    /// and a change of the layer reaches every group that acts after it.
+    #[test]
+    fn groups_of_envs_keep_their_own_rows() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let l = crate::device::seeded(8, || layer(&vs));
+        let g = crate::device::seeded(9, || Tensor::randn([4, 4, 5], (Kind::Float, Device::Cpu)).to_kind(Kind::Half));
+        let mut memo = GestureMemo::default();
+        let mut check = |at: i64| {
+            let part = g.narrow(0, at, 2);
+            let got = memo.features(&l, &part, at as usize, 4);
+            let want = tch::no_grad(|| encode(&l, &part));
+            assert!(got.allclose(&want, 1e-5, 1e-6, false), "envs {at}..: {got} vs {want}");
+        };
+        for at in [0, 2, 0, 2] {
+            check(at);
+        }
+        let other = crate::device::seeded(10, || l.ws.randn_like());
+        tch::no_grad(|| l.ws.shallow_clone().copy_(&other));
+        check(2);
+        check(0);
+    }
+
     /// A handed-out tensor is not changed by later calls.
     #[test]
     fn handed_out_features_stay_as_they_were() {
@@ -105,9 +139,9 @@ mod tests {
         let l = crate::device::seeded(7, || layer(&vs));
         let mut memo = GestureMemo::default();
         let a = Tensor::zeros([2, 4, 5], (Kind::Half, Device::Cpu));
-        let first = memo.features(&l, &a);
+        let first = memo.features(&l, &a, 0, 2);
         let kept = first.copy();
-        let _ = memo.features(&l, &a.ones_like());
+        let _ = memo.features(&l, &a.ones_like(), 0, 2);
         assert!(first.equal(&kept));
     }
 }

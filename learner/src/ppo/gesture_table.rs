@@ -16,7 +16,7 @@ pub struct GestureTable {
     len: i64,
     /// Row of each stored step, `[T, N]` i64 (on the device).
     ids: Tensor,
-    /// Row each env showed at the previous step.
+    /// Row each env showed at the previous step (-1: none yet in this rollout).
     last: Vec<i64>,
 }
 
@@ -50,12 +50,26 @@ impl GestureTable {
 
     /// Stores step `t`'s gestures `[N, 100, 95]`.
     pub fn push(&mut self, t: usize, g: &Tensor) {
-        let n = g.size()[0] as usize;
+        self.push_at(t, 0, g)
+    }
+
+    /// Stores step `t`'s gestures of envs `at..at + B`, `g` `[B, 100, 95]` (one group of an
+    /// acting round).
+    pub fn push_at(&mut self, t: usize, at: usize, g: &Tensor) {
+        let (n, envs) = (g.size()[0] as usize, self.ids.size()[1] as usize);
+        if self.last.len() != envs {
+            self.last = vec![-1; envs];
+        }
+        let last = &mut self.last[at..at + n];
         tch::no_grad(|| {
-            let same: Vec<bool> = if self.last.len() == n {
-                let prev = self.rows.index_select(0, &Tensor::from_slice(&self.last).to_device(self.rows.device()));
+            // each env's gesture at the previous step (-1: none yet in this rollout)
+            let known: Vec<bool> = last.iter().map(|&r| r >= 0).collect();
+            let same: Vec<bool> = if known.iter().any(|&k| k) {
+                let ids: Vec<i64> = last.iter().map(|&r| r.max(0)).collect();
+                let prev = self.rows.index_select(0, &Tensor::from_slice(&ids).to_device(self.rows.device()));
                 let eq = g.eq_tensor(&prev).flatten(1, -1).all_dim(1, false);
-                Vec::<bool>::try_from(eq.to_device(Device::Cpu)).expect("a bool per env")
+                let eq = Vec::<bool>::try_from(eq.to_device(Device::Cpu)).expect("a bool per env");
+                eq.iter().zip(&known).map(|(e, k)| *e && *k).collect()
             } else {
                 vec![false; n]
             };
@@ -64,16 +78,15 @@ impl GestureTable {
                 let src = g.index_select(0, &Tensor::from_slice(&fresh).to_device(g.device()));
                 self.rows.narrow(0, self.len, fresh.len() as i64).copy_(&src);
             }
-            self.last.resize(n, 0);
             let mut next = self.len;
             for (k, s) in same.iter().enumerate() {
                 if !s {
-                    self.last[k] = next;
+                    last[k] = next;
                     next += 1;
                 }
             }
             self.len = next;
-            self.ids.get(t as i64).copy_(&Tensor::from_slice(&self.last));
+            self.ids.get(t as i64).narrow(0, at as i64, n as i64).copy_(&Tensor::from_slice(last));
         });
     }
 

@@ -40,6 +40,8 @@ pub struct Rollout {
     /// The step is learned from (false: the action was ignored or its feedback was lost).
     pub valid: Vec<bool>,
     len: usize,
+    /// Envs of step `len` stored so far (a round of one group of envs stores some of them).
+    filled: Vec<bool>,
 }
 
 /// What one message's feedback did, for the run's counters.
@@ -71,6 +73,7 @@ impl Rollout {
             ends: vec![false; n],
             valid: vec![false; n],
             len: 0,
+            filled: vec![false; envs],
         }
     }
 
@@ -78,6 +81,7 @@ impl Rollout {
     pub fn begin(&mut self, h0: &Tensor) {
         self.h0 = h0.copy();
         self.len = 0;
+        self.filled.iter_mut().for_each(|f| *f = false);
         if let Some(g) = &mut self.gestures {
             g.clear();
         }
@@ -125,13 +129,22 @@ impl Rollout {
     /// Appends one step: its inputs, memory resets, chosen actions, and which envs' steps can be
     /// learned from (a final observation's action is ignored by the env; a lost message is junk).
     pub fn push(&mut self, x: &Inputs, starts: &[bool], acted: &Actions, valid: &[bool]) {
+        self.push_at(0, x, starts, acted, valid)
+    }
+
+    /// [`Rollout::push`] of envs `at..at + B` (one group of an acting round); the step is stored
+    /// once every env has been.
+    pub fn push_at(&mut self, at: usize, x: &Inputs, starts: &[bool], acted: &Actions, valid: &[bool]) {
         assert!(self.len < self.steps, "rollout is full: call the update first");
-        let n = self.envs;
+        let (n, b) = (self.envs, starts.len());
+        let filled = &mut self.filled[at..at + b];
+        assert!(filled.iter().all(|f| !f), "envs {at}..{} stored twice in step {}", at + b, self.len);
+        filled.iter_mut().for_each(|f| *f = true);
         let (t, device) = (self.len, self.device);
         let stored = self.inputs.get_or_insert_with(|| {
             let mut s = x.map(|v| {
-                let mut shape = vec![self.steps as i64];
-                shape.extend(v.size());
+                let mut shape = vec![self.steps as i64, n as i64];
+                shape.extend(&v.size()[1..]);
                 Tensor::zeros(shape.as_slice(), (v.kind(), device))
             });
             s.gesture = None;
@@ -140,21 +153,26 @@ impl Rollout {
         tch::no_grad(|| {
             for ((_, dst), (_, src)) in stored.fields().iter().zip(x.fields()) {
                 if let (Some(dst), Some(src)) = (dst, src) {
-                    dst.get(t as i64).copy_(src);
+                    dst.get(t as i64).narrow(0, at as i64, b as i64).copy_(src);
                 }
             }
         });
         if let Some(g) = &x.gesture {
             let (steps, envs) = (self.steps, self.envs);
-            self.gestures.get_or_insert_with(|| GestureTable::new(steps, envs, &g.get(0).to_device(device))).push(t, g);
+            self.gestures
+                .get_or_insert_with(|| GestureTable::new(steps, envs, &g.get(0).to_device(device)))
+                .push_at(t, at, g);
         }
-        let r = t * n..(t + 1) * n;
+        let r = t * n + at..t * n + at + b;
         self.starts[r.clone()].copy_from_slice(starts);
         self.actions[r.clone()].copy_from_slice(&acted.actions);
         self.log_probs[r.clone()].copy_from_slice(&acted.log_probs);
         self.values[r.clone()].copy_from_slice(&acted.values);
         self.valid[r].copy_from_slice(valid);
-        self.len += 1;
+        if self.filled.iter().all(|f| *f) {
+            self.len += 1;
+            self.filled.iter_mut().for_each(|f| *f = false);
+        }
     }
 
     /// Records, in the last stored step, the feedback that the next message carries:
@@ -164,10 +182,21 @@ impl Rollout {
     ///   the policy just computed on that observation) — the Gymnasium bootstrap;
     /// - lost message: the step is not learned from.
     pub fn record_feedback(&mut self, envs: &[EnvStep], values_now: &[f32], gamma: f32) -> FeedbackCounts {
+        self.record_feedback_at(0, envs, values_now, gamma)
+    }
+
+    /// [`Rollout::record_feedback`] of envs `at..at + envs.len()`.
+    pub fn record_feedback_at(
+        &mut self,
+        at: usize,
+        envs: &[EnvStep],
+        values_now: &[f32],
+        gamma: f32,
+    ) -> FeedbackCounts {
         let mut counts = FeedbackCounts::default();
         let Some(t) = self.len.checked_sub(1) else { return counts };
         for (k, e) in envs.iter().enumerate() {
-            let i = t * self.envs + k;
+            let i = t * self.envs + at + k;
             if e.lost {
                 self.rewards[i] = 0.0;
                 self.ends[i] = true;

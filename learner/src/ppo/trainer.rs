@@ -110,15 +110,30 @@ impl Trainer {
     /// One step message in, actions out. When the message completes a rollout, the PPO update
     /// runs first (the returned actions then come from the updated policy).
     pub fn step(&mut self, obs: &EnvBatch) -> Result<StepOutput, ObsError> {
-        let (x, starts) = self.agent.prepare(obs)?;
-        let mut fwd = self.agent.forward(&x, starts.clone());
+        self.step_at(0, obs)
+    }
+
+    /// [`Trainer::step`] for envs `at..at + obs.n()`: one group of an acting round
+    /// (`ppo.env_groups`). Each env's feedback, action and memory are those of a round for all;
+    /// a step is stored once every group has acted, and the step that completes a rollout must
+    /// be a round for all (the update needs every env's next observation; [`Trainer::wants_all`]).
+    pub fn step_at(&mut self, at: usize, obs: &EnvBatch) -> Result<StepOutput, ObsError> {
+        let (x, starts) = self.agent.prepare_at(at, obs)?;
+        let n = starts.len();
+        if self.wants_all() && n != self.rollout.envs {
+            return Err(ObsError::Shape(format!(
+                "envs {at}..{} alone at the end of a rollout: the update needs every env",
+                at + n
+            )));
+        }
+        let mut fwd = self.agent.forward_at(at, &x, starts.clone());
 
         // 1. The feedback of the previous action: reward, end of episode, truncation bootstrap.
-        let c = self.rollout.record_feedback(obs.envs, &fwd.values, self.hp.gamma as f32);
+        let c = self.rollout.record_feedback_at(at, obs.envs, &fwd.values, self.hp.gamma as f32);
         self.counts.bootstrapped += c.bootstrapped;
         self.counts.truncated_without_final += c.truncated_without_final;
         self.counts.lost += c.lost;
-        self.track_episodes(obs.envs);
+        self.track_episodes(at, obs.envs);
 
         // 2.–4. A full rollout: bootstrap from V(o_T) (the old policy's), learn, and act on o_T
         //       with the new policy from the same memory.
@@ -133,15 +148,22 @@ impl Trainer {
         // 1. (cont.) Act and store. A final observation's action is ignored by the env.
         let acted = self.agent.choose(&fwd, ActMode::Sample);
         let valid: Vec<bool> = obs.envs.iter().map(|e| !e.lost && !e.is_final_observation()).collect();
-        self.rollout.push(&x, &fwd.starts, &acted, &valid);
-        self.last_real = valid;
-        self.agent.commit(fwd, obs);
+        self.rollout.push_at(at, &x, &fwd.starts, &acted, &valid);
+        self.last_real[at..at + n].copy_from_slice(&valid);
+        self.agent.commit_at(at, fwd, obs);
         Ok(StepOutput { actions: acted, update })
     }
 
-    /// Episode returns, lengths and outcomes, from the feedback of real actions only.
-    fn track_episodes(&mut self, envs: &[EnvStep]) {
-        for (k, e) in envs.iter().enumerate() {
+    /// Whether the next step must be a round for all envs: it completes the rollout.
+    pub fn wants_all(&self) -> bool {
+        self.rollout.is_full()
+    }
+
+    /// Episode returns, lengths and outcomes of envs `at..`, from the feedback of real actions
+    /// only.
+    fn track_episodes(&mut self, at: usize, envs: &[EnvStep]) {
+        for (i, e) in envs.iter().enumerate() {
+            let k = at + i;
             if !self.last_real[k] || e.lost {
                 if e.episode_start || e.lost {
                     self.ep_return[k] = 0.0;
@@ -455,6 +477,71 @@ mod tests {
         let m = crate::bench::update_once(&mut t);
         assert!(!m.cut_short && m.update == 2);
         assert!(before.iter().zip(&t.agent.vs.trainable_variables()).any(|(a, b)| !a.equal(b)), "learned");
+    }
+
+    /// Env groups change when envs are inferred, not what they do or learn: a trainer acting on
+    /// two halves of its envs in turn (each rollout's last step on all) takes the actions, stores
+    /// the rollout and makes the updates of one acting on all at once — over two rollouts, with
+    /// episodes ending and gestures changing in one half only.
+    #[test]
+    fn env_groups_act_and_learn_as_one_round() {
+        let mut cfg = crate::bench::tiny_config();
+        cfg.ppo.rollout = 4;
+        cfg.ppo.minibatches = 2;
+        let n = 4;
+        let mut whole = Trainer::new(&cfg, n, Device::Cpu).unwrap();
+        let mut halves = Trainer::new(&cfg, n, Device::Cpu).unwrap();
+        let mut obs = crate::bench::random_obs(n, 64, 1);
+        for step in 0..2 * cfg.ppo.rollout + 2 {
+            if step > 0 {
+                let next = crate::bench::random_obs(n, 64, step as u64 + 1);
+                // envs 0 and 1 keep their gesture; 2 and 3 see a new one every step
+                let g = obs.gesture.len() / 2;
+                obs.gesture[g..].copy_from_slice(&next.gesture[g..]);
+                obs.rgb = next.rgb;
+                obs.depth = next.depth;
+                for (i, e) in obs.envs.iter_mut().enumerate() {
+                    let ends = i == 1 && step % 3 == 0;
+                    e.episode_start = i == 1 && step % 3 == 1;
+                    e.terminated = ends;
+                    e.reward = if ends { 2.5 } else { -0.01 * (i + step) as f32 };
+                }
+            }
+            let want = whole.step(&obs.batch()).unwrap();
+            let (got, updated) = if halves.wants_all() {
+                let o = halves.step(&obs.batch()).unwrap();
+                (o.actions, o.update.is_some())
+            } else {
+                let a = halves.step_at(0, &obs.batch_of(0..2)).unwrap();
+                let b = halves.step_at(2, &obs.batch_of(2..4)).unwrap();
+                assert!(a.update.is_none() && b.update.is_none(), "an update on a group's round");
+                let mut both = a.actions;
+                both.actions.extend(b.actions.actions);
+                both.log_probs.extend(b.actions.log_probs);
+                both.values.extend(b.actions.values);
+                (both, false)
+            };
+            assert_eq!(want.update.is_some(), updated, "step {step}");
+            assert_eq!(want.actions.actions, got.actions, "step {step}");
+            for (w, g) in
+                want.actions.log_probs.iter().zip(&got.log_probs).chain(want.actions.values.iter().zip(&got.values))
+            {
+                assert!((w - g).abs() < 1e-4, "step {step}: {w} against {g}");
+            }
+        }
+        assert_eq!((whole.updates, halves.updates), (2, 2));
+        assert_eq!(whole.rollout.rewards, halves.rollout.rewards);
+        assert_eq!(whole.rollout.starts, halves.rollout.starts);
+        for (a, b) in whole.agent.vs.trainable_variables().iter().zip(&halves.agent.vs.trainable_variables()) {
+            assert!(a.allclose(b, 1e-4, 1e-5, false), "the updates differ");
+        }
+        // a group alone cannot end a rollout: the update needs every env's next observation
+        let mut t = Trainer::new(&cfg, n, Device::Cpu).unwrap();
+        for _ in 0..cfg.ppo.rollout {
+            t.step(&obs.batch()).unwrap();
+        }
+        let err = t.step_at(0, &obs.batch_of(0..2)).unwrap_err().to_string();
+        assert!(err.contains("every env"), "{err}");
     }
 
     #[test]

@@ -57,6 +57,8 @@ impl<'a> WorkerObs<'a> {
 pub struct WorkerBatch<'a> {
     pub width: usize,
     pub height: usize,
+    /// The workers this round is for: all of them, or one group (`ppo.env_groups`).
+    pub workers: std::ops::Range<usize>,
     pub parts: Vec<WorkerObs<'a>>,
     /// Workers that have been seen but did not answer in time (dead, restarting or slow); their
     /// envs are not in this batch.

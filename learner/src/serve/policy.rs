@@ -22,6 +22,12 @@ pub trait Policy {
     fn wants_full_batches(&self) -> bool {
         true
     }
+    /// Into how many groups of workers (contiguous blocks, taken in turn) the next rounds may be
+    /// split, so that one group renders while the next is inferred; 1: the next round is for
+    /// every worker. Only for a policy that wants full batches.
+    fn groups_now(&self) -> usize {
+        1
+    }
     /// Seconds of [`Policy::act`] spent learning rather than acting (PPO updates, checkpoints,
     /// curves), cumulative; the training profile tells the two apart with it.
     fn learning_seconds(&self) -> f64 {

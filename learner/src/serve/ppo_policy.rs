@@ -1,6 +1,7 @@
 //! PPO served to the farm: every round, the workers' messages (`WorkerBatch`) become one
-//! `EnvBatch` of all N = workers × E envs, read in place from the workers' shared-memory samples;
-//! the `Trainer` acts and, every `rollout` steps, learns. In evaluation the network only acts
+//! `EnvBatch` of all N = workers × E envs — or of one group's, with `ppo.env_groups` — read in
+//! place from the workers' shared-memory samples; the `Trainer` acts and, every `rollout` steps,
+//! learns. In evaluation the network only acts
 //! (sampled or greedy), optionally with its visual inputs zeroed (blind mode, RGB-only and
 //! depth-only ablations).
 //!
@@ -195,17 +196,26 @@ impl Policy for PpoPolicy {
         self.learning
     }
 
+    fn groups_now(&self) -> usize {
+        match &self.mode {
+            Mode::Train { trainer, .. } if !trainer.wants_all() => self.cfg.ppo.env_groups.min(self.workers),
+            _ => 1,
+        }
+    }
+
     fn act(&mut self, batch: &WorkerBatch<'_>) -> anyhow::Result<Vec<u8>> {
         let e = self.envs;
-        let mut frames = Vec::with_capacity(self.workers);
+        let workers = batch.workers.clone();
+        anyhow::ensure!(workers.end <= self.workers, "workers {workers:?} outside the run's {}", self.workers);
+        let mut frames = Vec::with_capacity(workers.len());
         for p in &batch.parts {
             let w = p.worker as usize;
-            anyhow::ensure!(w < self.workers, "worker {w} is outside the run's {} workers", self.workers);
+            anyhow::ensure!(workers.contains(&w), "worker {w} is outside the round's workers {workers:?}");
             anyhow::ensure!(p.num_envs() == e, "worker {w} sends {} envs, the config says {e}", p.num_envs());
         }
         // One frame group per worker, in worker order; missing workers send zeros.
         let mut parts = batch.parts.iter().peekable();
-        for w in 0..self.workers {
+        for w in workers.clone() {
             match parts.next_if(|p| p.worker as usize == w) {
                 Some(p) => {
                     let restarted = p.new_generation || self.generations[w].is_some_and(|g| g != p.generation);
@@ -236,10 +246,11 @@ impl Policy for PpoPolicy {
                 }
             }
         }
-        let obs = EnvBatch { height: batch.height, width: batch.width, frames, envs: &self.steps };
+        let envs = workers.start * e..workers.end * e;
+        let obs = EnvBatch { height: batch.height, width: batch.width, frames, envs: &self.steps[envs.clone()] };
         let actions = match &mut self.mode {
             Mode::Train { trainer, log, .. } => {
-                let out = trainer.step(&obs)?;
+                let out = trainer.step_at(envs.start, &obs)?;
                 let books = std::time::Instant::now();
                 if let Some(m) = &out.update {
                     self.learning += m.update_seconds;
@@ -273,6 +284,7 @@ impl Policy for PpoPolicy {
                 a
             }
             Mode::Eval { agent, greedy } => {
+                anyhow::ensure!(envs.len() == self.workers * e, "evaluation acts on every env at once");
                 let a = if *greedy { agent.act_deterministic(&obs)? } else { agent.act(&obs)? };
                 a.actions
             }
@@ -280,7 +292,7 @@ impl Policy for PpoPolicy {
         // Answer only the workers that sent, in batch order.
         let mut out = Vec::with_capacity(batch.num_envs());
         for p in &batch.parts {
-            let w = p.worker as usize;
+            let w = p.worker as usize - workers.start;
             out.extend(actions[w * e..(w + 1) * e].iter().map(|&a| a as u8));
         }
         Ok(out)

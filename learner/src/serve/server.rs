@@ -6,9 +6,12 @@
 //! observation arrived: a worker that misses the deadline is marked absent and no round waits
 //! for it again until it sends (so a dead worker costs one timeout, not one per round). A
 //! policy that decides env by env (random, expert) does not want full batches: each round then
-//! takes whoever has sent and answers at once, so no worker waits for a slower one. A
-//! worker restarted by the orchestrator announces `generation + 1`: its state is reset, and
-//! observations of older generations still in flight are dropped.
+//! takes whoever has sent and answers at once, so no worker waits for a slower one. A policy may
+//! split rounds into groups of workers taken in turn ([`Policy::groups_now`], `ppo.env_groups`):
+//! a group's round closes as a round for all does, and while its envs are inferred the next
+//! group's workers step and render. A worker restarted by the orchestrator announces
+//! `generation + 1`: its state is reset, and observations of older generations still in flight
+//! are dropped.
 //!
 //! Every observation is checked as it arrives (`crate::serve::integrity`: header, layout, and the
 //! message and env-step counters within a generation). Violations are counted (`lost`,
@@ -168,6 +171,9 @@ struct Server<'p> {
     problems: Vec<String>,
     /// The learner's timeline so far.
     time: LearnerTime,
+    /// The group of workers whose round is next when the policy splits rounds
+    /// ([`Policy::groups_now`]).
+    next_group: usize,
 }
 
 /// Serves `policy` to the run's workers until a budget is spent, the evaluation is done or a
@@ -196,6 +202,7 @@ pub fn serve(opts: &ServeOptions, policy: &mut dyn Policy) -> Result<Summary, Se
         last_report: (now, Counters::default()),
         problems: vec![],
         time: LearnerTime::default(),
+        next_group: 0,
     };
     tracing::info!("serving policy `{}` to {} workers of run {}", server.policy.name(), opts.workers, opts.run_id);
     let stop = server.run()?;
@@ -219,7 +226,8 @@ impl Server<'_> {
             self.collect()?;
             self.time.receive_s += t.elapsed().as_secs_f64();
             self.report(None)?;
-            let any = self.slots.iter().any(|s| s.held.is_some());
+            let (group, groups) = self.round_workers();
+            let any = group.clone().any(|k| self.slots[k].held.is_some());
             if !started {
                 let seen = self.slots.iter().filter(|s| s.generation().is_some()).count();
                 started = seen == self.slots.len() || (seen > 0 && self.start.elapsed() >= self.opts.start_wait);
@@ -232,7 +240,7 @@ impl Server<'_> {
             if any {
                 let first = *round_start.get_or_insert_with(Instant::now);
                 let waiting: Vec<usize> = if self.policy.wants_full_batches() {
-                    (0..self.slots.len()).filter(|&k| self.slots[k].live() && self.slots[k].held.is_none()).collect()
+                    group.clone().filter(|&k| self.slots[k].live() && self.slots[k].held.is_none()).collect()
                 } else {
                     vec![] // answer whoever has sent, now
                 };
@@ -245,9 +253,10 @@ impl Server<'_> {
                         self.slots[k].absent = true;
                     }
                     round_start = None;
-                    if let Some(stop) = self.round()? {
+                    if let Some(stop) = self.round(group)? {
                         return Ok(stop);
                     }
+                    self.next_group = (self.next_group + 1) % groups;
                     continue;
                 }
                 let left = self.opts.batch_timeout.saturating_sub(first.elapsed());
@@ -341,8 +350,6 @@ impl Server<'_> {
         Ok(())
     }
 
-    /// Runs the policy on every held observation and answers each worker. Returns a stop
-    /// reason when this round ended the run (its answers were then SHUTDOWN).
     /// Waits for the next observation (at most `d`), on the profile's clock.
     fn wait(&mut self, d: Duration) {
         let t = Instant::now();
@@ -350,11 +357,27 @@ impl Server<'_> {
         self.time.wait_s += t.elapsed().as_secs_f64();
     }
 
-    fn round(&mut self) -> Result<Option<Stop>, ServeError> {
+    /// The workers of the next round, and into how many groups the policy splits rounds now: all
+    /// workers (1), or the next group in turn — contiguous blocks, so a group's envs are one
+    /// range of the policy's.
+    fn round_workers(&mut self) -> (std::ops::Range<usize>, usize) {
+        let w = self.slots.len();
+        let groups = if self.policy.wants_full_batches() { self.policy.groups_now().clamp(1, w) } else { 1 };
+        if groups == 1 {
+            self.next_group = 0;
+        }
+        let g = self.next_group.min(groups - 1);
+        (g * w / groups..(g + 1) * w / groups, groups)
+    }
+
+    /// Runs the policy on the held observations of `workers` and answers each of them. Returns a
+    /// stop reason when this round ended the run (its answers were then SHUTDOWN).
+    fn round(&mut self, workers: std::ops::Range<usize>) -> Result<Option<Stop>, ServeError> {
         let began = Instant::now();
         let held: Vec<(usize, ObsMessage, bool)> =
-            (0..self.slots.len()).filter_map(|k| self.slots[k].held.take().map(|(m, g)| (k, m, g))).collect();
-        let missing: Vec<u32> = (0..self.slots.len())
+            workers.clone().filter_map(|k| self.slots[k].held.take().map(|(m, g)| (k, m, g))).collect();
+        let missing: Vec<u32> = workers
+            .clone()
             .filter(|&k| self.slots[k].generation().is_some() && !held.iter().any(|h| h.0 == k))
             .map(|k| k as u32)
             .collect();
@@ -372,7 +395,7 @@ impl Server<'_> {
                 }
             })
             .collect();
-        let batch = WorkerBatch { width: self.shape.width, height: self.shape.height, parts, missing };
+        let batch = WorkerBatch { width: self.shape.width, height: self.shape.height, workers, parts, missing };
         let t = Instant::now();
         self.time.receive_s += t.duration_since(began).as_secs_f64();
         let learning_before = self.policy.learning_seconds();
