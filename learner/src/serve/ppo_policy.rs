@@ -1,9 +1,8 @@
 //! PPO served to the farm: every round, the workers' messages (`WorkerBatch`) become one
 //! `EnvBatch` of all N = workers × E envs — or of one group's, with `ppo.env_groups` — read in
 //! place from the workers' shared-memory samples; the `Trainer` acts and, every `rollout` steps,
-//! learns. In evaluation the network only acts
-//! (sampled or greedy), optionally with its visual inputs zeroed (blind mode, RGB-only and
-//! depth-only ablations).
+//! learns. In evaluation the network only acts (sampled or greedy), optionally with its visual
+//! inputs zeroed (blind mode, RGB-only and depth-only ablations).
 //!
 //! A worker missing from a round (crashed, restarting, slow) contributes zero frames and its envs
 //! are flagged `lost`: that step and the one before stay out of the loss and the envs' memory is
