@@ -599,8 +599,8 @@ fn bench_train_reports_throughput_and_where_the_time_went() {
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let md = std::fs::read_to_string(out_dir.join("bench_train.md")).unwrap();
-    assert!(md.contains("--set env.envs_per_worker=3") && md.contains("2 workers × 3 envs"), "{md}");
-    assert!(md.contains("--set ppo.env_groups=2"), "{md}");
+    assert!(md.contains("--set env.envs_per_worker=3") && md.contains("2 workers × 3 envs in 2 groups"), "{md}");
+    assert!(md.contains("--set ppo.env_groups=2") && md.contains("in 2 groups taking rounds in turn"), "{md}");
     // the learner names where it ran (CPU here, CUDA on a GPU machine)
     for row in ["Learner: device ", "end-to-end frames/s", "PPO update", "inference", "render", "waiting for actions"] {
         assert!(md.contains(row), "no `{row}` in\n{md}");

@@ -139,13 +139,14 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
     spec.resume = resume;
     spec.report_every = a.report_every;
     eprintln!(
-        "[up] run {} in {}: {} workers × {} envs ({}x{}), policy {}{}",
+        "[up] run {} in {}: {} workers × {} envs ({}x{}){}, policy {}{}",
         dir.run_id,
         dir.path.display(),
         a.workers,
         cfg.env.envs_per_worker,
         cfg.env.width,
         cfg.env.height,
+        if cfg.ppo.env_groups > 1 { format!(", rounds in {} groups", cfg.ppo.env_groups) } else { String::new() },
         a.policy.name(),
         if a.synthetic { ", synthetic envs" } else { "" }
     );

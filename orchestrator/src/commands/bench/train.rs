@@ -81,7 +81,7 @@ pub fn report(b: &TrainBench, cfg: &RunConfig, command: &str) -> String {
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "# Training throughput\n\n`{command}`\n\n{} ({}, {}×{} RGB-D, encoder {:?}), {} workers × {} envs, {} CPU cores; \
+        "# Training throughput\n\n`{command}`\n\n{} ({}, {}×{} RGB-D, encoder {:?}), {} workers × {} envs{}, {} CPU cores; \
          {} frames in {:.1} s, {} PPO updates.\n",
         cfg.run.method.label(),
         cfg.run.dataset.display(),
@@ -90,6 +90,10 @@ pub fn report(b: &TrainBench, cfg: &RunConfig, command: &str) -> String {
         cfg.model.encoder,
         b.workers,
         cfg.env.envs_per_worker,
+        match cfg.ppo.env_groups {
+            1 => String::new(),
+            g => format!(" in {g} groups taking rounds in turn"),
+        },
         std::thread::available_parallelism().map(|n| n.get()).unwrap_or(0),
         b.frames,
         b.seconds,
