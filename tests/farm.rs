@@ -292,12 +292,13 @@ fn a_bit_flipped_dataset_is_refused_before_the_run() {
 }
 
 /// A short chaos soak: a seeded schedule of worker, learner and orchestrator kills and Ctrl-Cs
-/// during training, resumed after each stop, loses no checkpoint, sample or file.
+/// during training, resumed after each stop, loses no checkpoint, sample or file — with the two
+/// workers taking their rounds in turn (`ppo.env_groups`), so a kill lands between groups too.
 #[test]
 fn a_short_soak_survives_every_fault() {
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cfg = small_ppo_config(tmp.path(), "\n[checkpoint]\nevery_updates = 2\nkeep = 3\n");
+    let cfg = small_ppo_config(tmp.path(), "env_groups = 2\n\n[checkpoint]\nevery_updates = 2\nkeep = 3\n");
     let out = tmp.path().join("soak");
     // seed 3's first eight faults include every kind (a unit test of the schedule says so)
     let status = std::process::Command::new(bin("orchestrator"))
