@@ -186,19 +186,26 @@ impl Agent {
 
     /// Checks the batch, converts it to the stored form, and works out where memory resets.
     pub(crate) fn prepare<'a>(&self, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
-        obs.validate(self.n_envs, self.hw())?;
-        self.prepare_at(0, obs)
+        self.prepare_envs(0..self.n_envs, obs)
     }
 
     /// [`Agent::prepare`] for envs `at..at + obs.n()` of the N (one group of an acting round).
     pub(crate) fn prepare_at<'a>(&self, at: usize, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
-        let n = obs.n();
-        if at + n > self.n_envs {
-            return Err(ObsError::Shape(format!("envs {at}..{} of a policy made for {}", at + n, self.n_envs)));
+        self.prepare_envs(at..at + obs.n(), obs)
+    }
+
+    /// [`Agent::prepare`] of a batch that must hold envs `envs` of the N.
+    fn prepare_envs<'a>(
+        &self,
+        envs: std::ops::Range<usize>,
+        obs: &EnvBatch<'a>,
+    ) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
+        if envs.end > self.n_envs {
+            return Err(ObsError::Shape(format!("envs {envs:?} of a policy made for {}", self.n_envs)));
         }
-        obs.validate(n, self.hw())?;
+        obs.validate(envs.len(), self.hw())?;
         let starts =
-            obs.envs.iter().zip(&self.force_reset[at..at + n]).map(|(e, f)| e.episode_start || e.lost || *f).collect();
+            obs.envs.iter().zip(&self.force_reset[envs]).map(|(e, f)| e.episode_start || e.lost || *f).collect();
         let inputs = if self.spec.random() { Inputs::none() } else { self.net.prepare(obs, self.device) };
         Ok((Prepared::new(inputs, obs), starts))
     }

@@ -33,10 +33,9 @@ impl GestureMemo {
             let mut all = g.size();
             all[0] = total as i64;
             if !self.shown.as_ref().is_some_and(|s| s.size() == all && s.kind() == g.kind()) {
-                // one row through the layer gives the features' width and kind
-                let f = encode(layer, &g.narrow(0, 0, 1));
                 self.shown = Some(g.new_zeros(all.as_slice(), (g.kind(), g.device())));
-                self.features = Some(f.new_zeros([total as i64, f.size()[1]], (f.kind(), f.device())));
+                // `encode`'s output: f32, one value per output of the layer
+                self.features = Some(Tensor::zeros([total as i64, layer.ws.size()[0]], (Kind::Float, g.device())));
                 self.fresh = vec![false; total];
             }
             if versions != self.versions {

@@ -29,14 +29,14 @@ impl GestureTable {
             rows: Tensor::zeros(shape.as_slice(), (one.kind(), one.device())),
             len: 0,
             ids: Tensor::zeros([steps as i64, envs as i64], (Kind::Int64, one.device())),
-            last: vec![],
+            last: vec![-1; envs],
         }
     }
 
     /// Forgets every gesture (a new rollout); the storage is reused.
     pub fn clear(&mut self) {
         self.len = 0;
-        self.last.clear();
+        self.last.iter_mut().for_each(|r| *r = -1);
     }
 
     /// Distinct gestures stored so far.
@@ -56,10 +56,7 @@ impl GestureTable {
     /// Stores step `t`'s gestures of envs `at..at + B`, `g` `[B, 100, 95]` (one group of an
     /// acting round).
     pub fn push_at(&mut self, t: usize, at: usize, g: &Tensor) {
-        let (n, envs) = (g.size()[0] as usize, self.ids.size()[1] as usize);
-        if self.last.len() != envs {
-            self.last = vec![-1; envs];
-        }
+        let n = g.size()[0] as usize;
         let last = &mut self.last[at..at + n];
         tch::no_grad(|| {
             // each env's gesture at the previous step (-1: none yet in this rollout)
