@@ -212,6 +212,21 @@ pub enum GestureInput {
     /// step — what a pose estimator on the robot gives. A pointing arm then says where to go
     /// without first being turned by the person's facing.
     Keypoints,
+    /// Not a gesture: the target's true bearing from where the robot stands at each step (right
+    /// and forward of a unit vector) in every frame of the referencing gesture — what a perfectly
+    /// read pointing could tell, an upper bound for +Referencing only.
+    TargetBearing,
+    /// Not a gesture: where the person stands and the exact direction from them to the target
+    /// (right, forward of each, in the robot's frame at each step) — a perfectly read pointing,
+    /// which says where to look but not how far: an upper bound for +Referencing only.
+    PointingRay,
+}
+
+impl GestureInput {
+    /// The upper bounds that stand in for the referencing gesture rather than perceive one.
+    pub fn is_oracle(self) -> bool {
+        matches!(self, GestureInput::TargetBearing | GestureInput::PointingRay)
+    }
 }
 
 /// `[model]`: the network (§4.3.3).
@@ -229,7 +244,8 @@ pub struct ModelConfig {
     pub depth: bool,
     /// Feed the person's pose relative to the robot (the released code did; the text does not).
     pub person_pose: bool,
-    /// How the gesture is perceived (`muscles`: the dissertation; `keypoints`: beyond it).
+    /// How the gesture is perceived (`muscles`: the dissertation; `keypoints` and the upper
+    /// bounds `target_bearing` and `pointing_ray`: beyond it).
     pub gesture_input: GestureInput,
     /// Width of every feature and hidden layer.
     pub hidden: i64,
@@ -506,6 +522,12 @@ impl RunConfig {
                     .into(),
             );
         }
+        if self.model.gesture_input.is_oracle() && self.run.method != Method::Referencing {
+            return e(
+                "model.gesture_input",
+                format!("the upper bounds stand in for the referencing gesture only, not {}", self.run.method.label()),
+            );
+        }
         for (i, s) in self.run.scenes.iter().enumerate() {
             if crate::rooms::SceneId::parse(s).is_none() {
                 return e(&format!("run.scenes[{i}]"), format!("`{s}` is not a room name like FloorPlan201"));
@@ -545,12 +567,18 @@ mod tests {
         assert_eq!(c.model.gesture_input, GestureInput::Muscles, "the dissertation's by default");
         let k = c.with_overrides(&sets(&["model.gesture_input=keypoints"])).unwrap();
         assert_eq!(k.model.gesture_input, GestureInput::Keypoints);
+        let b = c.with_overrides(&sets(&["run.method=referencing", "model.gesture_input=target_bearing"])).unwrap();
+        assert_eq!(b.model.gesture_input, GestureInput::TargetBearing, "the upper bound stands in for referencing");
+        let r = b.with_overrides(&sets(&["model.gesture_input=pointing_ray"])).unwrap();
+        assert_eq!(r.model.gesture_input, GestureInput::PointingRay);
         for (bad, says) in [
             ("ppo.lrr=1", "ppo.lrr"),
             ("ppo.clip=-5", "ppo.clip"),
             ("env.width", "KEY=VALUE"),
             ("env.width=abc", "env.width"),
             ("model.gesture_input=skeleton", "model.gesture_input"),
+            ("model.gesture_input=target_bearing", "+Both"),
+            ("model.gesture_input=pointing_ray", "+Both"),
         ] {
             let err = c.with_overrides(&sets(&[bad])).unwrap_err().to_string();
             assert!(err.contains(says) && !err.contains('\n'), "{bad}: {err}");

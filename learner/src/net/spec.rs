@@ -14,8 +14,8 @@ pub struct NetSpec {
     pub rgb: bool,
     pub depth: bool,
     pub gesture: bool,
-    /// Values a gesture frame holds: the 95 muscles, or the keypoints' 30 (the network reads the
-    /// first `gesture_dims` of each 95-wide row).
+    /// Values a gesture frame holds: the 95 muscles, the keypoints' 30, or the upper bounds' 2
+    /// (bearing) or 4 (ray); the network reads the first `gesture_dims` of each 95-wide row.
     pub gesture_dims: i64,
     pub semantic: bool,
     pub pose: bool,
@@ -38,6 +38,8 @@ impl NetSpec {
             gesture_dims: match m.gesture_input {
                 GestureInput::Muscles => shm_schema::GESTURE_DIMS,
                 GestureInput::Keypoints => shm_schema::GESTURE_KEYPOINT_DIMS,
+                GestureInput::TargetBearing => shm_schema::GESTURE_BEARING_DIMS,
+                GestureInput::PointingRay => shm_schema::GESTURE_RAY_DIMS,
             } as i64,
             semantic: cfg.run.method.semantic(),
             pose: m.person_pose,
@@ -70,14 +72,23 @@ impl NetSpec {
         self.hidden * n as i64
     }
 
+    /// The gesture input's name in logs, from its width.
+    fn gesture_name(&self) -> &'static str {
+        match self.gesture_dims as usize {
+            shm_schema::GESTURE_DIMS => "gesture",
+            shm_schema::GESTURE_KEYPOINT_DIMS => "gesture-keypoints",
+            shm_schema::GESTURE_BEARING_DIMS => "target-bearing (upper bound, not a gesture)",
+            _ => "pointing-ray (upper bound, not a gesture)",
+        }
+    }
+
     /// One line for logs.
     pub fn describe(&self) -> String {
         let mut inputs = Vec::new();
         for (on, name) in [
             (self.rgb, "rgb"),
             (self.depth, "depth"),
-            (self.gesture && self.gesture_dims == shm_schema::GESTURE_DIMS as i64, "gesture"),
-            (self.gesture && self.gesture_dims != shm_schema::GESTURE_DIMS as i64, "gesture-keypoints"),
+            (self.gesture, self.gesture_name()),
             (self.semantic, "target"),
             (self.pose, "person-pose"),
         ] {

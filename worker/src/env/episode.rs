@@ -161,12 +161,24 @@ impl Env {
     }
 
     /// Writes the gesture the robot perceives now (`FRAMES × GESTURE_DIMS` half floats, zero
-    /// where none is shown), in the form `model.gesture_input` names: the muscles, or the body
-    /// points as the robot's camera sees them from where it stands now.
+    /// where none is shown), in the form `model.gesture_input` names: the muscles, the body
+    /// points as the robot's camera sees them from where it stands now, or an upper bound: the
+    /// target's bearing from there, or the exact pointing ray.
     pub fn write_gesture(&self, out: &mut [u16]) {
         let mut seen = Vec::new();
         let values: &[f32] = match (&self.seen, self.perceived()) {
             (_, None) => return out.fill(0),
+            (_, Some(_)) if self.cfg.model.gesture_input.is_oracle() => {
+                let told = match self.cfg.model.gesture_input {
+                    GestureInput::TargetBearing => self.program.target_bearing(&self.pose).to_vec(),
+                    _ => self.program.pointing_ray(&self.pose).to_vec(),
+                };
+                seen.resize(gesture::FRAMES * shm_schema::GESTURE_DIMS, 0.0);
+                for row in seen.chunks_mut(shm_schema::GESTURE_DIMS) {
+                    row[..told.len()].copy_from_slice(&told);
+                }
+                &seen
+            }
             (Some((_, world)), Some(_)) => {
                 seen.resize(gesture::FRAMES * shm_schema::GESTURE_DIMS, 0.0);
                 keypoints::write_seen(world, &self.camera(), shm_schema::GESTURE_DIMS, &mut seen);

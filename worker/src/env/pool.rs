@@ -525,6 +525,44 @@ mod tests {
         assert!(shown[REFERENCING as usize] > 0 && shown[INTERVENTION as usize] > 0, "{shown:?}");
     }
 
+    /// The target-bearing upper bound: every frame of the gesture holds one unit vector toward
+    /// the target, the rest of each row zero, and a turn to the right turns it by the turn's
+    /// angle to the left — the bearing is seen from where the robot faces.
+    #[test]
+    fn target_bearing_turns_with_the_robot() {
+        let mut cfg = config(Method::Referencing, 2);
+        cfg.model.gesture_input = farm::config::GestureInput::TargetBearing;
+        let Some(mut pool) = pool(&cfg, ProgramSource::Sample) else { return };
+        let mut buf = PayloadBuf::new(&pool.layout());
+        pool.reset(buf.bytes_mut()).unwrap();
+        let bearings = |pool: &EnvPool, buf: &PayloadBuf| -> Vec<f32> {
+            (0..2)
+                .map(|i| {
+                    let g: Vec<f32> =
+                        view(pool, buf).gesture_bits(i).iter().map(|b| half::f16::from_bits(*b).to_f32()).collect();
+                    let first = &g[..shm_schema::GESTURE_BEARING_DIMS];
+                    assert!((first[0].hypot(first[1]) - 1.0).abs() < 1e-2, "a unit vector: {first:?}");
+                    for row in g.chunks(GESTURE_DIMS) {
+                        assert_eq!(&row[..2], first, "every frame holds the same bearing");
+                        assert!(row[2..].iter().all(|v| *v == 0.0));
+                    }
+                    first[0].atan2(first[1]).to_degrees()
+                })
+                .collect()
+        };
+        for _ in 0..6 {
+            let before = bearings(&pool, &buf);
+            pool.step(&[action::ROTATE_RIGHT, action::ROTATE_RIGHT], buf.bytes_mut()).unwrap();
+            let after = bearings(&pool, &buf);
+            for i in 0..2 {
+                if view(&pool, &buf).records()[i].episode_start == 0 {
+                    let turned = crate::geometry::angle_diff_deg(after[i], before[i]);
+                    assert!((turned - cfg.env.turn_deg).abs() < 1.0, "env {i}: {before:?} → {after:?}");
+                }
+            }
+        }
+    }
+
     /// `task.gesture_shift = 1`: program 0 runs as itself (its room, target, record) but shows
     /// program 1's referencing gesture.
     #[test]
