@@ -413,6 +413,11 @@ mod tests {
         ObsView::new(pool.shape, buf.bytes()).unwrap()
     }
 
+    /// Env `i`'s gesture as written, in f32.
+    fn gesture(pool: &EnvPool, buf: &PayloadBuf, i: usize) -> Vec<f32> {
+        view(pool, buf).gesture_bits(i).iter().map(|b| half::f16::from_bits(*b).to_f32()).collect()
+    }
+
     #[test]
     fn expert_succeeds_with_rendered_visibility_and_records_are_consistent() {
         let cfg = config(Method::Both, 3);
@@ -503,8 +508,7 @@ mod tests {
         let mut shown = [0; 3];
         for _ in 0..32 {
             for (i, r) in view(&pool, &buf).records().to_vec().iter().enumerate() {
-                let g: Vec<f32> =
-                    view(&pool, &buf).gesture_bits(i).iter().map(|b| half::f16::from_bits(*b).to_f32()).collect();
+                let g = gesture(&pool, &buf, i);
                 assert!(
                     g.chunks(GESTURE_DIMS).all(|row| row[crate::gesture::keypoints::DIMS..].iter().all(|v| *v == 0.0))
                 );
@@ -538,8 +542,7 @@ mod tests {
         let bearings = |pool: &EnvPool, buf: &PayloadBuf| -> Vec<f32> {
             (0..2)
                 .map(|i| {
-                    let g: Vec<f32> =
-                        view(pool, buf).gesture_bits(i).iter().map(|b| half::f16::from_bits(*b).to_f32()).collect();
+                    let g = gesture(pool, buf, i);
                     let first = &g[..shm_schema::GESTURE_BEARING_DIMS];
                     assert!((first[0].hypot(first[1]) - 1.0).abs() < 1e-2, "a unit vector: {first:?}");
                     for row in g.chunks(GESTURE_DIMS) {
