@@ -222,6 +222,19 @@ pub enum GestureInput {
     PointingRay,
 }
 
+/// How the gesture network reads a gesture's 100 frames.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GestureNetwork {
+    /// The frames flattened into one fully connected layer (§4.3.3: 9,500 → 512 for the muscles).
+    #[default]
+    Flat,
+    /// Beyond the dissertation: one small network shared by every frame, its outputs pooled over
+    /// time (mean and max), then one layer to the feature — a pose held in any frames is read by
+    /// the same weights.
+    PerFrame,
+}
+
 impl GestureInput {
     /// The upper bounds that stand in for the referencing gesture rather than perceive one.
     pub fn is_oracle(self) -> bool {
@@ -247,6 +260,8 @@ pub struct ModelConfig {
     /// How the gesture is perceived (`muscles`: the dissertation; `keypoints` and the upper
     /// bounds `target_bearing` and `pointing_ray`: beyond it).
     pub gesture_input: GestureInput,
+    /// How the gesture's frames are read (`flat`: the dissertation; `per_frame`: beyond it).
+    pub gesture_network: GestureNetwork,
     /// Width of every feature and hidden layer.
     pub hidden: i64,
     /// GRU layers (the dissertation: 2; the released code: 1).
@@ -263,6 +278,7 @@ impl Default for ModelConfig {
             depth: true,
             person_pose: false,
             gesture_input: GestureInput::Muscles,
+            gesture_network: GestureNetwork::Flat,
             hidden: 512,
             gru_layers: 2,
         }
@@ -571,6 +587,9 @@ mod tests {
         assert_eq!(b.model.gesture_input, GestureInput::TargetBearing, "the upper bound stands in for referencing");
         let r = b.with_overrides(&sets(&["model.gesture_input=pointing_ray"])).unwrap();
         assert_eq!(r.model.gesture_input, GestureInput::PointingRay);
+        assert_eq!(c.model.gesture_network, GestureNetwork::Flat, "the dissertation's by default");
+        let f = c.with_overrides(&sets(&["model.gesture_network=per_frame"])).unwrap();
+        assert_eq!(f.model.gesture_network, GestureNetwork::PerFrame);
         for (bad, says) in [
             ("ppo.lrr=1", "ppo.lrr"),
             ("ppo.clip=-5", "ppo.clip"),
@@ -579,6 +598,7 @@ mod tests {
             ("model.gesture_input=skeleton", "model.gesture_input"),
             ("model.gesture_input=target_bearing", "+Both"),
             ("model.gesture_input=pointing_ray", "+Both"),
+            ("model.gesture_network=lstm", "model.gesture_network"),
         ] {
             let err = c.with_overrides(&sets(&[bad])).unwrap_err().to_string();
             assert!(err.contains(says) && !err.contains('\n'), "{bad}: {err}");

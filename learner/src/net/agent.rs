@@ -227,7 +227,7 @@ impl Agent {
             return Forward { logits: vec![0.0; n * action::COUNT], values: vec![0.0; n], hidden: memory, starts };
         }
         tch::no_grad(|| {
-            let gesture = match (self.net.gesture_layer(), &x.gesture, &x.gesture_index) {
+            let gesture = match (self.net.gesture_net(), &x.gesture, &x.gesture_index) {
                 (Some(l), Some(g), None) => Some(self.gestures.features(l, g, at, self.n_envs)),
                 _ => None,
             };
@@ -316,6 +316,7 @@ mod tests {
     use crate::bench::random_obs;
     use crate::net::spec::tests::tiny_config;
     use crate::obs::GestureKind;
+    use farm::config::GestureNetwork;
 
     #[test]
     fn acting_shapes_memory_and_resets() {
@@ -351,28 +352,36 @@ mod tests {
         assert_eq!(a.values, b.values);
     }
 
-    /// With keypoints the gesture layer reads the first 30 values of each frame: the rest of the
-    /// 95-wide row changes nothing, the 30 do; and its checkpoints are not the muscles' ones.
+    /// With keypoints the gesture network reads the first 30 values of each frame: the rest of
+    /// the 95-wide row changes nothing, the 30 do — flat or per frame; and their checkpoints are
+    /// not the muscles' ones, nor each other's.
     #[test]
     fn keypoints_read_thirty_values_a_frame() {
-        let mut cfg = tiny_config("both");
-        cfg.model.gesture_input = farm::config::GestureInput::Keypoints;
-        let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
-        assert_eq!(p.net.gesture_layer().unwrap().ws.size(), [32, 100 * 30]);
-        let mut o = random_obs(2, 16, 3);
-        o.envs.iter_mut().for_each(|e| e.gesture = GestureKind::Referencing);
-        let act = |p: &mut Agent, o: &crate::obs::OwnedObs| {
-            p.reset();
-            p.act_deterministic(&o.batch()).unwrap().values
-        };
-        let a = act(&mut p, &o);
-        let dims = shm_schema::GESTURE_DIMS;
-        o.gesture.chunks_mut(dims).for_each(|row| row[30..].fill(half::f16::from_f32(0.9)));
-        assert_eq!(a, act(&mut p, &o), "values past the 30 are not read");
-        o.gesture.chunks_mut(dims).for_each(|row| row[..30].fill(half::f16::from_f32(0.9)));
-        assert_ne!(a, act(&mut p, &o), "the 30 are");
-        let muscles = tiny_config("both");
-        assert_ne!(crate::ppo::checkpoint::config_hash(&cfg), crate::ppo::checkpoint::config_hash(&muscles));
+        let mut hashes = vec![crate::ppo::checkpoint::config_hash(&tiny_config("both"))];
+        for (network, first) in [
+            (GestureNetwork::Flat, ("gesture.weight", 100 * 30)),
+            (GestureNetwork::PerFrame, ("gesture.frame0.weight", 30)),
+        ] {
+            let mut cfg = tiny_config("both");
+            cfg.model.gesture_input = farm::config::GestureInput::Keypoints;
+            cfg.model.gesture_network = network;
+            let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+            assert_eq!(p.vs.variables()[first.0].size()[1], first.1, "{network:?}");
+            let mut o = random_obs(2, 16, 3);
+            o.envs.iter_mut().for_each(|e| e.gesture = GestureKind::Referencing);
+            let act = |p: &mut Agent, o: &crate::obs::OwnedObs| {
+                p.reset();
+                p.act_deterministic(&o.batch()).unwrap().values
+            };
+            let a = act(&mut p, &o);
+            let dims = shm_schema::GESTURE_DIMS;
+            o.gesture.chunks_mut(dims).for_each(|row| row[30..].fill(half::f16::from_f32(0.9)));
+            assert_eq!(a, act(&mut p, &o), "{network:?}: values past the 30 are not read");
+            o.gesture.chunks_mut(dims).for_each(|row| row[..30].fill(half::f16::from_f32(0.9)));
+            assert_ne!(a, act(&mut p, &o), "{network:?}: the 30 are");
+            hashes.push(crate::ppo::checkpoint::config_hash(&cfg));
+        }
+        assert!(hashes[0] != hashes[1] && hashes[1] != hashes[2] && hashes[0] != hashes[2], "{hashes:?}");
     }
 
     #[test]

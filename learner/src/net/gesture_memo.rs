@@ -1,14 +1,16 @@
 //! Acting's gesture features, kept per env from one step to the next.
 //!
 //! An env shows the same 100 × 95 gesture from an episode's start until intervention switches
-//! on or off, yet acting would run the 9,500-wide gesture layer over all N envs at every step —
+//! on or off, yet acting would run the gesture network (9,500 wide) over all N envs at every step —
 //! at 64×64 on a CPU, a third of a step's forward. The memo keeps each env's features and the
 //! gesture they came from, and recomputes only the envs whose gesture changed (compared element
-//! by element) or all of them when the layer's weights changed: PPO's Adam and checkpoint
-//! loading write the variables in place, which bumps torch's version counters of the weight and
-//! bias (libtorch's own optimizers write through `.data()` and would not: the tests use ours).
+//! by element) or all of them when the network's weights changed: PPO's Adam and checkpoint
+//! loading write the variables in place, which bumps torch's version counters of its weights and
+//! biases (libtorch's own optimizers write through `.data()` and would not: the tests use ours).
 
-use tch::{Kind, Tensor, nn};
+use tch::{Kind, Tensor};
+
+use crate::net::gesture_net::GestureNet;
 
 #[derive(Debug, Default)]
 pub(crate) struct GestureMemo {
@@ -16,26 +18,26 @@ pub(crate) struct GestureMemo {
     shown: Option<Tensor>,
     /// `[N, hidden]`.
     features: Option<Tensor>,
-    /// Rows computed with the current layer (a round of one group of envs leaves the other
+    /// Rows computed with the current network (a round of one group of envs leaves the other
     /// rows as they were).
     fresh: Vec<bool>,
-    /// The layer's (weight, bias) version counters the fresh rows were computed with.
-    versions: (i64, i64),
+    /// The network's version counters the fresh rows were computed with.
+    versions: Vec<i64>,
 }
 
 impl GestureMemo {
-    /// The layer's features of `g` `[B, 100, 95]` — the gestures of envs `at..at + B` of `total`
-    /// — `[B, hidden]`, reusing every row whose gesture and layer are unchanged since it was last
-    /// computed. Without gradients (acting only).
-    pub(crate) fn features(&mut self, layer: &nn::Linear, g: &Tensor, at: usize, total: usize) -> Tensor {
+    /// The network's features of `g` `[B, 100, 95]` — the gestures of envs `at..at + B` of
+    /// `total` — `[B, hidden]`, reusing every row whose gesture and network are unchanged since it
+    /// was last computed. Without gradients (acting only).
+    pub(crate) fn features(&mut self, net: &GestureNet, g: &Tensor, at: usize, total: usize) -> Tensor {
         tch::no_grad(|| {
-            let versions = (layer.ws.internal_version(), layer.bs.as_ref().map_or(0, |b| b.internal_version()));
+            let versions = net.versions();
             let mut all = g.size();
             all[0] = total as i64;
             if !self.shown.as_ref().is_some_and(|s| s.size() == all && s.kind() == g.kind()) {
                 self.shown = Some(g.new_zeros(all.as_slice(), (g.kind(), g.device())));
-                // `encode`'s output: f32, one value per output of the layer
-                self.features = Some(Tensor::zeros([total as i64, layer.ws.size()[0]], (Kind::Float, g.device())));
+                // the network's output: f32, `hidden` wide
+                self.features = Some(Tensor::zeros([total as i64, net.hidden()], (Kind::Float, g.device())));
                 self.fresh = vec![false; total];
             }
             if versions != self.versions {
@@ -52,7 +54,7 @@ impl GestureMemo {
             if !changed.is_empty() {
                 let rows = Tensor::from_slice(&changed).to_device(g.device());
                 let new = g.index_select(0, &rows);
-                let _ = features.index_copy_(0, &rows, &encode(layer, &new));
+                let _ = features.index_copy_(0, &rows, &net.forward(&new));
                 let _ = shown.index_copy_(0, &rows, &new);
                 changed.iter().for_each(|&k| fresh[k as usize] = true);
             }
@@ -62,86 +64,102 @@ impl GestureMemo {
     }
 }
 
-/// The gesture layer on gestures `[B, 100, 95]` → `[B, hidden]` (flatten, FC, ReLU).
-pub(crate) fn encode(layer: &nn::Linear, g: &Tensor) -> Tensor {
-    g.to_kind(Kind::Float).flatten(1, -1).apply(layer).relu()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tch::Device;
+    use farm::config::GestureNetwork;
+    use tch::{Device, nn};
 
-    fn layer(vs: &nn::VarStore) -> nn::Linear {
-        nn::linear(vs.root() / "g", 20, 8, Default::default())
+    /// Both kinds of gesture network on gestures of 5 values per frame, 8 wide.
+    fn nets(vs: &nn::VarStore) -> Vec<(String, GestureNet)> {
+        [GestureNetwork::Flat, GestureNetwork::PerFrame]
+            .into_iter()
+            .enumerate()
+            .map(|(i, k)| (format!("g{i}."), GestureNet::new(&(vs.root() / format!("g{i}")), k, 5, 8)))
+            .collect()
     }
 
-    /// Features from the memo equal the layer run on every row: when some envs change gesture,
+    fn draw(seed: i64, n: i64) -> Tensor {
+        let frames = shm_schema::GESTURE_FRAMES as i64;
+        crate::device::seeded(seed, || Tensor::randn([n, frames, 5], (Kind::Float, Device::Cpu)).to_kind(Kind::Half))
+    }
+
+    /// A checkpoint load: one of the network's variables (the first by name) overwritten in place,
+    /// without gradients.
+    fn load_over(vs: &nn::VarStore, prefix: &str, seed: i64) {
+        let vars = vs.variables();
+        let name = vars.keys().filter(|k| k.starts_with(prefix)).min().expect("a variable");
+        let v = &vars[name];
+        let other = crate::device::seeded(seed, || v.randn_like());
+        tch::no_grad(|| v.shallow_clone().copy_(&other));
+    }
+
+    /// Features from the memo equal the network run on every row: when some envs change gesture,
     /// when none does, and after the weights change in place.
     #[test]
     fn memo_equals_recomputing_every_row() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let draw = |seed, n| {
-            crate::device::seeded(seed, || Tensor::randn([n, 4, 5], (Kind::Float, Device::Cpu)).to_kind(Kind::Half))
-        };
-        let l = crate::device::seeded(3, || layer(&vs));
-        let mut memo = GestureMemo::default();
-        let mut g = draw(4, 4);
-        let check = |memo: &mut GestureMemo, g: &Tensor| {
-            let got = memo.features(&l, g, 0, 4);
-            let want = tch::no_grad(|| encode(&l, g));
-            assert!(got.allclose(&want, 1e-5, 1e-6, false), "{got} vs {want}");
-        };
-        check(&mut memo, &g);
-        check(&mut memo, &g);
-        // envs 1 and 3 start new episodes with other gestures
-        let fresh = draw(5, 2);
-        let _ = g.index_copy_(0, &Tensor::from_slice(&[1i64, 3]), &fresh);
-        check(&mut memo, &g);
-        // PPO's optimizer step changes the layer in place
-        let mut opt = crate::ppo::optim::Adam::new(&vs, 0.5, 1e-5);
-        encode(&l, &g).sum(Kind::Float).backward();
-        opt.step();
-        check(&mut memo, &g);
-        // so does a checkpoint load (a copy into the variables without gradients)
-        let other = crate::device::seeded(6, || l.ws.randn_like());
-        tch::no_grad(|| l.ws.shallow_clone().copy_(&other));
-        check(&mut memo, &g);
+        let nets = crate::device::seeded(3, || nets(&vs));
+        for (prefix, net) in &nets {
+            let mut memo = GestureMemo::default();
+            let mut g = draw(4, 4);
+            let check = |memo: &mut GestureMemo, g: &Tensor| {
+                let got = memo.features(net, g, 0, 4);
+                let want = tch::no_grad(|| net.forward(g));
+                assert!(got.allclose(&want, 1e-5, 1e-6, false), "{prefix}: {got} vs {want}");
+            };
+            check(&mut memo, &g);
+            check(&mut memo, &g);
+            // envs 1 and 3 start new episodes with other gestures
+            let fresh = draw(5, 2);
+            let _ = g.index_copy_(0, &Tensor::from_slice(&[1i64, 3]), &fresh);
+            check(&mut memo, &g);
+            // PPO's optimizer step changes the network in place
+            let mut opt = crate::ppo::optim::Adam::new(&vs, 0.5, 1e-5);
+            net.forward(&g).sum(Kind::Float).backward();
+            opt.step();
+            check(&mut memo, &g);
+            // so does a checkpoint load
+            load_over(&vs, prefix, 6);
+            check(&mut memo, &g);
+        }
     }
 
     /// Rounds of one group of envs at a time (`ppo.env_groups`): each group's rows are its own,
-    /// and a change of the layer reaches every group that acts after it.
+    /// and a change of the network reaches every group that acts after it.
     #[test]
     fn groups_of_envs_keep_their_own_rows() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let l = crate::device::seeded(8, || layer(&vs));
-        let g = crate::device::seeded(9, || Tensor::randn([4, 4, 5], (Kind::Float, Device::Cpu)).to_kind(Kind::Half));
-        let mut memo = GestureMemo::default();
-        let mut check = |at: i64| {
-            let part = g.narrow(0, at, 2);
-            let got = memo.features(&l, &part, at as usize, 4);
-            let want = tch::no_grad(|| encode(&l, &part));
-            assert!(got.allclose(&want, 1e-5, 1e-6, false), "envs {at}..: {got} vs {want}");
-        };
-        for at in [0, 2, 0, 2] {
-            check(at);
+        let nets = crate::device::seeded(8, || nets(&vs));
+        let g = draw(9, 4);
+        for (prefix, net) in &nets {
+            let mut memo = GestureMemo::default();
+            let mut check = |at: i64| {
+                let part = g.narrow(0, at, 2);
+                let got = memo.features(net, &part, at as usize, 4);
+                let want = tch::no_grad(|| net.forward(&part));
+                assert!(got.allclose(&want, 1e-5, 1e-6, false), "{prefix} envs {at}..: {got} vs {want}");
+            };
+            for at in [0, 2, 0, 2] {
+                check(at);
+            }
+            load_over(&vs, prefix, 10);
+            check(2);
+            check(0);
         }
-        let other = crate::device::seeded(10, || l.ws.randn_like());
-        tch::no_grad(|| l.ws.shallow_clone().copy_(&other));
-        check(2);
-        check(0);
     }
 
     /// A handed-out tensor is not changed by later calls.
     #[test]
     fn handed_out_features_stay_as_they_were() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let l = crate::device::seeded(7, || layer(&vs));
+        let nets = crate::device::seeded(7, || nets(&vs));
+        let (_, net) = &nets[0];
         let mut memo = GestureMemo::default();
-        let a = Tensor::zeros([2, 4, 5], (Kind::Half, Device::Cpu));
-        let first = memo.features(&l, &a, 0, 2);
+        let a = draw(1, 2).zeros_like();
+        let first = memo.features(net, &a, 0, 2);
         let kept = first.copy();
-        let _ = memo.features(&l, &a.ones_like(), 0, 2);
+        let _ = memo.features(net, &a.ones_like(), 0, 2);
         assert!(first.equal(&kept));
     }
 }

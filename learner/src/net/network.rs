@@ -13,6 +13,9 @@
 //! ReLU"). Inputs the method or config switches off are left out of the concatenation (Vision
 //! Only: 1024 wide). The actor and critic are read as "2 layers of 512, then the output layer".
 //!
+//! The gesture network is §4.3.3's flat layer by default, or one shared per frame and pooled over
+//! time (`model.gesture_network`, `crate::net::gesture_net`).
+//!
 //! Depth goes through the RGB trunk replicated to three channels (a grey image to an ImageNet
 //! network): with frozen weights both modalities share one trunk and run as one batch.
 //! Frozen conv5 features are computed once when acting and stored in the rollout, so PPO epochs
@@ -25,12 +28,12 @@
 //! (1×1 conv 64→16, FC → hidden), one visual feature instead of two.
 
 use farm::config::Encoder;
-use shm_schema::{GESTURE_FRAMES, TARGET_CATEGORIES, action};
+use shm_schema::{TARGET_CATEGORIES, action};
 use tch::nn::{self, RNN};
 use tch::{Device, Kind, Tensor};
 
 use crate::inputs::{self, Inputs, Staging, depth_unit, rgb_unit};
-use crate::net::gesture_memo;
+use crate::net::gesture_net::GestureNet;
 use crate::net::layers::{ConvHead, FrozenTrunk, Mlp, Pretrained, SmallCnn, Visual};
 use crate::net::resnet::{self, Resnet18};
 use crate::net::spec::NetSpec;
@@ -47,7 +50,7 @@ pub struct PolicyNet {
     pretrained: Option<Pretrained>,
     rgb: Option<Visual>,
     depth: Option<Visual>,
-    gesture: Option<nn::Linear>,
+    gesture: Option<GestureNet>,
     target: Option<nn::Embedding>,
     pose: Option<nn::Linear>,
     gru: nn::GRU,
@@ -84,9 +87,8 @@ impl PolicyNet {
         // the pretrained encoder is one branch for both (`pretrained` above)
         let rgb = (spec.rgb && !spec.fused()).then(|| visual("rgb", 3));
         let depth = (spec.depth && !spec.fused()).then(|| visual("depth", 1));
-        let gesture = spec
-            .gesture
-            .then(|| nn::linear(&root / "gesture", GESTURE_FRAMES as i64 * spec.gesture_dims, h, Default::default()));
+        let gesture =
+            spec.gesture.then(|| GestureNet::new(&(&root / "gesture"), spec.gesture_network, spec.gesture_dims, h));
         let target =
             spec.semantic.then(|| nn::embedding(&root / "target", TARGET_CATEGORIES as i64, h, Default::default()));
         let pose = spec.pose.then(|| nn::linear(&root / "pose", 3, h, Default::default()));
@@ -165,7 +167,7 @@ impl PolicyNet {
         self.encode_with(x, None)
     }
 
-    /// [`PolicyNet::encode`], with the gesture layer's output for `x`'s rows given when it was
+    /// [`PolicyNet::encode`], with the gesture network's output for `x`'s rows given when it was
     /// computed beforehand (acting's `GestureMemo`).
     pub(crate) fn encode_with(&self, x: &Inputs, gesture: Option<Tensor>) -> Tensor {
         let mut parts = Vec::new();
@@ -184,9 +186,9 @@ impl PolicyNet {
                 // distinct gestures are encoded once, then gathered for every row that shows them;
                 // where the rows are fewer than the distinct gestures (a gesture that changes
                 // every step, as keypoints seen from a moving robot), the rows are encoded instead
-                (None, Some(i)) if t.size()[0] > i.numel() as i64 => gesture_memo::encode(l, &t.index_select(0, i)),
-                (None, Some(i)) => gesture_memo::encode(l, t).index_select(0, i),
-                (None, None) => gesture_memo::encode(l, t),
+                (None, Some(i)) if t.size()[0] > i.numel() as i64 => l.forward(&t.index_select(0, i)),
+                (None, Some(i)) => l.forward(t).index_select(0, i),
+                (None, None) => l.forward(t),
             });
         }
         if let (Some(e), Some(t)) = (&self.target, &x.target) {
@@ -220,8 +222,8 @@ impl PolicyNet {
         self.heads(&out)
     }
 
-    /// The gesture layer, when the method shows gestures.
-    pub(crate) fn gesture_layer(&self) -> Option<&nn::Linear> {
+    /// The gesture network, when the method shows gestures.
+    pub(crate) fn gesture_net(&self) -> Option<&GestureNet> {
         self.gesture.as_ref()
     }
 

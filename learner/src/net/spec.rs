@@ -2,7 +2,7 @@
 //! on, which visual encoder, the frame size and the widths. Everything that builds, stores or
 //! checks a network reads it from here.
 
-use farm::config::{Encoder, GestureInput, Method, RunConfig};
+use farm::config::{Encoder, GestureInput, GestureNetwork, Method, RunConfig};
 
 /// What the network looks like for a run: which inputs, which encoder, how wide.
 #[derive(Clone, Debug, PartialEq)]
@@ -17,6 +17,8 @@ pub struct NetSpec {
     /// Values a gesture frame holds: the 95 muscles, the keypoints' 30, or the upper bounds' 2
     /// (bearing) or 4 (ray); the network reads the first `gesture_dims` of each 95-wide row.
     pub gesture_dims: i64,
+    /// How the gesture's frames are read (§4.3.3's flat layer, or shared per frame).
+    pub gesture_network: GestureNetwork,
     pub semantic: bool,
     pub pose: bool,
     pub height: i64,
@@ -41,6 +43,7 @@ impl NetSpec {
                 GestureInput::TargetBearing => shm_schema::GESTURE_BEARING_DIMS,
                 GestureInput::PointingRay => shm_schema::GESTURE_RAY_DIMS,
             } as i64,
+            gesture_network: m.gesture_network,
             semantic: cfg.run.method.semantic(),
             pose: m.person_pose,
             height: cfg.env.height as i64,
@@ -72,13 +75,17 @@ impl NetSpec {
         self.hidden * n as i64
     }
 
-    /// The gesture input's name in logs, from its width.
-    fn gesture_name(&self) -> &'static str {
-        match self.gesture_dims as usize {
+    /// The gesture input's name in logs, from its width, and its network when not the flat one.
+    fn gesture_name(&self) -> String {
+        let input = match self.gesture_dims as usize {
             shm_schema::GESTURE_DIMS => "gesture",
             shm_schema::GESTURE_KEYPOINT_DIMS => "gesture-keypoints",
             shm_schema::GESTURE_BEARING_DIMS => "target-bearing (upper bound, not a gesture)",
             _ => "pointing-ray (upper bound, not a gesture)",
+        };
+        match self.gesture_network {
+            GestureNetwork::Flat => input.to_string(),
+            GestureNetwork::PerFrame => format!("{input} read per frame"),
         }
     }
 
@@ -86,11 +93,11 @@ impl NetSpec {
     pub fn describe(&self) -> String {
         let mut inputs = Vec::new();
         for (on, name) in [
-            (self.rgb, "rgb"),
-            (self.depth, "depth"),
+            (self.rgb, "rgb".to_string()),
+            (self.depth, "depth".to_string()),
             (self.gesture, self.gesture_name()),
-            (self.semantic, "target"),
-            (self.pose, "person-pose"),
+            (self.semantic, "target".to_string()),
+            (self.pose, "person-pose".to_string()),
         ] {
             if on {
                 inputs.push(name);

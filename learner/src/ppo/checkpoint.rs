@@ -10,7 +10,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
-use farm::config::RunConfig;
+use farm::config::{GestureNetwork, RunConfig};
 use rand_chacha::ChaCha8Rng;
 use rand_chacha::rand_core::SeedableRng;
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
@@ -64,10 +64,15 @@ pub fn config_hash(cfg: &RunConfig) -> String {
         s.hidden,
         s.gru_layers
     );
-    // appended only when not the dissertation's 95 muscles, so that earlier checkpoints still load
+    // appended only when not the dissertation's 95 muscles and flat layer, so that earlier
+    // checkpoints still load
     let key = match s.gesture_dims == shm_schema::GESTURE_DIMS as i64 {
         true => key,
         false => format!("{key};gesture_dims={}", s.gesture_dims),
+    };
+    let key = match (s.gesture, s.gesture_network) {
+        (false, _) | (_, GestureNetwork::Flat) => key,
+        (true, other) => format!("{key};gesture_network={other:?}"),
     };
     let digest = Sha256::digest(key.as_bytes());
     farm::files::hex(&digest[..8])

@@ -1,0 +1,122 @@
+//! The gesture network: a gesture's 100 frames `[B, 100, d]` → one feature `[B, hidden]`.
+//!
+//! ```text
+//! flat (§4.3.3):  100×d ─ flatten ─ FC hidden ─ ReLU
+//! per_frame:      each frame d ─ FC 64 ─ ReLU ─ FC 64 ─ ReLU ┐ mean and max over the 100 frames
+//!                                                            └ 128 ─ FC hidden ─ ReLU
+//! ```
+//! The flat layer gives each frame its own weights: a pointing held in frames 40–60 and the same
+//! pointing in frames 50–70 are different inputs to learn, each from PPO's gradient alone. The
+//! per-frame network reads every frame with the same small weights and pools over time, so a
+//! pose held anywhere in the gesture is one thing to learn (beyond the dissertation; the probe
+//! in docs/encoder reads the pointing's direction per frame from the body points).
+
+use farm::config::GestureNetwork;
+use shm_schema::GESTURE_FRAMES;
+use tch::{Kind, Tensor, nn};
+
+/// Width of the per-frame network's layers.
+const FRAME_WIDTH: i64 = 64;
+
+/// The gesture network; its variables live under `gesture.`.
+#[derive(Debug)]
+pub(crate) enum GestureNet {
+    Flat(nn::Linear),
+    PerFrame { frame: [nn::Linear; 2], out: nn::Linear },
+}
+
+impl GestureNet {
+    /// `dims` values per frame → `hidden`, initialised from torch's seed.
+    pub(crate) fn new(p: &nn::Path, kind: GestureNetwork, dims: i64, hidden: i64) -> GestureNet {
+        let c = Default::default;
+        match kind {
+            GestureNetwork::Flat => GestureNet::Flat(nn::linear(p, GESTURE_FRAMES as i64 * dims, hidden, c())),
+            GestureNetwork::PerFrame => GestureNet::PerFrame {
+                frame: [
+                    nn::linear(p / "frame0", dims, FRAME_WIDTH, c()),
+                    nn::linear(p / "frame1", FRAME_WIDTH, FRAME_WIDTH, c()),
+                ],
+                out: nn::linear(p / "out", 2 * FRAME_WIDTH, hidden, c()),
+            },
+        }
+    }
+
+    /// Gestures `[B, 100, d]` (any float kind) → features `[B, hidden]` in f32.
+    pub(crate) fn forward(&self, g: &Tensor) -> Tensor {
+        let g = g.to_kind(Kind::Float);
+        match self {
+            GestureNet::Flat(l) => g.flatten(1, -1).apply(l).relu(),
+            GestureNet::PerFrame { frame, out } => {
+                let f = g.apply(&frame[0]).relu().apply(&frame[1]).relu();
+                let pooled = Tensor::cat(&[f.mean_dim(1, false, Kind::Float), f.amax(1, false)], 1);
+                pooled.apply(out).relu()
+            }
+        }
+    }
+
+    /// Width of the features.
+    pub(crate) fn hidden(&self) -> i64 {
+        self.layers().last().expect("a layer").ws.size()[0]
+    }
+
+    /// Version counters of every variable: they change when the optimizer or a checkpoint load
+    /// writes the weights in place (acting's memo recomputes then).
+    pub(crate) fn versions(&self) -> Vec<i64> {
+        self.layers()
+            .iter()
+            .flat_map(|l| [Some(&l.ws), l.bs.as_ref()])
+            .map(|v| v.map_or(0, |v| v.internal_version()))
+            .collect()
+    }
+
+    fn layers(&self) -> Vec<&nn::Linear> {
+        match self {
+            GestureNet::Flat(l) => vec![l],
+            GestureNet::PerFrame { frame, out } => vec![&frame[0], &frame[1], out],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tch::Device;
+
+    /// The per-frame network reads what the frames show, not when: the same poses in another
+    /// order give the same features, and a pose held in other frames gives the same features.
+    #[test]
+    fn per_frame_features_do_not_depend_on_when_a_pose_is_held() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::PerFrame, 30, 16));
+        let rest = crate::device::seeded(2, || Tensor::randn([1, 1, 30], (Kind::Float, Device::Cpu)));
+        let pointing = crate::device::seeded(3, || Tensor::randn([1, 1, 30], (Kind::Float, Device::Cpu)));
+        let frames = GESTURE_FRAMES as i64;
+        let held = |from: i64| {
+            let g = rest.expand([1, frames, 30], false).copy();
+            g.narrow(1, from, 20).copy_(&pointing.expand([1, 20, 30], false));
+            g
+        };
+        let (early, late) = tch::no_grad(|| (net.forward(&held(10)), net.forward(&held(70))));
+        assert_eq!(early.size(), [1, 16]);
+        assert!(early.allclose(&late, 1e-5, 1e-6, false), "{early} vs {late}");
+        let still = tch::no_grad(|| net.forward(&rest.expand([1, frames, 30], false)));
+        assert!(!early.allclose(&still, 1e-3, 1e-3, false), "the held pose must show");
+        // the flat layer tells them apart
+        let flat = crate::device::seeded(1, || GestureNet::new(&(vs.root() / "flat"), GestureNetwork::Flat, 30, 16));
+        let (a, b) = tch::no_grad(|| (flat.forward(&held(10)), flat.forward(&held(70))));
+        assert!(!a.allclose(&b, 1e-3, 1e-3, false));
+    }
+
+    #[test]
+    fn widths_and_variable_names() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let flat = GestureNet::new(&(vs.root() / "gesture"), GestureNetwork::Flat, 95, 32);
+        let per = GestureNet::new(&(vs.root() / "other"), GestureNetwork::PerFrame, 95, 32);
+        assert_eq!((flat.hidden(), per.hidden()), (32, 32));
+        let v = vs.variables();
+        assert_eq!(v["gesture.weight"].size(), [32, 100 * 95], "§4.3.3's layer, as checkpoints name it");
+        assert_eq!(v["other.frame0.weight"].size(), [64, 95]);
+        assert_eq!(v["other.out.weight"].size(), [32, 128]);
+        assert_eq!(per.versions().len(), 6);
+    }
+}
