@@ -313,7 +313,7 @@ fn run(cli: Cli) -> Result<()> {
             learner::encoder::probe(&o, &out).map(drop)?
         }
         Command::ProbeGesture { data, out, seed, epochs } => {
-            let o = learner::encoder::GestureProbeOptions { data, seed, epochs, threads: 2 };
+            let o = learner::encoder::GestureProbeOptions { data, seed, epochs, per_frame_epochs: epochs, threads: 2 };
             learner::encoder::probe_gesture(&o, &out).map(drop)?
         }
     }

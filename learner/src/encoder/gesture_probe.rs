@@ -7,7 +7,11 @@
 //!   what the policy's first layer could read directly;
 //! - **MLP**: two hidden layers of 256 (ReLU), Adam at PPO's rate (3e-4), the number of epochs
 //!   chosen on the same fifth;
-//!   what a few layers can compute, such as turning an arm's direction by the person's facing.
+//!   what a few layers can compute, such as turning an arm's direction by the person's facing;
+//! - **per frame**, for the inputs made of frames: the policy's per-frame gesture network
+//!   (`model.gesture_network = "per_frame"`: one small network shared by the 100 frames, pooled
+//!   over time, one layer to 256) and a linear output, trained as the MLP on the raw frames — what
+//!   that network can read when told the answer.
 //!
 //! No policy, no reward: an upper bound on what the gesture can give the policy, and the form
 //! it gives it in.
@@ -17,7 +21,11 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use tch::{Device, Kind, Tensor, nn, nn::Module, nn::OptimizerConfig};
 
+use farm::config::GestureNetwork;
+use shm_schema::GESTURE_FRAMES;
+
 use super::probe::{Ridge, angle_error, degrees, standardise};
+use crate::net::gesture_net::GestureNet;
 
 /// The ridge penalties tried (relative to the inputs' mean variance): wider than the encoder
 /// probe's, whose ends the pose (100) and the body points (0.001) chose on the default dataset.
@@ -35,6 +43,8 @@ pub struct GestureProbeOptions {
     pub seed: u64,
     /// Passes of the MLP over the training programs (the best on the chosen fifth is kept).
     pub epochs: usize,
+    /// The same for the per-frame network (a hundred times the MLP's work per program).
+    pub per_frame_epochs: usize,
     pub threads: i32,
 }
 
@@ -51,6 +61,17 @@ pub struct InputProbe {
     pub mlp_error_deg: f64,
     pub mlp_side: f64,
     pub mlp_epochs: usize,
+    /// The per-frame gesture network's, for inputs made of frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub per_frame: Option<PerFrameProbe>,
+}
+
+/// The per-frame gesture network's figures on the held-out programs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PerFrameProbe {
+    pub error_deg: f64,
+    pub side: f64,
+    pub epochs: usize,
 }
 
 /// The report `probe-gesture` writes (`OUT.json`, and `OUT.md` as a table).
@@ -72,7 +93,8 @@ impl GestureProbeReport {
         let mut s = format!(
             "{} training programs, {} held-out programs (other rooms); always the mean bearing: {:.1}°, \
              the more common side: {:.3}; target within 45° of the heading at the start: {:.1}%\n\n\
-             | input | values | ridge: error (°) | ridge: side | MLP: error (°) | MLP: side |\n|---|---:|---:|---:|---:|---:|\n",
+             | input | values | ridge: error (°) | ridge: side | MLP: error (°) | MLP: side | per frame: error (°) | per frame: side |\n\
+             |---|---:|---:|---:|---:|---:|---:|---:|\n",
             self.training_programs,
             self.held_out_programs,
             self.baseline_error_deg,
@@ -80,8 +102,10 @@ impl GestureProbeReport {
             100.0 * self.ahead_share
         );
         for p in &self.probes {
+            let per_frame =
+                p.per_frame.as_ref().map_or("— | —".to_string(), |f| format!("{:.1} | {:.3}", f.error_deg, f.side));
             s += &format!(
-                "| {} | {} | {:.1} | {:.3} | {:.1} | {:.3} |\n",
+                "| {} | {} | {:.1} | {:.3} | {:.1} | {:.3} | {per_frame} |\n",
                 p.input, p.features, p.ridge_error_deg, p.ridge_side, p.mlp_error_deg, p.mlp_side
             );
         }
@@ -101,20 +125,38 @@ fn mean(t: &Tensor) -> f64 {
     t.to_kind(Kind::Double).mean(Kind::Double).double_value(&[])
 }
 
-/// The inputs probed: name and columns `[N, D]` (f64) of the file's tensors.
-fn inputs(t: &std::collections::HashMap<String, Tensor>) -> Vec<(&'static str, Tensor)> {
+/// One input probed: its name, its columns `[N, D]` (f64) and, for an input made of frames, the
+/// same values as `[N, 100, d]`.
+struct Input {
+    name: &'static str,
+    columns: Tensor,
+    frames: Option<Tensor>,
+}
+
+/// The inputs probed, from the file's tensors.
+fn inputs(t: &std::collections::HashMap<String, Tensor>) -> Vec<Input> {
     let (muscles, keypoints, person) = (&t["muscles"], &t["keypoints"], &t["person"]);
     let n = person.size()[0];
+    let frames = |x: &Tensor| Some(x.view([n, GESTURE_FRAMES as i64, -1]));
     // head, hips and both shoulders of the ten body points: where the person stands and faces,
     // without the arms
-    let frames = keypoints.view([n, 100, 10, 3]);
-    let body = Tensor::cat(&[frames.narrow(2, 0, 3), frames.narrow(2, 6, 1)], 2).reshape([n, -1]);
+    let points = keypoints.view([n, GESTURE_FRAMES as i64, 10, 3]);
+    let body = Tensor::cat(&[points.narrow(2, 0, 3), points.narrow(2, 6, 1)], 2).reshape([n, -1]);
+    // per frame, the pose goes with every frame (as the policy's pose input goes with every step)
+    let with_pose = Tensor::cat(
+        &[
+            muscles.view([n, GESTURE_FRAMES as i64, -1]),
+            person.unsqueeze(1).expand([n, GESTURE_FRAMES as i64, -1], false),
+        ],
+        2,
+    );
+    let input = |name, columns: Tensor, frames| Input { name, columns, frames };
     vec![
-        ("the person's pose (right, forward, cos and sin of their facing)", person.shallow_clone()),
-        ("the muscles (the dissertation's input)", muscles.shallow_clone()),
-        ("the muscles + the person's pose", Tensor::cat(&[muscles, person], 1)),
-        ("body points without the arms (head, hips, shoulders)", body),
-        ("the ten body points (`gesture_input = \"keypoints\"`)", keypoints.shallow_clone()),
+        input("the person's pose (right, forward, cos and sin of their facing)", person.shallow_clone(), None),
+        input("the muscles (the dissertation's input)", muscles.shallow_clone(), frames(muscles)),
+        input("the muscles + the person's pose", Tensor::cat(&[muscles, person], 1), Some(with_pose)),
+        input("body points without the arms (head, hips, shoulders)", body.shallow_clone(), frames(&body)),
+        input("the ten body points (`gesture_input = \"keypoints\"`)", keypoints.shallow_clone(), frames(keypoints)),
     ]
 }
 
@@ -157,8 +199,8 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
     let ahead_share = mean(&want.abs().le(45.0));
 
     let mut probes = Vec::new();
-    for (name, x) in inputs(&t) {
-        let x = standardise(&x, &train_t).to_kind(Kind::Double);
+    for Input { name, columns, frames } in inputs(&t) {
+        let x = standardise(&columns, &train_t).to_kind(Kind::Double);
         let d = x.size()[1] as f64;
         let rows = |on: &Tensor| x.index_select(0, on);
         // ridge: penalty on the chosen fifth, then fitted on every training program
@@ -168,7 +210,24 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
         let lambda = *PENALTIES.iter().min_by(|&&a, &&b| e(a).total_cmp(&e(b))).expect("penalties");
         let ridge =
             degrees(&Ridge::new(&rows(&train_t), &y.index_select(0, &train_t)).predict(&rows(&held_t), lambda * d));
-        let (mlp, epochs) = mlp(&x, &y, &truth, (&fit_t, &choose_t, &held_t), o);
+        let split = (&fit_t, &choose_t, &held_t);
+        let (mlp, epochs) = fit_probe(&x, &y, &truth, split, o, |root, d| {
+            nn::seq()
+                .add(nn::linear(root / "l1", d, HIDDEN, Default::default()))
+                .add_fn(|t| t.relu())
+                .add(nn::linear(root / "l2", HIDDEN, HIDDEN, Default::default()))
+                .add_fn(|t| t.relu())
+                .add(nn::linear(root / "out", HIDDEN, 2, Default::default()))
+        });
+        let per_frame = frames.map(|f| {
+            let o = &GestureProbeOptions { epochs: o.per_frame_epochs, ..o.clone() };
+            let (bearing, epochs) = fit_probe(&f, &y, &truth, split, o, |root, d| {
+                let net = GestureNet::new(&(root / "gesture"), GestureNetwork::PerFrame, d, HIDDEN);
+                let out = nn::linear(root / "out", HIDDEN, 2, Default::default());
+                nn::func(move |g| net.forward(g).apply(&out))
+            });
+            PerFrameProbe { error_deg: mean(&angle_error(&bearing, &want)), side: right_share(&bearing, &want), epochs }
+        });
         let p = InputProbe {
             input: name.to_string(),
             features: d as usize,
@@ -178,9 +237,14 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
             mlp_error_deg: mean(&angle_error(&mlp, &want)),
             mlp_side: right_share(&mlp, &want),
             mlp_epochs: epochs,
+            per_frame,
         };
+        let per_frame = p
+            .per_frame
+            .as_ref()
+            .map_or(String::new(), |f| format!(", per frame {:.1}° (side {:.3})", f.error_deg, f.side));
         println!(
-            "{name}: ridge {:.1}° (side {:.3}), MLP {:.1}° (side {:.3}, {} epochs)",
+            "{name}: ridge {:.1}° (side {:.3}), MLP {:.1}° (side {:.3}, {} epochs){per_frame}",
             p.ridge_error_deg, p.ridge_side, p.mlp_error_deg, p.mlp_side, p.mlp_epochs
         );
         probes.push(p);
@@ -199,30 +263,24 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
     Ok(report)
 }
 
-/// The MLP probe: fitted on `fit`, its epoch chosen on `choose`; that epoch's bearings (degrees)
-/// for `held`, and the epoch.
-fn mlp(
+/// A network probe (built by `build` from the inputs' last dimension, seeded): fitted on `fit`
+/// to the bearing's (cos, sin), its epoch chosen on `choose`; that epoch's bearings (degrees) for
+/// `held`, and the epoch.
+fn fit_probe<M: Module>(
     x: &Tensor,
     y: &Tensor,
     truth: &Tensor,
     (fit, choose, held): (&Tensor, &Tensor, &Tensor),
     o: &GestureProbeOptions,
+    build: impl FnOnce(&nn::Path, i64) -> M,
 ) -> (Tensor, usize) {
     let x = x.to_kind(Kind::Float);
     let (xf, yf) = (x.index_select(0, fit), y.index_select(0, fit).to_kind(Kind::Float));
     let (xc, xh) = (x.index_select(0, choose), x.index_select(0, held));
     let wc = truth.index_select(0, choose);
     let vs = nn::VarStore::new(Device::Cpu);
-    let root = vs.root();
-    let d = x.size()[1];
-    let net = crate::device::seeded(farm::seed::mix(o.seed, &[KEY_MLP]) as i64, || {
-        nn::seq()
-            .add(nn::linear(&root / "l1", d, HIDDEN, Default::default()))
-            .add_fn(|t| t.relu())
-            .add(nn::linear(&root / "l2", HIDDEN, HIDDEN, Default::default()))
-            .add_fn(|t| t.relu())
-            .add(nn::linear(&root / "out", HIDDEN, 2, Default::default()))
-    });
+    let d = *x.size().last().expect("a dimension");
+    let net = crate::device::seeded(farm::seed::mix(o.seed, &[KEY_MLP]) as i64, || build(&vs.root(), d));
     let mut opt = nn::Adam { wd: 1e-4, ..Default::default() }.build(&vs, 3e-4).expect("Adam");
     let mut rng = farm::seed::rng(o.seed, &[KEY_MLP, 1]);
     let n = xf.size()[0];
@@ -249,24 +307,35 @@ mod tests {
     use super::*;
 
     /// A synthetic probe file where the person's pose says where the target is (the target 2 m
-    /// ahead of the person, who faces it) and the muscles are noise: the pose's probes find the
-    /// bearing, the muscles' do not beat always answering the mean.
+    /// ahead of the person, who faces it), the muscles are noise, and the body points hold the
+    /// target's bearing in ten frames that start anywhere: the pose's probes find the bearing,
+    /// the muscles' do not beat always answering the mean, the per-frame network reads the
+    /// bearing from the frames that hold it.
     #[test]
     fn the_probes_find_what_an_input_holds() {
         let dir = tempfile::tempdir().unwrap();
         let (n, held) = (600i64, 150i64);
         let opts = (Kind::Float, Device::Cpu);
-        let (person, muscles, keypoints) = crate::device::seeded(3, || {
+        let (person, muscles, noise, starts) = crate::device::seeded(3, || {
             let xz = Tensor::rand([n, 2], opts) * 6.0 - 3.0;
             let facing = Tensor::rand([n], opts) * std::f64::consts::TAU;
             let person = Tensor::cat(&[xz, facing.cos().unsqueeze(1), facing.sin().unsqueeze(1)], 1);
-            (person, Tensor::randn([n, 95], opts), Tensor::randn([n, 3000], opts))
+            let starts = Tensor::randint(90, [n], (Kind::Int64, Device::Cpu));
+            (person, Tensor::randn([n, 500], opts), Tensor::randn([n, 100, 30], opts) * 0.1, starts)
         });
         // the target 2 m along the person's facing (sin: right, cos: forward), relative to the robot
         let target = Tensor::stack(
             &[person.select(1, 0) + person.select(1, 3) * 2.0, person.select(1, 1) + person.select(1, 2) * 2.0],
             1,
         );
+        let bearing = target.select(1, 0).atan2(&target.select(1, 1));
+        let pointing = Tensor::stack(&[bearing.cos(), bearing.sin(), bearing.ones_like()], 1);
+        let starts = Vec::<i64>::try_from(&starts).unwrap();
+        for (i, &k) in starts.iter().enumerate() {
+            let mut frames = noise.get(i as i64).narrow(0, k, 10).narrow(1, 0, 3);
+            frames.copy_(&pointing.get(i as i64).expand([10, 3], false));
+        }
+        let keypoints = noise.view([n, 3000]);
         let room = Tensor::arange(n, (Kind::Int, Device::Cpu)).remainder(40);
         let held_out = Tensor::arange(n, (Kind::Int, Device::Cpu)).ge(n - held).to_kind(Kind::Uint8);
         let data = dir.path().join("g.gestures");
@@ -282,12 +351,15 @@ mod tests {
             &data,
         )
         .unwrap();
-        let o = GestureProbeOptions { data, seed: 1, epochs: 40, threads: 1 };
+        let o = GestureProbeOptions { data, seed: 1, epochs: 40, per_frame_epochs: 10, threads: 1 };
         let r = probe_gesture(&o, &dir.path().join("g")).unwrap();
         assert_eq!((r.training_programs, r.held_out_programs), ((n - held) as usize, held as usize));
         let by = |s: &str| r.probes.iter().find(|p| p.input.starts_with(s)).unwrap();
-        let (pose, noise) = (by("the person's pose"), by("the muscles (the"));
+        let (pose, noise, points) = (by("the person's pose"), by("the muscles (the"), by("the ten body points"));
         assert!(pose.mlp_error_deg < 20.0 && pose.mlp_side > 0.85, "{pose:?}");
+        assert!(pose.per_frame.is_none(), "the pose is not made of frames");
+        let per_frame = points.per_frame.as_ref().unwrap();
+        assert!(per_frame.error_deg < 20.0 && per_frame.side > 0.85, "{points:?}");
         assert!(pose.ridge_error_deg < r.baseline_error_deg - 20.0, "{pose:?}, mean {:.1}°", r.baseline_error_deg);
         assert!(noise.ridge_error_deg > r.baseline_error_deg - 15.0 && noise.ridge_side < 0.7, "{noise:?}");
         let table = std::fs::read_to_string(dir.path().join("g.md")).unwrap();
@@ -295,8 +367,11 @@ mod tests {
         // not a probe file: one error naming it
         let bad = dir.path().join("bad.gestures");
         Tensor::write_safetensors(&[("person", &person)], &bad).unwrap();
-        let e = probe_gesture(&GestureProbeOptions { data: bad.clone(), seed: 1, epochs: 1, threads: 1 }, &bad)
-            .unwrap_err();
+        let e = probe_gesture(
+            &GestureProbeOptions { data: bad.clone(), seed: 1, epochs: 1, per_frame_epochs: 1, threads: 1 },
+            &bad,
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("bad.gestures") && e.to_string().contains("muscles"), "{e}");
     }
 }
