@@ -212,6 +212,11 @@ pub enum GestureInput {
     /// step — what a pose estimator on the robot gives. A pointing arm then says where to go
     /// without first being turned by the person's facing.
     Keypoints,
+    /// Beyond the dissertation: the same body points read as a pointing reader would, flat on the
+    /// floor in the robot's frame — where the hips are, and for each arm the direction from the
+    /// shoulder to the wrist and how far it reaches. No network has to find the
+    /// arm's direction among thirty coordinates.
+    ArmRays,
     /// Not a gesture: the target's true bearing from where the robot stands at each step (right
     /// and forward of a unit vector) in every frame of the referencing gesture — what a perfectly
     /// read pointing could tell, an upper bound for +Referencing only.
@@ -257,8 +262,8 @@ pub struct ModelConfig {
     pub depth: bool,
     /// Feed the person's pose relative to the robot (the released code did; the text does not).
     pub person_pose: bool,
-    /// How the gesture is perceived (`muscles`: the dissertation; `keypoints` and the upper
-    /// bounds `target_bearing` and `pointing_ray`: beyond it).
+    /// How the gesture is perceived (`muscles`: the dissertation; `keypoints`, `arm_rays` and the
+    /// upper bounds `target_bearing` and `pointing_ray`: beyond it).
     pub gesture_input: GestureInput,
     /// How the gesture's frames are read (`flat`: the dissertation; `per_frame`: beyond it).
     pub gesture_network: GestureNetwork,
@@ -583,6 +588,8 @@ mod tests {
         assert_eq!(c.model.gesture_input, GestureInput::Muscles, "the dissertation's by default");
         let k = c.with_overrides(&sets(&["model.gesture_input=keypoints"])).unwrap();
         assert_eq!(k.model.gesture_input, GestureInput::Keypoints);
+        let a = c.with_overrides(&sets(&["model.gesture_input=arm_rays"])).unwrap();
+        assert_eq!(a.model.gesture_input, GestureInput::ArmRays, "a reading of the body, for any method");
         let b = c.with_overrides(&sets(&["run.method=referencing", "model.gesture_input=target_bearing"])).unwrap();
         assert_eq!(b.model.gesture_input, GestureInput::TargetBearing, "the upper bound stands in for referencing");
         let r = b.with_overrides(&sets(&["model.gesture_input=pointing_ray"])).unwrap();

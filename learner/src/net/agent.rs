@@ -352,6 +352,32 @@ mod tests {
         assert_eq!(a.values, b.values);
     }
 
+    /// Per frame with the person's pose: every frame of a shown gesture carries the pose (right,
+    /// forward, cos and sin of the facing), a gesture not shown stays all zero.
+    #[test]
+    fn the_per_frame_network_reads_the_pose_with_every_frame() {
+        let mut cfg = tiny_config("both");
+        cfg.model.person_pose = true;
+        cfg.model.gesture_network = GestureNetwork::PerFrame;
+        let p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+        assert_eq!(p.vs.variables()["gesture.frame0.weight"].size(), [64, 95 + 4]);
+        let mut o = random_obs(2, 16, 4);
+        o.envs[0].gesture = GestureKind::Referencing;
+        o.envs[0].person_pose = [1.5, 2.0, 0.25];
+        o.envs[1].gesture = GestureKind::None;
+        let (x, _) = p.prepare(&o.batch()).unwrap();
+        let g = x.gesture.as_ref().unwrap().to_kind(Kind::Float);
+        assert_eq!(g.size(), [2, 100, 99]);
+        let pose = g.get(0).narrow(1, 95, 4);
+        let want = Tensor::from_slice(&[1.5f32, 2.0, 0.0, 1.0]).expand([100, 4], false);
+        assert!(pose.allclose(&want, 1e-3, 1e-3, false), "{pose}");
+        assert_eq!(g.get(1).abs().sum(Kind::Float).double_value(&[]), 0.0);
+        // the flat layer keeps §4.3.3's width, with the pose a separate input as before
+        cfg.model.gesture_network = GestureNetwork::Flat;
+        let p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+        assert_eq!(p.vs.variables()["gesture.weight"].size(), [32, 100 * 95]);
+    }
+
     /// With keypoints the gesture network reads the first 30 values of each frame: the rest of
     /// the 95-wide row changes nothing, the 30 do — flat or per frame; and their checkpoints are
     /// not the muscles' ones, nor each other's.

@@ -87,8 +87,9 @@ impl PolicyNet {
         // the pretrained encoder is one branch for both (`pretrained` above)
         let rgb = (spec.rgb && !spec.fused()).then(|| visual("rgb", 3));
         let depth = (spec.depth && !spec.fused()).then(|| visual("depth", 1));
-        let gesture =
-            spec.gesture.then(|| GestureNet::new(&(&root / "gesture"), spec.gesture_network, spec.gesture_dims, h));
+        let gesture = spec
+            .gesture
+            .then(|| GestureNet::new(&(&root / "gesture"), spec.gesture_network, spec.gesture_frame_width(), h));
         let target =
             spec.semantic.then(|| nn::embedding(&root / "target", TARGET_CATEGORIES as i64, h, Default::default()));
         let pose = spec.pose.then(|| nn::linear(&root / "pose", 3, h, Default::default()));
@@ -148,7 +149,15 @@ impl PolicyNet {
             }
             let gesture = s.gesture.then(|| {
                 let mask = inputs::gesture_mask(obs, device).to_kind(Kind::Half).view([-1, 1, 1]);
-                self.staging.gesture(obs, device).narrow(2, 0, s.gesture_dims) * mask
+                let g = self.staging.gesture(obs, device).narrow(2, 0, s.gesture_dims);
+                let g = match s.pose_in_frames() {
+                    true => {
+                        let pose = inputs::pose_in_frames(obs, device, g.size()[1]);
+                        Tensor::cat(&[g, pose], 2)
+                    }
+                    false => g,
+                };
+                g * mask
             });
             Inputs {
                 rgb,

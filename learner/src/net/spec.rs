@@ -14,8 +14,9 @@ pub struct NetSpec {
     pub rgb: bool,
     pub depth: bool,
     pub gesture: bool,
-    /// Values a gesture frame holds: the 95 muscles, the keypoints' 30, or the upper bounds' 2
-    /// (bearing) or 4 (ray); the network reads the first `gesture_dims` of each 95-wide row.
+    /// Values a gesture frame holds: the 95 muscles, the keypoints' 30, the arm rays' 8, or the
+    /// upper bounds' 2 (bearing) or 4 (ray); the network reads the first `gesture_dims` of each
+    /// 95-wide row.
     pub gesture_dims: i64,
     /// How the gesture's frames are read (§4.3.3's flat layer, or shared per frame).
     pub gesture_network: GestureNetwork,
@@ -40,6 +41,7 @@ impl NetSpec {
             gesture_dims: match m.gesture_input {
                 GestureInput::Muscles => shm_schema::GESTURE_DIMS,
                 GestureInput::Keypoints => shm_schema::GESTURE_KEYPOINT_DIMS,
+                GestureInput::ArmRays => shm_schema::GESTURE_ARM_DIMS,
                 GestureInput::TargetBearing => shm_schema::GESTURE_BEARING_DIMS,
                 GestureInput::PointingRay => shm_schema::GESTURE_RAY_DIMS,
             } as i64,
@@ -64,6 +66,19 @@ impl NetSpec {
         self.encoder == Encoder::Pretrained
     }
 
+    /// The per-frame gesture network reads the person's pose with every frame when the pose is
+    /// an input: an arm's direction in the person's own frame (the muscles) becomes one in the
+    /// robot's only through their facing, frame by frame (the gesture probe's per-frame row).
+    pub fn pose_in_frames(&self) -> bool {
+        self.gesture && self.pose && self.gesture_network == GestureNetwork::PerFrame
+    }
+
+    /// Values per frame the gesture network reads: the gesture's, and the pose's 4 (right,
+    /// forward, cos and sin of the facing) where [`NetSpec::pose_in_frames`].
+    pub fn gesture_frame_width(&self) -> i64 {
+        self.gesture_dims + if self.pose_in_frames() { 4 } else { 0 }
+    }
+
     /// Width of the concatenated features fed to the GRU.
     pub fn input_width(&self) -> i64 {
         let visual = if self.fused() {
@@ -80,12 +95,14 @@ impl NetSpec {
         let input = match self.gesture_dims as usize {
             shm_schema::GESTURE_DIMS => "gesture",
             shm_schema::GESTURE_KEYPOINT_DIMS => "gesture-keypoints",
+            shm_schema::GESTURE_ARM_DIMS => "gesture-arm-rays",
             shm_schema::GESTURE_BEARING_DIMS => "target-bearing (upper bound, not a gesture)",
             _ => "pointing-ray (upper bound, not a gesture)",
         };
-        match self.gesture_network {
-            GestureNetwork::Flat => input.to_string(),
-            GestureNetwork::PerFrame => format!("{input} read per frame"),
+        match (self.gesture_network, self.pose_in_frames()) {
+            (GestureNetwork::Flat, _) => input.to_string(),
+            (GestureNetwork::PerFrame, false) => format!("{input} read per frame"),
+            (GestureNetwork::PerFrame, true) => format!("{input} read per frame with the person's pose"),
         }
     }
 

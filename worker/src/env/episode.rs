@@ -162,8 +162,8 @@ impl Env {
 
     /// Writes the gesture the robot perceives now (`FRAMES × GESTURE_DIMS` half floats, zero
     /// where none is shown), in the form `model.gesture_input` names: the muscles, the body
-    /// points as the robot's camera sees them from where it stands now, or an upper bound: the
-    /// target's bearing from there, or the exact pointing ray.
+    /// points as the robot's camera sees them from where it stands now or the arms' rays read
+    /// from them, or an upper bound: the target's bearing from there, or the exact pointing ray.
     pub fn write_gesture(&self, out: &mut [u16]) {
         let mut seen = Vec::new();
         let values: &[f32] = match (&self.seen, self.perceived()) {
@@ -181,7 +181,11 @@ impl Env {
             }
             (Some((_, world)), Some(_)) => {
                 seen.resize(gesture::FRAMES * shm_schema::GESTURE_DIMS, 0.0);
-                keypoints::write_seen(world, &self.camera(), shm_schema::GESTURE_DIMS, &mut seen);
+                let write = match self.cfg.model.gesture_input {
+                    GestureInput::ArmRays => keypoints::write_arm_rays,
+                    _ => keypoints::write_seen,
+                };
+                write(world, &self.camera(), shm_schema::GESTURE_DIMS, &mut seen);
                 &seen
             }
             (None, Some(m)) => m.as_flat(),
@@ -191,9 +195,9 @@ impl Env {
         }
     }
 
-    /// With keypoints: poses the body points of a gesture when it starts being shown.
+    /// With keypoints or arm rays: poses the body points of a gesture when it starts being shown.
     fn see_gesture(&mut self) {
-        if self.cfg.model.gesture_input != GestureInput::Keypoints {
+        if !matches!(self.cfg.model.gesture_input, GestureInput::Keypoints | GestureInput::ArmRays) {
             return;
         }
         let kind = self.gesture_kind();

@@ -22,6 +22,14 @@ pub const KEYPOINTS: usize = 10;
 pub const DIMS: usize = KEYPOINTS * 3;
 const _: () = assert!(DIMS == shm_schema::GESTURE_KEYPOINT_DIMS);
 
+/// Values per frame of the arms' rays (`model.gesture_input = "arm_rays"`).
+pub const ARM_DIMS: usize = 8;
+const _: () = assert!(ARM_DIMS == shm_schema::GESTURE_ARM_DIMS);
+
+/// Index in [`points`] of each side's shoulder and wrist (left, right).
+const ARMS: [(usize, usize); 2] = [(2, 4), (6, 8)];
+const HIPS: usize = 1;
+
 /// The body points of one pose, in the world.
 fn points(pose: &crate::humanoid::SkeletonPose) -> [Point3<f32>; KEYPOINTS] {
     [
@@ -51,6 +59,29 @@ pub fn write_seen(world: &[[Point3<f32>; KEYPOINTS]], camera: &Camera, row: usiz
     for (frame, dst) in world.iter().zip(out.chunks_exact_mut(row)) {
         for (p, xyz) in frame.iter().zip(dst.chunks_exact_mut(3)) {
             xyz.copy_from_slice(camera.to_eye(p).as_slice());
+        }
+    }
+}
+
+/// The arms' rays as `camera` sees them, frame-major into `out` (`FRAMES` rows of `row` values,
+/// the first [`ARM_DIMS`] of each written, the rest zeroed): flat on the floor (right, forward),
+/// the hips, then per arm (left, right) the unit direction from the shoulder to the wrist and
+/// its length in metres (a zero direction where the two meet).
+pub fn write_arm_rays(world: &[[Point3<f32>; KEYPOINTS]], camera: &Camera, row: usize, out: &mut [f32]) {
+    assert!(row >= ARM_DIMS && out.len() == FRAMES * row && world.len() == FRAMES);
+    out.fill(0.0);
+    let flat = |p: &Point3<f32>| {
+        let e = camera.to_eye(p);
+        nalgebra::Vector2::new(e.x, e.z)
+    };
+    for (frame, dst) in world.iter().zip(out.chunks_exact_mut(row)) {
+        let hips = flat(&frame[HIPS]);
+        dst[..2].copy_from_slice(hips.as_slice());
+        for ((shoulder, tip), ray) in ARMS.iter().zip(dst[2..ARM_DIMS].chunks_exact_mut(3)) {
+            let arm = flat(&frame[*tip]) - flat(&frame[*shoulder]);
+            let reach = arm.norm();
+            let dir = if reach > 1e-6 { arm / reach } else { arm * 0.0 };
+            ray.copy_from_slice(&[dir.x, dir.y, reach]);
         }
     }
 }
@@ -99,6 +130,37 @@ mod tests {
             prop_assert!(angle < 6.0, "shoulder→wrist {angle:.1}° off the target");
             let tip = point(&v, peak, 9);
             prop_assert!((tip - wrist).norm() < 0.25 && (tip - shoulder).norm() > (wrist - shoulder).norm());
+        });
+    }
+
+    /// The arms' rays of the real recording, seen from anywhere: the hips where the body points
+    /// put them, and at the peak of the pointing the right arm's ray, flat on the floor, heads
+    /// for the target from the shoulder (within the recording's aim) with the arm outstretched.
+    #[test]
+    fn the_right_arm_s_ray_heads_for_the_target() {
+        let motion = read_csv(Path::new(&format!("{FIXTURES}.csv"))).unwrap();
+        let meta = Metadata::load(Path::new(&format!("{FIXTURES}.json"))).unwrap();
+        let (human, yaw) = (meta.human_position(), meta.human_yaw_deg());
+        let target = human + meta.target_offset();
+        let w = world(Humanoid::standard(), &motion, human, yaw);
+        let arm_up = motion.muscle(48);
+        let peak = (25..60).max_by(|&a, &b| arm_up[a].total_cmp(&arm_up[b])).unwrap();
+        proptest!(|(x in -4.0f32..4.0, z in -4.0f32..4.0, robot_yaw in -180.0f32..180.0)| {
+            let camera = Camera::new(Point3::new(human.x + x, 0.6, human.z + z), robot_yaw);
+            let mut v = vec![f32::NAN; FRAMES * 12];
+            write_arm_rays(&w, &camera, 12, &mut v);
+            let hips = camera.to_eye(&w[peak][HIPS]);
+            let row = &v[peak * 12..(peak + 1) * 12];
+            prop_assert!((row[0] - hips.x).abs() < 1e-5 && (row[1] - hips.z).abs() < 1e-5);
+            prop_assert!(row[ARM_DIMS..].iter().all(|x| *x == 0.0), "the rest of the row is zero");
+            let shoulder = camera.to_eye(&w[peak][6]);
+            let to_target = camera.to_eye(&target) - shoulder;
+            let to_target = nalgebra::Vector2::new(to_target.x, to_target.z);
+            let ray = nalgebra::Vector2::new(row[5], row[6]);
+            prop_assert!((ray.norm() - 1.0).abs() < 1e-4);
+            let angle = ray.angle(&to_target).to_degrees();
+            prop_assert!(angle < 5.0, "right arm's ray {angle:.1}° off the target");
+            prop_assert!(row[7] > 0.3, "outstretched: {}", row[7]);
         });
     }
 
