@@ -8,8 +8,10 @@
 //! The flat layer gives each frame its own weights: a pointing held in frames 40–60 and the same
 //! pointing in frames 50–70 are different inputs to learn, each from PPO's gradient alone. The
 //! per-frame network reads every frame with the same small weights and pools over time, so a
-//! pose held anywhere in the gesture is one thing to learn (beyond the dissertation; the probe
-//! in docs/encoder reads the pointing's direction per frame from the body points).
+//! pose held anywhere in the gesture is one thing to learn (beyond the dissertation). With
+//! `model.person_pose` each frame carries the person's pose too (`NetSpec::pose_in_frames`), so
+//! the arm's direction in the person's frame can be turned by their facing frame by frame — the
+//! gesture probe's per-frame column (docs/encoder).
 
 use farm::config::GestureNetwork;
 use shm_schema::GESTURE_FRAMES;
@@ -82,8 +84,8 @@ mod tests {
     use super::*;
     use tch::Device;
 
-    /// The per-frame network reads what the frames show, not when: the same poses in another
-    /// order give the same features, and a pose held in other frames gives the same features.
+    /// The per-frame network reads what the frames show, not when: a pose held in other frames
+    /// gives the same features (the flat layer's differ).
     #[test]
     fn per_frame_features_do_not_depend_on_when_a_pose_is_held() {
         let vs = nn::VarStore::new(Device::Cpu);
