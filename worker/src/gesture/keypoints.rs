@@ -109,18 +109,31 @@ mod tests {
         Vector3::new(v[i], v[i + 1], v[i + 2])
     }
 
+    /// The real recording's person, target, body points, and the frame where the right arm is
+    /// raised highest (the peak of the pointing).
+    struct Recording {
+        human: Point3<f32>,
+        target: Point3<f32>,
+        world: Vec<[Point3<f32>; KEYPOINTS]>,
+        peak: usize,
+    }
+
+    fn recording() -> Recording {
+        let motion = read_csv(Path::new(&format!("{FIXTURES}.csv"))).unwrap();
+        let meta = Metadata::load(Path::new(&format!("{FIXTURES}.json"))).unwrap();
+        let (human, yaw) = (meta.human_position(), meta.human_yaw_deg());
+        let arm_up = motion.muscle(48);
+        let peak = (25..60).max_by(|&a, &b| arm_up[a].total_cmp(&arm_up[b])).unwrap();
+        let world = world(Humanoid::standard(), &motion, human, yaw);
+        Recording { human, target: human + meta.target_offset(), world, peak }
+    }
+
     /// The real recording, seen by a robot standing anywhere: at the peak of the pointing, the
     /// right shoulder → wrist line, in the camera's frame, passes the target as the camera sees
     /// it within the recording's own aiming error (the evaluator's 5° line, plus the fingertip).
     #[test]
     fn the_recorded_pointing_aims_at_its_target_in_the_robots_frame() {
-        let motion = read_csv(Path::new(&format!("{FIXTURES}.csv"))).unwrap();
-        let meta = Metadata::load(Path::new(&format!("{FIXTURES}.json"))).unwrap();
-        let (human, yaw) = (meta.human_position(), meta.human_yaw_deg());
-        let target = human + meta.target_offset();
-        let w = world(Humanoid::standard(), &motion, human, yaw);
-        let arm_up = motion.muscle(48);
-        let peak = (25..60).max_by(|&a, &b| arm_up[a].total_cmp(&arm_up[b])).unwrap();
+        let Recording { human, target, world: w, peak } = recording();
         proptest!(|(x in -4.0f32..4.0, z in -4.0f32..4.0, robot_yaw in -180.0f32..180.0)| {
             let camera = Camera::new(Point3::new(human.x + x, 0.6, human.z + z), robot_yaw);
             let v = seen(&w, &camera);
@@ -138,13 +151,7 @@ mod tests {
     /// for the target from the shoulder (within the recording's aim) with the arm outstretched.
     #[test]
     fn the_right_arm_s_ray_heads_for_the_target() {
-        let motion = read_csv(Path::new(&format!("{FIXTURES}.csv"))).unwrap();
-        let meta = Metadata::load(Path::new(&format!("{FIXTURES}.json"))).unwrap();
-        let (human, yaw) = (meta.human_position(), meta.human_yaw_deg());
-        let target = human + meta.target_offset();
-        let w = world(Humanoid::standard(), &motion, human, yaw);
-        let arm_up = motion.muscle(48);
-        let peak = (25..60).max_by(|&a, &b| arm_up[a].total_cmp(&arm_up[b])).unwrap();
+        let Recording { human, target, world: w, peak } = recording();
         proptest!(|(x in -4.0f32..4.0, z in -4.0f32..4.0, robot_yaw in -180.0f32..180.0)| {
             let camera = Camera::new(Point3::new(human.x + x, 0.6, human.z + z), robot_yaw);
             let mut v = vec![f32::NAN; FRAMES * 12];
