@@ -6,6 +6,8 @@
 //! length at that stop, DTS from the distance where the episode would have ended (the k-th
 //! stop, or the end of the episode if it stopped fewer times).
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 use shm_schema::{EnvRecord, SUMMARY_STOPS, action};
@@ -193,6 +195,45 @@ pub fn wilson95(successes: usize, n: usize) -> (f64, f64) {
     (100.0 * (centre - half).max(0.0), 100.0 * (centre + half).min(1.0))
 }
 
+/// Two evaluations of the same programs, episode by episode (success at `k` stops): how many
+/// succeed in both, only in the first, only in the second, in neither. Programs in only one are
+/// left out.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Paired {
+    pub both: usize,
+    pub only_first: usize,
+    pub only_second: usize,
+    pub neither: usize,
+}
+
+impl Paired {
+    pub fn of(first: &[EpisodeResult], second: &[EpisodeResult], k: Option<usize>) -> Paired {
+        let second: BTreeMap<u64, &EpisodeResult> = second.iter().map(|e| (e.program, e)).collect();
+        let mut p = Paired::default();
+        for a in first {
+            let Some(b) = second.get(&a.program) else { continue };
+            match (a.at_stops(k).0, b.at_stops(k).0) {
+                (true, true) => p.both += 1,
+                (true, false) => p.only_first += 1,
+                (false, true) => p.only_second += 1,
+                (false, false) => p.neither += 1,
+            }
+        }
+        p
+    }
+
+    pub fn programs(&self) -> usize {
+        self.both + self.only_first + self.only_second + self.neither
+    }
+
+    /// McNemar's statistic as a normal deviate, (only first − only second) / √(their sum):
+    /// whether one succeeds where the other fails more often than chance would (|z| > 1.96 at 5%).
+    pub fn mcnemar_z(&self) -> f64 {
+        let discordant = (self.only_first + self.only_second) as f64;
+        if discordant == 0.0 { 0.0 } else { (self.only_first as f64 - self.only_second as f64) / discordant.sqrt() }
+    }
+}
+
 /// How a policy uses its first stop: whether it stops where a stop can succeed (T4.4's
 /// first-stop to unlimited-stops ratio; the dissertation's is 0.16–0.46).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -278,6 +319,26 @@ mod tests {
         assert!((f.near_share() - 200.0 / 3.0).abs() < 1e-9);
         assert_eq!(f.ratio(), 0.5);
         assert_eq!(f.sr().0, 25.0);
+    }
+
+    #[test]
+    fn paired_episodes_match_by_program() {
+        let at = |program: u64, first: bool, any: bool| EpisodeResult {
+            program,
+            ..ep(any, 2.0, 3.0, vec![stop(first, if first { 0.5 } else { 2.0 }, 1.0)], 0.5)
+        };
+        // program 3 is in the first evaluation only: left out
+        let a = [at(0, true, true), at(1, true, true), at(2, false, true), at(3, true, true)];
+        let b = [at(2, true, true), at(1, false, false), at(0, true, true)];
+        let first = Paired::of(&a, &b, Some(1));
+        assert_eq!(first, Paired { both: 1, only_first: 1, only_second: 1, neither: 0 });
+        assert_eq!((first.programs(), first.mcnemar_z()), (3, 0.0));
+        let any = Paired::of(&a, &b, None);
+        assert_eq!(any, Paired { both: 2, only_first: 1, only_second: 0, neither: 0 });
+        assert_eq!(any.mcnemar_z(), 1.0);
+        // 169 against 63 discordant pairs: z = 106 / √232
+        let z = Paired { both: 682, only_first: 169, only_second: 63, neither: 86 }.mcnemar_z();
+        assert!((z - 6.959).abs() < 1e-3, "{z}");
     }
 
     fn ep(success: bool, l: f32, p: f32, stops: Vec<Stop>, final_distance: f32) -> EpisodeResult {

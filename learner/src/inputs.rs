@@ -195,11 +195,10 @@ pub(crate) fn pose_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     Tensor::from_slice(&p).view([obs.n() as i64, 3]).to_device(device)
 }
 
-/// The person's pose for every frame of the gesture `[B, frames, 4]` (half): right, forward, and
-/// the cosine and sine of their facing relative to the robot (the pose input's yaw / 360 is a
-/// fraction of a turn).
-pub(crate) fn pose_in_frames(obs: &EnvBatch, device: Device, frames: i64) -> Tensor {
-    let p = pose_tensor(obs, device);
+/// The person's pose ([`pose_tensor`]) for every frame of the gesture `[B, frames, 4]` (half):
+/// right, forward, and the cosine and sine of their facing relative to the robot (the pose
+/// input's yaw / 360 is a fraction of a turn).
+pub(crate) fn pose_in_frames(p: &Tensor, frames: i64) -> Tensor {
     let turn = p.select(1, 2) * std::f64::consts::TAU;
     let pose = Tensor::stack(&[p.select(1, 0), p.select(1, 1), turn.cos(), turn.sin()], 1);
     pose.unsqueeze(1).expand([-1, frames, -1], false).to_kind(Kind::Half)

@@ -147,15 +147,16 @@ impl PolicyNet {
                     depth = parts.next();
                 }
             }
+            let pose = s.pose.then(|| inputs::pose_tensor(obs, device));
             let gesture = s.gesture.then(|| {
                 let mask = inputs::gesture_mask(obs, device).to_kind(Kind::Half).view([-1, 1, 1]);
                 let g = self.staging.gesture(obs, device).narrow(2, 0, s.gesture_dims);
-                let g = match s.pose_in_frames() {
-                    true => {
-                        let pose = inputs::pose_in_frames(obs, device, g.size()[1]);
-                        Tensor::cat(&[g, pose], 2)
+                let g = match (s.pose_in_frames(), &pose) {
+                    (true, Some(pose)) => {
+                        let frames = inputs::pose_in_frames(pose, g.size()[1]);
+                        Tensor::cat(&[g, frames], 2)
                     }
-                    false => g,
+                    _ => g,
                 };
                 g * mask
             });
@@ -166,7 +167,7 @@ impl PolicyNet {
                 gesture,
                 gesture_index: None,
                 target: s.semantic.then(|| inputs::target_tensor(obs, device)),
-                pose: s.pose.then(|| inputs::pose_tensor(obs, device)),
+                pose,
             }
         })
     }

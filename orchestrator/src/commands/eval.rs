@@ -1,6 +1,7 @@
 //! `orchestrator eval`: runs a split's programs on the farm, each exactly once, and writes the
 //! tables of chapter 4 (T4.2–T4.7) as Markdown and CSV; `--compare` puts several evaluations side
-//! by side like T4.2; `--trajectories` draws episodes like Figs 4.2/4.3.
+//! by side like T4.2, and each against the first episode by episode; `--trajectories` draws
+//! episodes like Figs 4.2/4.3.
 //!
 //! A checkpoint (or a run directory, whose latest *complete* checkpoint is used, so a training
 //! that is still writing can be evaluated) is evaluated greedily in several passes: with all its
@@ -22,7 +23,7 @@ use worker::program::Program;
 use worker::scene::Split;
 
 use crate::report::progress::Bar;
-use crate::report::tables::{EvalMode, Evaluation, compare};
+use crate::report::tables::{EvalMode, Evaluation, compare, paired};
 use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg};
 use crate::supervise::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
 
@@ -76,7 +77,8 @@ pub struct EvalArgs {
     /// the effective config is the one written into the run directory).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
-    /// Put earlier evaluations side by side instead (their output folders, or run directories).
+    /// Put earlier evaluations side by side instead (their output folders, or run directories);
+    /// each after the first is also compared with it episode by episode (McNemar's test).
     #[arg(long, num_args = 1..)]
     pub compare: Vec<PathBuf>,
 }
@@ -417,12 +419,26 @@ fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<Episode
 }
 
 fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
-    let mut rows = Vec::new();
-    for p in &a.compare {
-        let (label, eps) = normal_episodes(p, &a.split)?;
-        rows.push((label, scores(&eps, Some(1), a.dts_threshold), scores(&eps, None, a.dts_threshold)));
+    let mut evaluations = a.compare.iter().map(|p| normal_episodes(p, &a.split)).collect::<anyhow::Result<Vec<_>>>()?;
+    // one method evaluated twice (another gesture, another checkpoint): name each by its folder
+    let labels: Vec<String> = evaluations.iter().map(|(l, _)| l.clone()).collect();
+    for ((label, _), dir) in evaluations.iter_mut().zip(&a.compare) {
+        if labels.iter().filter(|l| *l == label).count() > 1 {
+            *label = format!(
+                "{label} ({})",
+                dir.file_name().map_or(dir.display().to_string(), |n| n.to_string_lossy().into())
+            );
+        }
     }
-    let md = format!("# Comparison on {} (first stop; ∞ = unlimited stops)\n\n{}", a.split, compare(&rows));
+    let rows: Vec<_> = evaluations
+        .iter()
+        .map(|(label, eps)| (label.clone(), scores(eps, Some(1), a.dts_threshold), scores(eps, None, a.dts_threshold)))
+        .collect();
+    let mut md = format!("# Comparison on {} (first stop; ∞ = unlimited stops)\n\n{}", a.split, compare(&rows));
+    if evaluations.len() > 1 {
+        md.push('\n');
+        md.push_str(&paired(&evaluations));
+    }
     if let Some(out) = &a.out {
         std::fs::create_dir_all(out)?;
         farm::files::write_atomic(&out.join("compare.md"), md.as_bytes())?;

@@ -5,7 +5,7 @@ use std::fmt::Write;
 
 use serde::{Deserialize, Serialize};
 
-use farm::metrics::{EpisodeResult, FirstStops, Scores, scores};
+use farm::metrics::{EpisodeResult, FirstStops, Paired, Scores, scores};
 use worker::program::Program;
 use worker::scene::SceneType;
 
@@ -336,6 +336,35 @@ pub fn compare(rows: &[(String, Scores, Scores)]) -> String {
     md
 }
 
+/// Each later evaluation against the first, episode by episode on the programs both ran: where
+/// one succeeds and the other fails, at the first stop and with unlimited stops.
+pub fn paired(evaluations: &[(String, Vec<EpisodeResult>)]) -> String {
+    let Some(((first, a), rest)) = evaluations.split_first() else { return String::new() };
+    let mut md = format!(
+        "Episode by episode against the first, **{first}** (the programs both ran; z = McNemar's \
+         statistic, (only the first − only this one) / √(their sum), |z| > 1.96 at 5%):\n\n\
+         | evaluation | stops | programs | both succeed | only the first | only this one | neither | z |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|\n"
+    );
+    for (label, b) in rest {
+        for (k, stops) in [(Some(1), "1"), (None, "∞")] {
+            let p = Paired::of(a, b, k);
+            writeln!(
+                md,
+                "| {label} | {stops} | {} | {} | {} | {} | {} | {:.1} |",
+                p.programs(),
+                p.both,
+                p.only_first,
+                p.only_second,
+                p.neither,
+                p.mcnemar_z()
+            )
+            .unwrap();
+        }
+    }
+    md
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -384,6 +413,18 @@ mod tests {
             intervention_steps: 0,
             stops: vec![Stop { step: 9, success, distance: if success { 0.5 } else { 3.0 }, path_length: 2.0 }],
         }
+    }
+
+    #[test]
+    fn paired_rows_count_each_program_once() {
+        let a = vec![result(0, true), result(1, true), result(2, false)];
+        let b = vec![result(2, true), result(1, false), result(0, true), result(7, true)];
+        let md = paired(&[("own gesture".into(), a), ("shifted".into(), b)]);
+        assert!(md.contains("**own gesture**"), "{md}");
+        // program 7 ran in the second only; one success each way: z = 0
+        assert!(md.contains("| shifted | 1 | 3 | 1 | 1 | 1 | 0 | 0.0 |"), "{md}");
+        assert!(md.contains("| shifted | ∞ | 3 | 1 | 1 | 1 | 0 | 0.0 |"), "{md}");
+        assert_eq!(paired(&[]), "");
     }
 
     #[test]

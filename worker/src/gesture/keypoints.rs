@@ -54,13 +54,11 @@ pub fn world(h: &Humanoid, motion: &Motion, root: Point3<f32>, yaw_deg: f32) -> 
 /// The points as `camera` sees them, frame-major into `out` (`FRAMES` rows of `row` values, the
 /// first [`DIMS`] of each written, the rest zeroed).
 pub fn write_seen(world: &[[Point3<f32>; KEYPOINTS]], camera: &Camera, row: usize, out: &mut [f32]) {
-    assert!(row >= DIMS && out.len() == FRAMES * row && world.len() == FRAMES);
-    out.fill(0.0);
-    for (frame, dst) in world.iter().zip(out.chunks_exact_mut(row)) {
+    write_rows(world, row, DIMS, out, |frame, dst| {
         for (p, xyz) in frame.iter().zip(dst.chunks_exact_mut(3)) {
             xyz.copy_from_slice(camera.to_eye(p).as_slice());
         }
-    }
+    });
 }
 
 /// The arms' rays as `camera` sees them, frame-major into `out` (`FRAMES` rows of `row` values,
@@ -68,21 +66,35 @@ pub fn write_seen(world: &[[Point3<f32>; KEYPOINTS]], camera: &Camera, row: usiz
 /// the hips, then per arm (left, right) the unit direction from the shoulder to the wrist and
 /// its length in metres (a zero direction where the two meet).
 pub fn write_arm_rays(world: &[[Point3<f32>; KEYPOINTS]], camera: &Camera, row: usize, out: &mut [f32]) {
-    assert!(row >= ARM_DIMS && out.len() == FRAMES * row && world.len() == FRAMES);
-    out.fill(0.0);
     let flat = |p: &Point3<f32>| {
         let e = camera.to_eye(p);
         nalgebra::Vector2::new(e.x, e.z)
     };
-    for (frame, dst) in world.iter().zip(out.chunks_exact_mut(row)) {
+    write_rows(world, row, ARM_DIMS, out, |frame, dst| {
         let hips = flat(&frame[HIPS]);
         dst[..2].copy_from_slice(hips.as_slice());
-        for ((shoulder, tip), ray) in ARMS.iter().zip(dst[2..ARM_DIMS].chunks_exact_mut(3)) {
+        for ((shoulder, tip), ray) in ARMS.iter().zip(dst[2..].chunks_exact_mut(3)) {
             let arm = flat(&frame[*tip]) - flat(&frame[*shoulder]);
             let reach = arm.norm();
             let dir = if reach > 1e-6 { arm / reach } else { arm * 0.0 };
             ray.copy_from_slice(&[dir.x, dir.y, reach]);
         }
+    });
+}
+
+/// Zeroes `out` (`FRAMES` rows of `row` values) and lets `fill` write the first `width` values
+/// of each row from its frame's points.
+fn write_rows(
+    world: &[[Point3<f32>; KEYPOINTS]],
+    row: usize,
+    width: usize,
+    out: &mut [f32],
+    mut fill: impl FnMut(&[Point3<f32>; KEYPOINTS], &mut [f32]),
+) {
+    assert!(row >= width && out.len() == FRAMES * row && world.len() == FRAMES);
+    out.fill(0.0);
+    for (frame, dst) in world.iter().zip(out.chunks_exact_mut(row)) {
+        fill(frame, &mut dst[..width]);
     }
 }
 
