@@ -118,6 +118,9 @@ fn a_killed_study_continues_without_retraining() {
     assert!(t47.contains("| RGB+Semantic+Both |") && t47.contains("| RGBD+Semantic+Both |"), "{t47}");
     let test = std::fs::read_to_string(out.join("runs/both-seed1/test/tables.csv")).unwrap();
     assert!(test.lines().any(|l| l.contains(",test,blind,all,all,1,")), "{test}");
+    // +Both is shown the referencing gesture: also tested with another room's
+    assert!(test.lines().any(|l| l.contains(",test,other_gesture,all,all,1,")), "{test}");
+    assert!(read("pointing").contains("| +Both |") && !read("pointing").contains("| VisSem |"), "{}", read("pointing"));
     let results: Value = serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
     assert_eq!(results.as_array().unwrap().len(), 4);
     // every evenly spaced checkpoint and the final one were evaluated on val; a checkpoint the

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use farm::config::{Encoder, Method, RunConfig};
+use farm::config::{Encoder, GestureNetwork, Method, RunConfig};
 use rand::Rng;
 use shm_schema::action;
 use tch::{Device, Tensor, nn};
@@ -33,6 +33,14 @@ pub fn tiny_frozen_config(weights: &Path) -> RunConfig {
     c.model.encoder = Encoder::Pretrained;
     c.model.encoder_weights = Some(weights.to_path_buf());
     c
+}
+
+/// `cfg` reading the gesture with the per-frame network and the person's pose beside each frame
+/// (`model.gesture_network = "per_frame"`, `model.person_pose = true`).
+pub fn per_frame_config(mut cfg: RunConfig) -> RunConfig {
+    cfg.model.gesture_network = GestureNetwork::PerFrame;
+    cfg.model.person_pose = true;
+    cfg
 }
 
 /// The PPO settings of `configs/tiny-e2e/both.toml` (2 epochs × 2 minibatches over 128 steps).
@@ -272,7 +280,12 @@ pub fn run(
     out(&visual_forward("visual: pretrained RGB-D encoder + head", &frozen, 32, device, reps)?);
     out(&forward("tiny-frozen (pretrained RGB-D encoder, 256, GRU 1)", &frozen, 32, device, reps)?);
     out(&update("tiny, tiny PPO", &with_tiny_ppo(tiny.clone()), 32, device, reps)?);
-    out(&update("tiny-frozen, tiny PPO", &with_tiny_ppo(frozen), 32, device, reps)?);
+    out(&update("tiny-frozen, tiny PPO", &with_tiny_ppo(frozen.clone()), 32, device, reps)?);
+    // the gesture read per frame with the person's pose beside each frame: its features change
+    // as the robot moves, so acting recomputes them every step (the flat layer's are memoised)
+    let per_frame = per_frame_config(frozen);
+    out(&forward("tiny-frozen, gesture per frame + pose", &per_frame, 32, device, reps)?);
+    out(&update("tiny-frozen, gesture per frame + pose, tiny PPO", &with_tiny_ppo(per_frame), 32, device, reps)?);
     if let Some(sizes) = faithful {
         let dir = tempfile::tempdir()?;
         let weights = random_resnet_weights(dir.path())?;

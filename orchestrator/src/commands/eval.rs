@@ -58,7 +58,9 @@ pub struct EvalArgs {
     /// Evaluate only this many programs, spread evenly over the split (every room keeps its share).
     #[arg(long)]
     pub max_programs: Option<usize>,
-    /// Passes to run: normal, blind, rgb_only, depth_only (default: all the checkpoint allows).
+    /// Passes to run: normal, blind, rgb_only, depth_only (default: all the checkpoint allows
+    /// of these), other_gesture (every program shows another room's referencing gesture: is
+    /// where the arm points read? Compared with normal program by program).
     #[arg(long, value_delimiter = ',')]
     pub modes: Vec<String>,
     /// DTS threshold in metres (the dissertation writes 1.5 m; success uses 1 m).
@@ -140,8 +142,9 @@ fn modes_for(cfg: &RunConfig, baseline: bool, asked: &[String]) -> anyhow::Resul
         let modes = asked
             .iter()
             .map(|m| {
-                EvalMode::from_name(m)
-                    .with_context(|| format!("--modes: `{m}` is not one of normal, blind, rgb_only, depth_only"))
+                EvalMode::from_name(m).with_context(|| {
+                    format!("--modes: `{m}` is not one of normal, blind, rgb_only, depth_only, other_gesture")
+                })
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
         for m in &modes {
@@ -156,6 +159,18 @@ fn modes_for(cfg: &RunConfig, baseline: bool, asked: &[String]) -> anyhow::Resul
                 "--modes {}: the checkpoint was not trained with both RGB and depth",
                 m.name()
             );
+            if *m == EvalMode::OtherGesture {
+                let referencing = matches!(cfg.run.method, Method::Referencing | Method::Both);
+                anyhow::ensure!(
+                    referencing,
+                    "--modes other_gesture: {} is not shown the referencing gesture",
+                    cfg.run.method.label()
+                );
+                anyhow::ensure!(
+                    cfg.task.gesture_shift == 0,
+                    "--modes other_gesture chooses the other gesture itself: leave out --set task.gesture_shift"
+                );
+            }
         }
         return Ok(modes);
     }
@@ -250,13 +265,18 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
             (true, false) => PolicyArg::Random,
             (false, false) => PolicyArg::Ppo,
         };
+        let mut cfg = cfg.clone();
+        if *mode == EvalMode::OtherGesture {
+            // half the split on: another room, whatever the programs chosen
+            cfg.task.gesture_shift = index.len() as u64 / 2;
+        }
         let (dir, config_path) = prepare_run(&pass_dir, &cfg, false, a.workers, policy)?;
-        let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, policy);
+        let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg, a.workers, policy);
         spec.programs = Some(assign(&programs, a.workers));
         if let Some(c) = &checkpoint {
             let mut args: Vec<OsString> = vec!["--checkpoint".into(), c.clone().into_os_string()];
             let blank = match mode {
-                EvalMode::Normal => None,
+                EvalMode::Normal | EvalMode::OtherGesture => None,
                 EvalMode::Blind => Some("both"),
                 EvalMode::RgbOnly => Some("depth"),
                 EvalMode::DepthOnly => Some("rgb"),
@@ -437,7 +457,9 @@ fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
     let mut md = format!("# Comparison on {} (first stop; ∞ = unlimited stops)\n\n{}", a.split, compare(&rows));
     if evaluations.len() > 1 {
         md.push('\n');
-        md.push_str(&paired(&evaluations));
+        let refs: Vec<(String, &[EpisodeResult])> =
+            evaluations.iter().map(|(l, e)| (l.clone(), e.as_slice())).collect();
+        md.push_str(&paired(&refs));
     }
     if let Some(out) = &a.out {
         std::fs::create_dir_all(out)?;
@@ -460,6 +482,25 @@ mod tests {
         assert_eq!(unused_dir(base.clone()), d.path().join("eval").join("test-2"));
         std::fs::create_dir_all(d.path().join("eval").join("test-2")).unwrap();
         assert_eq!(unused_dir(base), d.path().join("eval").join("test-3"));
+    }
+
+    #[test]
+    fn another_gesture_is_asked_of_policies_shown_the_referencing_gesture() {
+        let mut cfg = RunConfig::from_toml("[run]\nmethod = \"both\"\n", "test").unwrap();
+        let asked = |cfg: &RunConfig, m: &str| modes_for(cfg, false, &[m.to_string()]).map_err(|e| e.to_string());
+        for method in [Method::Referencing, Method::Both] {
+            cfg.run.method = method;
+            assert_eq!(asked(&cfg, "other_gesture").unwrap(), vec![EvalMode::OtherGesture]);
+        }
+        cfg.run.method = Method::VisSem;
+        assert!(asked(&cfg, "other_gesture").unwrap_err().contains("VisSem is not shown the referencing gesture"));
+        cfg.run.method = Method::Both;
+        cfg.task.gesture_shift = 7;
+        assert!(asked(&cfg, "other_gesture").unwrap_err().contains("leave out --set task.gesture_shift"));
+        assert!(asked(&cfg, "shifted").unwrap_err().contains("other_gesture"));
+        // not a default pass: it costs one more evaluation
+        cfg.task.gesture_shift = 0;
+        assert!(!modes_for(&cfg, false, &[]).unwrap().contains(&EvalMode::OtherGesture));
     }
 
     #[test]

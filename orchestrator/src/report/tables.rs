@@ -24,10 +24,15 @@ pub enum EvalMode {
     RgbOnly,
     /// RGB zeroed: depth only (T4.7).
     DepthOnly,
+    /// Every program shows the referencing gesture of the program half its split on (another
+    /// room; the person stands and faces where the program puts them): what the policy gained
+    /// from where the arm points, it loses (`task.gesture_shift`).
+    OtherGesture,
 }
 
 impl EvalMode {
-    pub const ALL: [EvalMode; 4] = [EvalMode::Normal, EvalMode::Blind, EvalMode::RgbOnly, EvalMode::DepthOnly];
+    pub const ALL: [EvalMode; 5] =
+        [EvalMode::Normal, EvalMode::Blind, EvalMode::RgbOnly, EvalMode::DepthOnly, EvalMode::OtherGesture];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -35,6 +40,7 @@ impl EvalMode {
             EvalMode::Blind => "blind",
             EvalMode::RgbOnly => "rgb_only",
             EvalMode::DepthOnly => "depth_only",
+            EvalMode::OtherGesture => "other_gesture",
         }
     }
 
@@ -45,7 +51,7 @@ impl EvalMode {
     /// (zero RGB, zero depth) for the policy's inputs.
     pub fn zeroed(self) -> (bool, bool) {
         match self {
-            EvalMode::Normal => (false, false),
+            EvalMode::Normal | EvalMode::OtherGesture => (false, false),
             EvalMode::Blind => (true, true),
             EvalMode::RgbOnly => (false, true),
             EvalMode::DepthOnly => (true, false),
@@ -177,6 +183,26 @@ impl Evaluation<'_> {
                 writeln!(md, "| with vision | {:.1} | {:.1} | {:.3} |", n.sr, n.spl, n.dts).unwrap();
             }
             writeln!(md, "| blind | {:.1} | {:.1} | {:.3} |", s.sr, s.spl, s.dts).unwrap();
+        }
+
+        if let (Some(own), Some(other)) = (self.passes.get(&normal), self.passes.get(&EvalMode::OtherGesture)) {
+            writeln!(md, "\n## Another program's gesture: is where the arm points read?\n").unwrap();
+            writeln!(
+                md,
+                "Each program showed the referencing gesture of the program half the split on (another room); \
+                 the person stood and faced where the program puts them. A policy that reads where the arm \
+                 points loses what it gained from it.\n"
+            )
+            .unwrap();
+            writeln!(md, "| gesture | SR 1 (%) | SPL 1 (%) | SR ∞ (%) | SPL ∞ (%) |\n|---|---:|---:|---:|---:|")
+                .unwrap();
+            for (name, eps) in [("its own", own), ("another program's", other)] {
+                let (first, any) = (scores(eps, Some(1), self.dts_threshold), scores(eps, None, self.dts_threshold));
+                writeln!(md, "| {name} | {:.1} | {:.1} | {:.1} | {:.1} |", first.sr, first.spl, any.sr, any.spl)
+                    .unwrap();
+            }
+            md.push('\n');
+            md.push_str(&paired(&[("its own gesture".into(), own), ("another program's".into(), other)]));
         }
 
         let rgb = self.scores(EvalMode::RgbOnly, Some(1), |_| true);
@@ -338,7 +364,7 @@ pub fn compare(rows: &[(String, Scores, Scores)]) -> String {
 
 /// Each later evaluation against the first, episode by episode on the programs both ran: where
 /// one succeeds and the other fails, at the first stop and with unlimited stops.
-pub fn paired(evaluations: &[(String, Vec<EpisodeResult>)]) -> String {
+pub fn paired(evaluations: &[(String, &[EpisodeResult])]) -> String {
     let Some(((first, a), rest)) = evaluations.split_first() else { return String::new() };
     let mut md = format!(
         "Episode by episode against the first, **{first}** (the programs both ran; z = McNemar's \
@@ -419,12 +445,29 @@ mod tests {
     fn paired_rows_count_each_program_once() {
         let a = vec![result(0, true), result(1, true), result(2, false)];
         let b = vec![result(2, true), result(1, false), result(0, true), result(7, true)];
-        let md = paired(&[("own gesture".into(), a), ("shifted".into(), b)]);
+        let md = paired(&[("own gesture".into(), &a), ("shifted".into(), &b)]);
         assert!(md.contains("**own gesture**"), "{md}");
         // program 7 ran in the second only; one success each way: z = 0
         assert!(md.contains("| shifted | 1 | 3 | 1 | 1 | 1 | 0 | 0.0 |"), "{md}");
         assert!(md.contains("| shifted | ∞ | 3 | 1 | 1 | 1 | 0 | 0.0 |"), "{md}");
         assert_eq!(paired(&[]), "");
+    }
+
+    #[test]
+    fn another_programs_gesture_is_set_beside_its_own() {
+        let programs: Vec<Program> = (0..4).map(|i| program(i, SceneType::Kitchen, 1)).collect();
+        let mut passes = BTreeMap::new();
+        passes.insert(EvalMode::Normal, (0..4).map(|i| result(i, i < 3)).collect());
+        let e = Evaluation { label: "x".into(), split: "test", programs: &programs, passes, dts_threshold: 1.5 };
+        assert!(!e.markdown().contains("Another program's gesture"), "only with the pass");
+        let mut passes = e.passes;
+        passes.insert(EvalMode::OtherGesture, (0..4).map(|i| result(i, i == 0)).collect());
+        let e = Evaluation { passes, ..e };
+        let md = e.markdown();
+        assert!(md.contains("| its own | 75.0 |") && md.contains("| another program's | 25.0 |"), "{md}");
+        // programs 1 and 2 succeed only with their own gesture: z = 2 / √2
+        assert!(md.contains("| another program's | 1 | 4 | 1 | 2 | 0 | 1 | 1.4 |"), "{md}");
+        assert!(e.csv().lines().any(|l| l.starts_with("x,test,other_gesture,all,all,1,4,25.000")));
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! The study (§4.4.1, T4.2–T4.7): every method of a config folder that learns, trained with N
 //! seeds for F frames each; each run's checkpoints evaluated on val and the best by SR at the
-//! first stop evaluated on test (normally and blind) and on train; Random evaluated on test with
+//! first stop evaluated on test (normally, blind, and — where the referencing gesture is shown —
+//! with another room's gesture) and on train; Random evaluated on test with
 //! the same seeds. `summary` and `ablations` put the dissertation's figures beside ours (mean ±
 //! std over the seeds).
 //!
@@ -13,10 +14,10 @@
 //! OUT/configs/<name>.toml     the run's config (seed, frames, checkpoints, rooms)
 //! OUT/runs/<name>/            the training run (`up`), name = <method>[-<scene type>]-seed<k>, with
 //!     select/ckpt-N/tables.csv    each checkpoint on val
-//!     test/tables.csv             the selected checkpoint on test (normal and blind passes)
+//!     test/tables.csv             the selected checkpoint on test (normal, blind, other_gesture)
 //!     train/tables.csv            the selected checkpoint on train (T4.3)
 //! OUT/random/seed<k>/tables.csv   Random on test
-//! OUT/T4.2.md … T4.7.md, .csv, study.json, sr_spl.png, learning_curves.png
+//! OUT/T4.2.md … T4.7.md, pointing.md, .csv, study.json, sr_spl.png, learning_curves.png
 //! ```
 //!
 //! With `--parallel N`, N models are in flight at once (`lanes`), each with its own steps; the
@@ -116,6 +117,15 @@ pub struct Run {
 }
 
 impl Run {
+    /// The passes of its test evaluation: normal and blind (T4.6), and where the policy is shown
+    /// the referencing gesture, another room's gesture (is where the arm points read?).
+    fn test_modes(&self) -> &'static [&'static str] {
+        match self.cfg.run.method {
+            Method::Referencing | Method::Both => &["normal", "blind", "other_gesture"],
+            _ => &["normal", "blind"],
+        }
+    }
+
     /// Frames one PPO update consumes.
     fn frames_per_update(&self, workers: usize) -> u64 {
         (self.cfg.ppo.rollout * workers * self.cfg.env.envs_per_worker) as u64
@@ -298,8 +308,6 @@ fn train(a: &StudyArgs, run: &Run) -> anyhow::Result<()> {
     }
 }
 
-const TEST_MODES: [&str; 2] = ["normal", "blind"];
-
 pub fn run(a: StudyArgs) -> anyhow::Result<()> {
     farm::process::install_termination_handler()?;
     let (runs, random) = plan(&a)?;
@@ -318,7 +326,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         let left = r.updates_needed(a.workers).saturating_sub(r.latest_update()) * r.frames_per_update(a.workers);
         steps.push((Kind::Train, left as f64));
         steps.push((Kind::Eval, ((a.checkpoints + 1) as usize * a.val_programs) as f64));
-        steps.push((Kind::Eval, (a.test_programs * TEST_MODES.len()) as f64));
+        steps.push((Kind::Eval, (a.test_programs * r.test_modes().len()) as f64));
         steps.push((Kind::Eval, a.val_programs as f64));
     }
     steps.extend((0..random_seeds).map(|_| (Kind::Eval, a.test_programs as f64)));
@@ -453,8 +461,10 @@ fn model(
         rooms: run.rooms(split),
         out: run.dir.join(dir),
     };
-    let (test, fit) =
-        (on(Split::Test, a.test_programs, &TEST_MODES, "test"), on(Split::Train, a.val_programs, &["normal"], "train"));
+    let (test, fit) = (
+        on(Split::Test, a.test_programs, run.test_modes(), "test"),
+        on(Split::Train, a.val_programs, &["normal"], "train"),
+    );
     for e in [&test, &fit] {
         let stale = std::fs::read_to_string(e.out.join("checkpoint")).ok().is_some_and(|c| c.trim() != s(&chosen));
         if stale {

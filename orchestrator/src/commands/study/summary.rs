@@ -479,14 +479,16 @@ pub(crate) mod tests {
         assert!(e.contains("tables.csv") && e.contains("2 stop"), "{e}");
     }
 
-    /// A model's result whose every table row has SR `sr` (SPL sr / 2) and 50 at ∞.
+    /// A model's result whose every table row has SR `sr` (SPL sr / 2) and 50 at ∞, one less
+    /// (and 40 at ∞) with another room's gesture.
     pub(crate) fn result(dir: &Path, stem: &str, seed: u64, sr: f64) -> RunResult {
         let mut csv = String::from("label,split,mode,scene_type,instances,stops,episodes,sr,spl,dts\n");
-        for mode in ["normal", "blind"] {
+        for mode in ["normal", "blind", "other_gesture"] {
+            let (sr, inf) = if mode == "other_gesture" { (sr - 1.0, 40.0) } else { (sr, 50.0) };
             for t in ["all", "Kitchen", "LivingRoom", "Bedroom", "Bathroom"] {
                 for i in ["all", "1", "2", "3+"] {
                     for k in ["1", "2", "3", "inf"] {
-                        let (x, y) = if k == "inf" { (50.0, 30.0) } else { (sr, sr / 2.0) };
+                        let (x, y) = if k == "inf" { (inf, 30.0) } else { (sr, sr / 2.0) };
                         let _ = writeln!(csv, "x,test,{mode},{t},{i},{k},10,{x},{y},1.0");
                     }
                 }
