@@ -281,8 +281,8 @@ pub fn run(
     out(&forward("tiny-frozen (pretrained RGB-D encoder, 256, GRU 1)", &frozen, 32, device, reps)?);
     out(&update("tiny, tiny PPO", &with_tiny_ppo(tiny.clone()), 32, device, reps)?);
     out(&update("tiny-frozen, tiny PPO", &with_tiny_ppo(frozen.clone()), 32, device, reps)?);
-    // the gesture read per frame with the person's pose beside each frame: its features change
-    // as the robot moves, so acting recomputes them every step (the flat layer's are memoised)
+    // the gesture read per frame with the person's pose beside each frame (in training the pose
+    // changes every step, so no two rows are alike; here it never does: BENCHMARKS.md)
     let per_frame = per_frame_config(frozen);
     out(&forward("tiny-frozen, gesture per frame + pose", &per_frame, 32, device, reps)?);
     out(&update("tiny-frozen, gesture per frame + pose, tiny PPO", &with_tiny_ppo(per_frame), 32, device, reps)?);

@@ -1,9 +1,9 @@
 //! The study (§4.4.1, T4.2–T4.7): every method of a config folder that learns, trained with N
 //! seeds for F frames each; each run's checkpoints evaluated on val and the best by SR at the
 //! first stop evaluated on test (normally, blind, and — where the referencing gesture is shown —
-//! with another room's gesture) and on train; Random evaluated on test with
-//! the same seeds. `summary` and `ablations` put the dissertation's figures beside ours (mean ±
-//! std over the seeds).
+//! with another room's gesture) and on train; Random evaluated on test with the same seeds.
+//! `summary` and `ablations` put the dissertation's figures beside ours (mean ± std over the
+//! seeds).
 //!
 //! Every step is a child `orchestrator up` or `orchestrator eval` writing into the study folder,
 //! and a step whose output is complete is never run again: killed at any point, the same
