@@ -51,6 +51,12 @@ impl Method {
         matches!(self, Method::Random | Method::Referencing | Method::Intervention | Method::Both)
     }
 
+    /// Whether a trained policy is shown the referencing gesture (+Referencing; +Both while it
+    /// faces the target): what `eval --modes other_gesture` swaps for another room's.
+    pub fn shows_referencing(self) -> bool {
+        matches!(self, Method::Referencing | Method::Both)
+    }
+
     pub fn label(self) -> &'static str {
         match self {
             Method::Random => "Random",

@@ -160,9 +160,8 @@ fn modes_for(cfg: &RunConfig, baseline: bool, asked: &[String]) -> anyhow::Resul
                 m.name()
             );
             if *m == EvalMode::OtherGesture {
-                let referencing = matches!(cfg.run.method, Method::Referencing | Method::Both);
                 anyhow::ensure!(
-                    referencing,
+                    cfg.run.method.shows_referencing(),
                     "--modes other_gesture: {} is not shown the referencing gesture",
                     cfg.run.method.label()
                 );

@@ -120,9 +120,10 @@ impl Run {
     /// The passes of its test evaluation: normal and blind (T4.6), and where the policy is shown
     /// the referencing gesture, another room's gesture (is where the arm points read?).
     fn test_modes(&self) -> &'static [&'static str] {
-        match self.cfg.run.method {
-            Method::Referencing | Method::Both => &["normal", "blind", "other_gesture"],
-            _ => &["normal", "blind"],
+        if self.cfg.run.method.shows_referencing() {
+            &["normal", "blind", "other_gesture"]
+        } else {
+            &["normal", "blind"]
         }
     }
 
