@@ -195,13 +195,14 @@ pub(crate) fn pose_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     Tensor::from_slice(&p).view([obs.n() as i64, 3]).to_device(device)
 }
 
-/// The person's pose ([`pose_tensor`]) for every frame of the gesture `[B, frames, 4]` (half):
-/// right, forward, and the cosine and sine of their facing relative to the robot (the pose
-/// input's yaw / 360 is a fraction of a turn).
-pub(crate) fn pose_in_frames(p: &Tensor, frames: i64) -> Tensor {
+/// The person's pose ([`pose_tensor`], `[B, 3]`) as the per-frame gesture network reads it
+/// beside every frame, `[B, 4]`: right, forward, and the cosine and sine of their facing relative
+/// to the robot (the pose input's yaw / 360 is a fraction of a turn) — rounded to half precision,
+/// as the gestures are stored.
+pub(crate) fn frame_pose(p: &Tensor) -> Tensor {
     let turn = p.select(1, 2) * std::f64::consts::TAU;
     let pose = Tensor::stack(&[p.select(1, 0), p.select(1, 1), turn.cos(), turn.sin()], 1);
-    pose.unsqueeze(1).expand([-1, frames, -1], false).to_kind(Kind::Half)
+    pose.to_kind(Kind::Half).to_kind(Kind::Float)
 }
 
 /// One tensor for all groups: on the GPU a copy (through `pinned` when given); on the CPU with

@@ -228,7 +228,10 @@ impl Agent {
         }
         tch::no_grad(|| {
             let gesture = match (self.net.gesture_net(), &x.gesture, &x.gesture_index) {
-                (Some(l), Some(g), None) => Some(self.gestures.features(l, g, at, self.n_envs)),
+                // with the pose beside its frames the features change at every step: read afresh
+                (Some(l), Some(g), None) if !self.spec.pose_in_frames() => {
+                    Some(self.gestures.features(l, g, at, self.n_envs))
+                }
                 _ => None,
             };
             let feats = self.net.encode_with(x, gesture).unsqueeze(0);
@@ -352,8 +355,9 @@ mod tests {
         assert_eq!(a.values, b.values);
     }
 
-    /// Per frame with the person's pose: every frame of a shown gesture carries the pose (right,
-    /// forward, cos and sin of the facing), a gesture not shown stays all zero.
+    /// Per frame with the person's pose: the first layer reads the gesture's 95 values and the
+    /// pose's 4 (right, forward, cos and sin of the facing) beside every frame; the stored step
+    /// keeps the gesture and the pose apart, so that a gesture is stored once whatever the pose.
     #[test]
     fn the_per_frame_network_reads_the_pose_with_every_frame() {
         let mut cfg = tiny_config("both");
@@ -367,11 +371,11 @@ mod tests {
         o.envs[1].gesture = GestureKind::None;
         let (x, _) = p.prepare(&o.batch()).unwrap();
         let g = x.gesture.as_ref().unwrap().to_kind(Kind::Float);
-        assert_eq!(g.size(), [2, 100, 99]);
-        let pose = g.get(0).narrow(1, 95, 4);
-        let want = Tensor::from_slice(&[1.5f32, 2.0, 0.0, 1.0]).expand([100, 4], false);
-        assert!(pose.allclose(&want, 1e-3, 1e-3, false), "{pose}");
+        assert_eq!(g.size(), [2, 100, 95]);
         assert_eq!(g.get(1).abs().sum(Kind::Float).double_value(&[]), 0.0);
+        let pose = crate::inputs::frame_pose(x.pose.as_ref().unwrap()).get(0);
+        let want = Tensor::from_slice(&[1.5f32, 2.0, 0.0, 1.0]);
+        assert!(pose.allclose(&want, 1e-3, 1e-3, false), "{pose}");
         // the flat layer keeps §4.3.3's width, with the pose a separate input as before
         cfg.model.gesture_network = GestureNetwork::Flat;
         let p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
@@ -522,9 +526,18 @@ mod tests {
     #[test]
     fn distinct_gestures_give_the_plain_path_s_outputs_and_gradients() {
         // PPO's minibatches encode each distinct gesture once and gather; the outputs and the
-        // gradients must be those of encoding every row
-        let cfg = tiny_config("both");
-        let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
+        // gradients must be those of encoding every row — with the flat layer, and per frame
+        // with the person's pose, which moves at every step while the gestures stay
+        let mut per_frame = tiny_config("both");
+        per_frame.model.person_pose = true;
+        per_frame.model.gesture_network = GestureNetwork::PerFrame;
+        for cfg in [tiny_config("both"), per_frame] {
+            distinct_gestures_read_as_every_row(&cfg);
+        }
+    }
+
+    fn distinct_gestures_read_as_every_row(cfg: &RunConfig) {
+        let mut p = Agent::new(cfg, 2, Device::Cpu).unwrap();
         let h0 = p.hidden().copy();
         let mut r = crate::ppo::rollout::Rollout::new(6, 2, &h0);
         let first = random_obs(2, 16, 40);
@@ -533,7 +546,10 @@ mod tests {
             // env 0 keeps its gesture all along; env 1 shows a new one at every step
             let g = o.gesture.len() / 2;
             o.gesture[..g].copy_from_slice(&first.gesture[..g]);
-            o.envs.iter_mut().for_each(|e| e.episode_start = t == 0);
+            for (k, e) in o.envs.iter_mut().enumerate() {
+                e.episode_start = t == 0;
+                e.person_pose = [0.3 * t as f32, k as f32 - 0.5, 0.1 * t as f32];
+            }
             let (x, st) = p.prepare(&o.batch()).unwrap();
             let f = p.forward(&x, st);
             let acted = Actions { actions: vec![0; 2], log_probs: vec![0.0; 2], values: f.values.clone() };

@@ -12,6 +12,11 @@
 //! `model.person_pose` each frame carries the person's pose too (`NetSpec::pose_in_frames`), so
 //! the arm's direction in the person's frame can be turned by their facing frame by frame — the
 //! gesture probe's per-frame column (docs/encoder).
+//!
+//! The pose is the same in all 100 frames and changes at every step, the gesture only when an
+//! episode starts or intervention switches: the first layer on `[frame, pose]` is computed as its
+//! gesture part once per distinct gesture plus its pose part once per row ([`GestureNet::read`]),
+//! not over 100 concatenated frames per row.
 
 use farm::config::GestureNetwork;
 use shm_schema::GESTURE_FRAMES;
@@ -45,15 +50,44 @@ impl GestureNet {
 
     /// Gestures `[B, 100, d]` (any float kind) → features `[B, hidden]` in f32.
     pub(crate) fn forward(&self, g: &Tensor) -> Tensor {
+        self.read(g, None, None)
+    }
+
+    /// Features `[R, hidden]` of `R` rows: with `rows` (i64 `[R]`), `g` holds distinct gestures
+    /// `[G, 100, d]` and row `r` shows `g[rows[r]]`; without, `g` is `[R, 100, d]`. With `pose`
+    /// (`[R, 4]`, the per-frame network only) each row's frames are read with its person's pose
+    /// beside them — the last 4 inputs of the first layer — where a gesture is shown (an unshown
+    /// gesture is all zero, and so is what the network reads then).
+    pub(crate) fn read(&self, g: &Tensor, rows: Option<&Tensor>, pose: Option<&Tensor>) -> Tensor {
         let g = g.to_kind(Kind::Float);
-        match self {
-            GestureNet::Flat(l) => g.flatten(1, -1).apply(l).relu(),
-            GestureNet::PerFrame { frame, out } => {
-                let f = g.apply(&frame[0]).relu().apply(&frame[1]).relu();
-                let pooled = Tensor::cat(&[f.mean_dim(1, false, Kind::Float), f.amax(1, false)], 1);
-                pooled.apply(out).relu()
+        // fewer rows than distinct gestures (one that changes at every step, as keypoints seen
+        // from a moving robot): gathered, then read row by row
+        let (g, rows) = match rows {
+            Some(i) if g.size()[0] > i.numel() as i64 => (g.index_select(0, i), None),
+            r => (g, r),
+        };
+        let gather = |t: Tensor| rows.map_or_else(|| t.shallow_clone(), |i| t.index_select(0, i));
+        match (self, pose) {
+            (GestureNet::Flat(l), None) => gather(g.flatten(1, -1).apply(l).relu()),
+            (GestureNet::PerFrame { frame, out }, None) => gather(Self::after_first(frame, out, g.apply(&frame[0]))),
+            (GestureNet::PerFrame { frame, out }, Some(pose)) => {
+                // frame0([frame, pose]) = W_g·frame + b, once per gesture, + W_p·pose, once per row
+                let d = g.size()[2];
+                let w = &frame[0].ws;
+                let gesture = g.linear(&w.narrow(1, 0, d), frame[0].bs.as_ref());
+                let shown = g.ne(0.0).flatten(1, -1).any_dim(1, true).to_kind(Kind::Float);
+                let pose = pose.linear::<Tensor>(&w.narrow(1, d, pose.size()[1]), None) * gather(shown);
+                Self::after_first(frame, out, gather(gesture) + pose.unsqueeze(1))
             }
+            (GestureNet::Flat(_), Some(_)) => unreachable!("the flat layer reads the pose as its own input"),
         }
+    }
+
+    /// The per-frame network from its first layer's output `[R, 100, 64]` on.
+    fn after_first(frame: &[nn::Linear; 2], out: &nn::Linear, first: Tensor) -> Tensor {
+        let f = first.relu().apply(&frame[1]).relu();
+        let pooled = Tensor::cat(&[f.mean_dim(1, false, Kind::Float), f.amax(1, false)], 1);
+        pooled.apply(out).relu()
     }
 
     /// Width of the features.
@@ -107,6 +141,44 @@ mod tests {
         let flat = crate::device::seeded(1, || GestureNet::new(&(vs.root() / "flat"), GestureNetwork::Flat, 30, 16));
         let (a, b) = tch::no_grad(|| (flat.forward(&held(10)), flat.forward(&held(70))));
         assert!(!a.allclose(&b, 1e-3, 1e-3, false));
+    }
+
+    /// The pose read beside the frames (the split first layer) is the pose read in them: the
+    /// features and gradients of concatenating it to every frame of a shown gesture (an unshown,
+    /// all-zero gesture reads none), whether the rows are read through their distinct gestures
+    /// or one by one.
+    #[test]
+    fn the_pose_beside_the_frames_reads_as_the_pose_in_them() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::PerFrame, 5 + 4, 8));
+        let distinct =
+            crate::device::seeded(2, || Tensor::randn([3, GESTURE_FRAMES as i64, 5], (Kind::Float, Device::Cpu)));
+        let _ = distinct.get(2).zero_();
+        let pose = crate::device::seeded(3, || Tensor::randn([5, 4], (Kind::Float, Device::Cpu)));
+        let rows = Tensor::from_slice(&[0i64, 2, 1, 0, 2]);
+        let shown = Tensor::from_slice(&[1f32, 0.0, 1.0, 1.0, 0.0]).view([5, 1, 1]);
+        let frames = pose.unsqueeze(1).expand([5, GESTURE_FRAMES as i64, 4], false) * shown;
+        let read = |f: &dyn Fn() -> Tensor| {
+            vs.trainable_variables().iter_mut().for_each(|v| v.zero_grad());
+            let out = f();
+            out.square().sum(Kind::Float).backward();
+            (out.detach(), vs.trainable_variables().iter().map(|v| v.grad().copy()).collect::<Vec<_>>())
+        };
+        let g = distinct.index_select(0, &rows);
+        let (want, want_grads) = read(&|| net.forward(&Tensor::cat(&[&g, &frames], 2)));
+        for (name, got) in [
+            ("distinct", read(&|| net.read(&distinct, Some(&rows), Some(&pose)))),
+            ("one by one", read(&|| net.read(&g, None, Some(&pose)))),
+        ] {
+            assert!(got.0.allclose(&want, 1e-5, 1e-6, false), "{name}: {} vs {want}", got.0);
+            for (a, b) in got.1.iter().zip(&want_grads) {
+                assert!(a.allclose(b, 1e-4, 1e-6, false), "{name}: gradients differ");
+            }
+        }
+        // fewer rows than distinct gestures: gathered first, the same features
+        let one = Tensor::from_slice(&[1i64]);
+        let few = tch::no_grad(|| net.read(&distinct, Some(&one), Some(&pose.narrow(0, 2, 1))));
+        assert!(few.allclose(&want.narrow(0, 2, 1), 1e-5, 1e-6, false));
     }
 
     #[test]

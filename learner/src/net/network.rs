@@ -150,15 +150,7 @@ impl PolicyNet {
             let pose = s.pose.then(|| inputs::pose_tensor(obs, device));
             let gesture = s.gesture.then(|| {
                 let mask = inputs::gesture_mask(obs, device).to_kind(Kind::Half).view([-1, 1, 1]);
-                let g = self.staging.gesture(obs, device).narrow(2, 0, s.gesture_dims);
-                let g = match (s.pose_in_frames(), &pose) {
-                    (true, Some(pose)) => {
-                        let frames = inputs::pose_in_frames(pose, g.size()[1]);
-                        Tensor::cat(&[g, frames], 2)
-                    }
-                    _ => g,
-                };
-                g * mask
+                self.staging.gesture(obs, device).narrow(2, 0, s.gesture_dims) * mask
             });
             Inputs {
                 rgb,
@@ -191,15 +183,11 @@ impl PolicyNet {
             parts.push(enc.forward(t, true));
         }
         if let (Some(l), Some(t)) = (&self.gesture, &x.gesture) {
-            parts.push(match (gesture, &x.gesture_index) {
-                (Some(g), _) => g,
-                // distinct gestures are encoded once, then gathered for every row that shows them;
-                // where the rows are fewer than the distinct gestures (a gesture that changes
-                // every step, as keypoints seen from a moving robot), the rows are encoded instead
-                (None, Some(i)) if t.size()[0] > i.numel() as i64 => l.forward(&t.index_select(0, i)),
-                (None, Some(i)) => l.forward(t).index_select(0, i),
-                (None, None) => l.forward(t),
-            });
+            parts.push(gesture.unwrap_or_else(|| {
+                // distinct gestures are read once, then gathered for every row that shows them
+                let pose = self.spec.pose_in_frames().then(|| inputs::frame_pose(x.pose.as_ref().expect("the pose")));
+                l.read(t, x.gesture_index.as_ref(), pose.as_ref())
+            }));
         }
         if let (Some(e), Some(t)) = (&self.target, &x.target) {
             parts.push(t.apply(e).relu());
