@@ -14,6 +14,8 @@ pub struct NetSpec {
     pub rgb: bool,
     pub depth: bool,
     pub gesture: bool,
+    /// How the gesture is perceived (its name in logs).
+    pub gesture_input: GestureInput,
     /// Values a gesture frame holds: the 95 muscles, the keypoints' 30, the arm rays' 8, or the
     /// upper bounds' 2 (bearing) or 4 (ray); the network reads the first `gesture_dims` of each
     /// 95-wide row.
@@ -38,6 +40,7 @@ impl NetSpec {
             rgb: m.rgb,
             depth: m.depth,
             gesture: cfg.run.method.gesture(),
+            gesture_input: m.gesture_input,
             gesture_dims: match m.gesture_input {
                 GestureInput::Muscles => shm_schema::GESTURE_DIMS,
                 GestureInput::Keypoints => shm_schema::GESTURE_KEYPOINT_DIMS,
@@ -90,14 +93,14 @@ impl NetSpec {
         self.hidden * n as i64
     }
 
-    /// The gesture input's name in logs, from its width, and its network when not the flat one.
+    /// The gesture input's name in logs, and its network when not the flat one.
     fn gesture_name(&self) -> String {
-        let input = match self.gesture_dims as usize {
-            shm_schema::GESTURE_DIMS => "gesture",
-            shm_schema::GESTURE_KEYPOINT_DIMS => "gesture-keypoints",
-            shm_schema::GESTURE_ARM_DIMS => "gesture-arm-rays",
-            shm_schema::GESTURE_BEARING_DIMS => "target-bearing (upper bound, not a gesture)",
-            _ => "pointing-ray (upper bound, not a gesture)",
+        let input = match self.gesture_input {
+            GestureInput::Muscles => "gesture",
+            GestureInput::Keypoints => "gesture-keypoints",
+            GestureInput::ArmRays => "gesture-arm-rays",
+            GestureInput::TargetBearing => "target-bearing (upper bound, not a gesture)",
+            GestureInput::PointingRay => "pointing-ray (upper bound, not a gesture)",
         };
         match (self.gesture_network, self.pose_in_frames()) {
             (GestureNetwork::Flat, _) => input.to_string(),
