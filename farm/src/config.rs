@@ -244,6 +244,18 @@ pub enum GestureNetwork {
     /// time (mean and max), then one layer to the feature — a pose held in any frames is read by
     /// the same weights.
     PerFrame,
+    /// Beyond the dissertation: both side by side, each giving half the feature — the flat layer
+    /// over the gesture alone (what the gesture is, wherever the person stands) and the per-frame
+    /// network (with `model.person_pose`, where it points from where the robot is).
+    FlatAndPerFrame,
+}
+
+impl GestureNetwork {
+    /// Whether the shared per-frame network is part of it (the one that reads the pose beside
+    /// the frames).
+    pub fn per_frame(self) -> bool {
+        matches!(self, GestureNetwork::PerFrame | GestureNetwork::FlatAndPerFrame)
+    }
 }
 
 impl GestureInput {
@@ -603,6 +615,8 @@ mod tests {
         assert_eq!(c.model.gesture_network, GestureNetwork::Flat, "the dissertation's by default");
         let f = c.with_overrides(&sets(&["model.gesture_network=per_frame"])).unwrap();
         assert_eq!(f.model.gesture_network, GestureNetwork::PerFrame);
+        let h = c.with_overrides(&sets(&["model.gesture_network=flat_and_per_frame"])).unwrap();
+        assert!(h.model.gesture_network.per_frame() && !c.model.gesture_network.per_frame());
         for (bad, says) in [
             ("ppo.lrr=1", "ppo.lrr"),
             ("ppo.clip=-5", "ppo.clip"),

@@ -222,7 +222,7 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
         let per_frame = frames.map(|f| {
             let o = &GestureProbeOptions { epochs: o.per_frame_epochs, ..o.clone() };
             let (bearing, epochs) = fit_probe(&f, &y, &truth, split, o, |root, d| {
-                let net = GestureNet::new(&(root / "gesture"), GestureNetwork::PerFrame, d, HIDDEN);
+                let net = GestureNet::new(&(root / "gesture"), GestureNetwork::PerFrame, d, 0, HIDDEN);
                 let out = nn::linear(root / "out", HIDDEN, 2, Default::default());
                 nn::func(move |g| net.forward(g).apply(&out))
             });

@@ -528,10 +528,11 @@ mod tests {
         // PPO's minibatches encode each distinct gesture once and gather; the outputs and the
         // gradients must be those of encoding every row — with the flat layer, and per frame
         // with the person's pose, which moves at every step while the gestures stay
-        let mut per_frame = tiny_config("both");
-        per_frame.model.person_pose = true;
-        per_frame.model.gesture_network = GestureNetwork::PerFrame;
-        for cfg in [tiny_config("both"), per_frame] {
+        distinct_gestures_read_as_every_row(&tiny_config("both"));
+        for network in [GestureNetwork::PerFrame, GestureNetwork::FlatAndPerFrame] {
+            let mut cfg = tiny_config("both");
+            cfg.model.person_pose = true;
+            cfg.model.gesture_network = network;
             distinct_gestures_read_as_every_row(&cfg);
         }
     }

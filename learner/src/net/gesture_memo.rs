@@ -70,12 +70,12 @@ mod tests {
     use farm::config::GestureNetwork;
     use tch::{Device, nn};
 
-    /// Both kinds of gesture network on gestures of 5 values per frame, 8 wide.
+    /// Every kind of gesture network on gestures of 5 values per frame, 8 wide.
     fn nets(vs: &nn::VarStore) -> Vec<(String, GestureNet)> {
-        [GestureNetwork::Flat, GestureNetwork::PerFrame]
+        [GestureNetwork::Flat, GestureNetwork::PerFrame, GestureNetwork::FlatAndPerFrame]
             .into_iter()
             .enumerate()
-            .map(|(i, k)| (format!("g{i}."), GestureNet::new(&(vs.root() / format!("g{i}")), k, 5, 8)))
+            .map(|(i, k)| (format!("g{i}."), GestureNet::new(&(vs.root() / format!("g{i}")), k, 5, 0, 8)))
             .collect()
     }
 

@@ -4,6 +4,8 @@
 //! flat (§4.3.3):  100×d ─ flatten ─ FC hidden ─ ReLU
 //! per_frame:      each frame d ─ FC 64 ─ ReLU ─ FC 64 ─ ReLU ┐ mean and max over the 100 frames
 //!                                                            └ 128 ─ FC hidden ─ ReLU
+//! flat_and_per_frame: the two side by side, hidden/2 each, concatenated (the pose, if any,
+//!                 read by the per-frame half only)
 //! ```
 //! The flat layer gives each frame its own weights: a pointing held in frames 40–60 and the same
 //! pointing in frames 50–70 are different inputs to learn, each from PPO's gradient alone. The
@@ -29,22 +31,29 @@ const FRAME_WIDTH: i64 = 64;
 #[derive(Debug)]
 pub(crate) enum GestureNet {
     Flat(nn::Linear),
-    PerFrame { frame: [nn::Linear; 2], out: nn::Linear },
+    PerFrame(PerFrame),
+    FlatAndPerFrame(nn::Linear, PerFrame),
+}
+
+/// The shared per-frame network and its layer from the pooled frames to the feature.
+#[derive(Debug)]
+pub(crate) struct PerFrame {
+    frame: [nn::Linear; 2],
+    out: nn::Linear,
 }
 
 impl GestureNet {
-    /// `dims` values per frame → `hidden`, initialised from torch's seed.
-    pub(crate) fn new(p: &nn::Path, kind: GestureNetwork, dims: i64, hidden: i64) -> GestureNet {
-        let c = Default::default;
+    /// `dims` gesture values per frame (and `pose_dims` of the pose beside each, read by the
+    /// per-frame network) → `hidden`, initialised from torch's seed.
+    pub(crate) fn new(p: &nn::Path, kind: GestureNetwork, dims: i64, pose_dims: i64, hidden: i64) -> GestureNet {
+        let flat = |p: &nn::Path, width| nn::linear(p, GESTURE_FRAMES as i64 * dims, width, Default::default());
         match kind {
-            GestureNetwork::Flat => GestureNet::Flat(nn::linear(p, GESTURE_FRAMES as i64 * dims, hidden, c())),
-            GestureNetwork::PerFrame => GestureNet::PerFrame {
-                frame: [
-                    nn::linear(p / "frame0", dims, FRAME_WIDTH, c()),
-                    nn::linear(p / "frame1", FRAME_WIDTH, FRAME_WIDTH, c()),
-                ],
-                out: nn::linear(p / "out", 2 * FRAME_WIDTH, hidden, c()),
-            },
+            GestureNetwork::Flat => GestureNet::Flat(flat(p, hidden)),
+            GestureNetwork::PerFrame => GestureNet::PerFrame(PerFrame::new(p, dims + pose_dims, hidden)),
+            GestureNetwork::FlatAndPerFrame => GestureNet::FlatAndPerFrame(
+                flat(&(p / "flat"), hidden / 2),
+                PerFrame::new(p, dims + pose_dims, hidden - hidden / 2),
+            ),
         }
     }
 
@@ -67,32 +76,24 @@ impl GestureNet {
             r => (g, r),
         };
         let gather = |t: Tensor| rows.map_or_else(|| t.shallow_clone(), |i| t.index_select(0, i));
-        match (self, pose) {
-            (GestureNet::Flat(l), None) => gather(g.flatten(1, -1).apply(l).relu()),
-            (GestureNet::PerFrame { frame, out }, None) => gather(Self::after_first(frame, out, g.apply(&frame[0]))),
-            (GestureNet::PerFrame { frame, out }, Some(pose)) => {
-                // frame0([frame, pose]) = W_g·frame + b, once per gesture, + W_p·pose, once per row
-                let d = g.size()[2];
-                let w = &frame[0].ws;
-                let gesture = g.linear(&w.narrow(1, 0, d), frame[0].bs.as_ref());
-                let shown = g.ne(0.0).flatten(1, -1).any_dim(1, true).to_kind(Kind::Float);
-                let pose = pose.linear::<Tensor>(&w.narrow(1, d, pose.size()[1]), None) * gather(shown);
-                Self::after_first(frame, out, gather(gesture) + pose.unsqueeze(1))
+        let flat = |l: &nn::Linear| gather(g.flatten(1, -1).apply(l).relu());
+        match self {
+            GestureNet::Flat(l) => {
+                assert!(pose.is_none(), "the flat layer reads the pose as its own input");
+                flat(l)
             }
-            (GestureNet::Flat(_), Some(_)) => unreachable!("the flat layer reads the pose as its own input"),
+            GestureNet::PerFrame(f) => f.read(&g, rows, pose),
+            GestureNet::FlatAndPerFrame(l, f) => Tensor::cat(&[flat(l), f.read(&g, rows, pose)], 1),
         }
-    }
-
-    /// The per-frame network from its first layer's output `[R, 100, 64]` on.
-    fn after_first(frame: &[nn::Linear; 2], out: &nn::Linear, first: Tensor) -> Tensor {
-        let f = first.relu().apply(&frame[1]).relu();
-        let pooled = Tensor::cat(&[f.mean_dim(1, false, Kind::Float), f.amax(1, false)], 1);
-        pooled.apply(out).relu()
     }
 
     /// Width of the features.
     pub(crate) fn hidden(&self) -> i64 {
-        self.layers().last().expect("a layer").ws.size()[0]
+        match self {
+            GestureNet::Flat(l) => l.ws.size()[0],
+            GestureNet::PerFrame(f) => f.out.ws.size()[0],
+            GestureNet::FlatAndPerFrame(l, f) => l.ws.size()[0] + f.out.ws.size()[0],
+        }
     }
 
     /// Version counters of every variable: they change when the optimizer or a checkpoint load
@@ -108,8 +109,51 @@ impl GestureNet {
     fn layers(&self) -> Vec<&nn::Linear> {
         match self {
             GestureNet::Flat(l) => vec![l],
-            GestureNet::PerFrame { frame, out } => vec![&frame[0], &frame[1], out],
+            GestureNet::PerFrame(f) => f.layers(),
+            GestureNet::FlatAndPerFrame(l, f) => [vec![l], f.layers()].concat(),
         }
+    }
+}
+
+impl PerFrame {
+    fn new(p: &nn::Path, dims: i64, hidden: i64) -> PerFrame {
+        let c = Default::default;
+        PerFrame {
+            frame: [
+                nn::linear(p / "frame0", dims, FRAME_WIDTH, c()),
+                nn::linear(p / "frame1", FRAME_WIDTH, FRAME_WIDTH, c()),
+            ],
+            out: nn::linear(p / "out", 2 * FRAME_WIDTH, hidden, c()),
+        }
+    }
+
+    /// [`GestureNet::read`] for this network, on f32 gestures (gathered first where the rows are
+    /// fewer).
+    fn read(&self, g: &Tensor, rows: Option<&Tensor>, pose: Option<&Tensor>) -> Tensor {
+        let gather = |t: Tensor| rows.map_or_else(|| t.shallow_clone(), |i| t.index_select(0, i));
+        let [first, _] = &self.frame;
+        match pose {
+            None => gather(self.after_first(g.apply(first))),
+            Some(pose) => {
+                // frame0([frame, pose]) = W_g·frame + b, once per gesture, + W_p·pose, once per row
+                let d = g.size()[2];
+                let gesture = g.linear(&first.ws.narrow(1, 0, d), first.bs.as_ref());
+                let shown = g.ne(0.0).flatten(1, -1).any_dim(1, true).to_kind(Kind::Float);
+                let pose = pose.linear::<Tensor>(&first.ws.narrow(1, d, pose.size()[1]), None) * gather(shown);
+                self.after_first(gather(gesture) + pose.unsqueeze(1))
+            }
+        }
+    }
+
+    /// From the first layer's output `[R, 100, 64]` on.
+    fn after_first(&self, first: Tensor) -> Tensor {
+        let f = first.relu().apply(&self.frame[1]).relu();
+        let pooled = Tensor::cat(&[f.mean_dim(1, false, Kind::Float), f.amax(1, false)], 1);
+        pooled.apply(&self.out).relu()
+    }
+
+    fn layers(&self) -> Vec<&nn::Linear> {
+        vec![&self.frame[0], &self.frame[1], &self.out]
     }
 }
 
@@ -123,7 +167,7 @@ mod tests {
     #[test]
     fn per_frame_features_do_not_depend_on_when_a_pose_is_held() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::PerFrame, 30, 16));
+        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::PerFrame, 30, 0, 16));
         let rest = crate::device::seeded(2, || Tensor::randn([1, 1, 30], (Kind::Float, Device::Cpu)));
         let pointing = crate::device::seeded(3, || Tensor::randn([1, 1, 30], (Kind::Float, Device::Cpu)));
         let frames = GESTURE_FRAMES as i64;
@@ -138,7 +182,7 @@ mod tests {
         let still = tch::no_grad(|| net.forward(&rest.expand([1, frames, 30], false)));
         assert!(!early.allclose(&still, 1e-3, 1e-3, false), "the held pose must show");
         // the flat layer tells them apart
-        let flat = crate::device::seeded(1, || GestureNet::new(&(vs.root() / "flat"), GestureNetwork::Flat, 30, 16));
+        let flat = crate::device::seeded(1, || GestureNet::new(&(vs.root() / "flat"), GestureNetwork::Flat, 30, 0, 16));
         let (a, b) = tch::no_grad(|| (flat.forward(&held(10)), flat.forward(&held(70))));
         assert!(!a.allclose(&b, 1e-3, 1e-3, false));
     }
@@ -150,7 +194,7 @@ mod tests {
     #[test]
     fn the_pose_beside_the_frames_reads_as_the_pose_in_them() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::PerFrame, 5 + 4, 8));
+        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::PerFrame, 5, 4, 8));
         let distinct =
             crate::device::seeded(2, || Tensor::randn([3, GESTURE_FRAMES as i64, 5], (Kind::Float, Device::Cpu)));
         let _ = distinct.get(2).zero_();
@@ -184,13 +228,19 @@ mod tests {
     #[test]
     fn widths_and_variable_names() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let flat = GestureNet::new(&(vs.root() / "gesture"), GestureNetwork::Flat, 95, 32);
-        let per = GestureNet::new(&(vs.root() / "other"), GestureNetwork::PerFrame, 95, 32);
-        assert_eq!((flat.hidden(), per.hidden()), (32, 32));
+        let flat = GestureNet::new(&(vs.root() / "gesture"), GestureNetwork::Flat, 95, 0, 32);
+        let per = GestureNet::new(&(vs.root() / "other"), GestureNetwork::PerFrame, 95, 0, 32);
+        let both = GestureNet::new(&(vs.root() / "both"), GestureNetwork::FlatAndPerFrame, 95, 4, 32);
+        assert_eq!((flat.hidden(), per.hidden(), both.hidden()), (32, 32, 32));
         let v = vs.variables();
         assert_eq!(v["gesture.weight"].size(), [32, 100 * 95], "§4.3.3's layer, as checkpoints name it");
         assert_eq!(v["other.frame0.weight"].size(), [64, 95]);
         assert_eq!(v["other.out.weight"].size(), [32, 128]);
         assert_eq!(per.versions().len(), 6);
+        // side by side: the flat half reads the gesture alone, the per-frame half the pose too
+        assert_eq!(v["both.flat.weight"].size(), [16, 100 * 95]);
+        assert_eq!(v["both.frame0.weight"].size(), [64, 95 + 4]);
+        assert_eq!(v["both.out.weight"].size(), [16, 128]);
+        assert_eq!(both.versions().len(), 8);
     }
 }

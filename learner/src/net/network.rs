@@ -87,9 +87,9 @@ impl PolicyNet {
         // the pretrained encoder is one branch for both (`pretrained` above)
         let rgb = (spec.rgb && !spec.fused()).then(|| visual("rgb", 3));
         let depth = (spec.depth && !spec.fused()).then(|| visual("depth", 1));
-        let gesture = spec
-            .gesture
-            .then(|| GestureNet::new(&(&root / "gesture"), spec.gesture_network, spec.gesture_frame_width(), h));
+        let gesture = spec.gesture.then(|| {
+            GestureNet::new(&(&root / "gesture"), spec.gesture_network, spec.gesture_dims, spec.frame_pose_dims(), h)
+        });
         let target =
             spec.semantic.then(|| nn::embedding(&root / "target", TARGET_CATEGORIES as i64, h, Default::default()));
         let pose = spec.pose.then(|| nn::linear(&root / "pose", 3, h, Default::default()));

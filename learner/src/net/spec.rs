@@ -73,13 +73,13 @@ impl NetSpec {
     /// an input: an arm's direction in the person's own frame (the muscles) becomes one in the
     /// robot's only through their facing, frame by frame (the gesture probe's per-frame row).
     pub fn pose_in_frames(&self) -> bool {
-        self.gesture && self.pose && self.gesture_network == GestureNetwork::PerFrame
+        self.gesture && self.pose && self.gesture_network.per_frame()
     }
 
-    /// Values per frame the gesture network reads: the gesture's, and the pose's 4 (right,
-    /// forward, cos and sin of the facing) where [`NetSpec::pose_in_frames`].
-    pub fn gesture_frame_width(&self) -> i64 {
-        self.gesture_dims + if self.pose_in_frames() { 4 } else { 0 }
+    /// Values of the pose the per-frame network reads beside each frame: 4 (right, forward, cos
+    /// and sin of the facing) where [`NetSpec::pose_in_frames`], else none.
+    pub fn frame_pose_dims(&self) -> i64 {
+        if self.pose_in_frames() { 4 } else { 0 }
     }
 
     /// Width of the concatenated features fed to the GRU.
@@ -106,6 +106,10 @@ impl NetSpec {
             (GestureNetwork::Flat, _) => input.to_string(),
             (GestureNetwork::PerFrame, false) => format!("{input} read per frame"),
             (GestureNetwork::PerFrame, true) => format!("{input} read per frame with the person's pose"),
+            (GestureNetwork::FlatAndPerFrame, false) => format!("{input} read flat and per frame"),
+            (GestureNetwork::FlatAndPerFrame, true) => {
+                format!("{input} read flat and per frame with the person's pose")
+            }
         }
     }
 
