@@ -75,8 +75,7 @@ impl GestureNet {
             Some(i) if g.size()[0] > i.numel() as i64 => (g.index_select(0, i), None),
             r => (g, r),
         };
-        let gather = |t: Tensor| rows.map_or_else(|| t.shallow_clone(), |i| t.index_select(0, i));
-        let flat = |l: &nn::Linear| gather(g.flatten(1, -1).apply(l).relu());
+        let flat = |l: &nn::Linear| gather(g.flatten(1, -1).apply(l).relu(), rows);
         match self {
             GestureNet::Flat(l) => {
                 assert!(pose.is_none(), "the flat layer reads the pose as its own input");
@@ -130,17 +129,16 @@ impl PerFrame {
     /// [`GestureNet::read`] for this network, on f32 gestures (gathered first where the rows are
     /// fewer).
     fn read(&self, g: &Tensor, rows: Option<&Tensor>, pose: Option<&Tensor>) -> Tensor {
-        let gather = |t: Tensor| rows.map_or_else(|| t.shallow_clone(), |i| t.index_select(0, i));
         let [first, _] = &self.frame;
         match pose {
-            None => gather(self.after_first(g.apply(first))),
+            None => gather(self.after_first(g.apply(first)), rows),
             Some(pose) => {
                 // frame0([frame, pose]) = W_g·frame + b, once per gesture, + W_p·pose, once per row
                 let d = g.size()[2];
                 let gesture = g.linear(&first.ws.narrow(1, 0, d), first.bs.as_ref());
                 let shown = g.ne(0.0).flatten(1, -1).any_dim(1, true).to_kind(Kind::Float);
-                let pose = pose.linear::<Tensor>(&first.ws.narrow(1, d, pose.size()[1]), None) * gather(shown);
-                self.after_first(gather(gesture) + pose.unsqueeze(1))
+                let pose = pose.linear::<Tensor>(&first.ws.narrow(1, d, pose.size()[1]), None) * gather(shown, rows);
+                self.after_first(gather(gesture, rows) + pose.unsqueeze(1))
             }
         }
     }
@@ -154,6 +152,14 @@ impl PerFrame {
 
     fn layers(&self) -> Vec<&nn::Linear> {
         vec![&self.frame[0], &self.frame[1], &self.out]
+    }
+}
+
+/// Row `r` of the result is `t[rows[r]]`; without `rows`, `t` itself.
+fn gather(t: Tensor, rows: Option<&Tensor>) -> Tensor {
+    match rows {
+        Some(i) => t.index_select(0, i),
+        None => t,
     }
 }
 
