@@ -195,8 +195,11 @@ pub(crate) fn pose_tensor(obs: &EnvBatch, device: Device) -> Tensor {
     Tensor::from_slice(&p).view([obs.n() as i64, 3]).to_device(device)
 }
 
+/// Values a frame of the per-frame gesture network reads of the person's pose ([`frame_pose`]).
+pub(crate) const FRAME_POSE_DIMS: i64 = 4;
+
 /// The person's pose ([`pose_tensor`], `[B, 3]`) as the per-frame gesture network reads it
-/// beside every frame, `[B, 4]`: right, forward, and the cosine and sine of their facing relative
+/// beside every frame, `[B, FRAME_POSE_DIMS]`: right, forward, and the cosine and sine of their facing relative
 /// to the robot (the pose input's yaw / 360 is a fraction of a turn) — rounded to half precision,
 /// as the gestures are stored.
 pub(crate) fn frame_pose(p: &Tensor) -> Tensor {

@@ -76,10 +76,10 @@ impl NetSpec {
         self.gesture && self.pose && self.gesture_network.per_frame()
     }
 
-    /// Values of the pose the per-frame network reads beside each frame: 4 (right, forward, cos
-    /// and sin of the facing) where [`NetSpec::pose_in_frames`], else none.
+    /// Values of the pose the per-frame network reads beside each frame (right, forward, cos and
+    /// sin of the facing) where [`NetSpec::pose_in_frames`], else none.
     pub fn frame_pose_dims(&self) -> i64 {
-        if self.pose_in_frames() { 4 } else { 0 }
+        if self.pose_in_frames() { crate::inputs::FRAME_POSE_DIMS } else { 0 }
     }
 
     /// Width of the concatenated features fed to the GRU.
