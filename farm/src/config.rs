@@ -656,6 +656,32 @@ mod tests {
     }
 
     #[test]
+    fn each_config_folder_reads_every_gesture_one_way() {
+        // A study compares methods by what they are shown; how a gesture is read, and whether the
+        // person's pose comes with it, is the folder's choice, the same for every gesture method.
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs");
+        for folder in std::fs::read_dir(&root).unwrap() {
+            let mut readings = Vec::new();
+            for file in std::fs::read_dir(folder.unwrap().path()).unwrap() {
+                let path = file.unwrap().path();
+                let c = RunConfig::load(&path).unwrap();
+                let m = &c.model;
+                if c.run.method == Method::Random {
+                    continue; // acts without reading anything
+                }
+                if c.run.method.gesture() {
+                    readings.push(((m.gesture_input, m.gesture_network, m.person_pose), path));
+                } else {
+                    assert!(!m.person_pose, "{}: the person's pose comes with a gesture", path.display());
+                }
+            }
+            for (reading, path) in &readings {
+                assert_eq!(*reading, readings[0].0, "{} against {}", path.display(), readings[0].1.display());
+            }
+        }
+    }
+
+    #[test]
     fn round_trips_through_toml() {
         let c = RunConfig::from_toml("[run]\nmethod = \"vis_sem\"\nscenes = [\"FloorPlan1\"]\n", "x.toml").unwrap();
         let back = RunConfig::from_toml(&c.to_toml(), "y.toml").unwrap();
