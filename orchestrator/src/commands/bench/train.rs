@@ -175,12 +175,16 @@ fn learner_device(log: &std::path::Path) -> Option<String> {
     text.lines().find_map(|l| l.split_once(" learner: device ").map(|(_, r)| format!("device {}", r.trim())))
 }
 
+/// A bench writes no periodic checkpoint (the final one only): the largest count a TOML integer
+/// holds, so the run's config.toml reads back (`eval --checkpoint` on a bench's run).
+const NO_PERIODIC_CHECKPOINT: u64 = i64::MAX as u64;
+
 pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     process::install_termination_handler()?;
     anyhow::ensure!(a.workers > 0, "--workers: give a positive count");
     anyhow::ensure!(a.frames > 0, "--frames: give a positive count");
     let mut cfg = up::load_config(a.config.as_deref())?.with_overrides(&a.set)?;
-    cfg.checkpoint.every_updates = u64::MAX;
+    cfg.checkpoint.every_updates = NO_PERIODIC_CHECKPOINT;
     launch::resolve_dataset(&mut cfg, false)?;
     launch::resolve_encoder(&mut cfg)?;
     launch::sweep_dead_runs();
@@ -216,4 +220,16 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     }
     eprintln!("[bench] written {}", out.join("bench_train.md").display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_bench_runs_config_reads_back() {
+        let mut cfg = up::load_config(None).unwrap();
+        cfg.checkpoint.every_updates = NO_PERIODIC_CHECKPOINT;
+        assert_eq!(RunConfig::from_toml(&cfg.to_toml(), "config.toml").unwrap(), cfg);
+    }
 }
