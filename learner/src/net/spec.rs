@@ -102,15 +102,13 @@ impl NetSpec {
             GestureInput::TargetBearing => "target-bearing (upper bound, not a gesture)",
             GestureInput::PointingRay => "pointing-ray (upper bound, not a gesture)",
         };
-        match (self.gesture_network, self.pose_in_frames()) {
-            (GestureNetwork::Flat, _) => input.to_string(),
-            (GestureNetwork::PerFrame, false) => format!("{input} read per frame"),
-            (GestureNetwork::PerFrame, true) => format!("{input} read per frame with the person's pose"),
-            (GestureNetwork::FlatAndPerFrame, false) => format!("{input} read flat and per frame"),
-            (GestureNetwork::FlatAndPerFrame, true) => {
-                format!("{input} read flat and per frame with the person's pose")
-            }
-        }
+        let network = match self.gesture_network {
+            GestureNetwork::Flat => return input.to_string(),
+            GestureNetwork::PerFrame => "per frame",
+            GestureNetwork::FlatAndPerFrame => "flat and per frame",
+        };
+        let pose = if self.pose_in_frames() { " with the person's pose" } else { "" };
+        format!("{input} read {network}{pose}")
     }
 
     /// One line for logs.
@@ -182,5 +180,20 @@ pub(crate) mod tests {
         // faithful: 2048 into the GRU (§4.3.3)
         let f = RunConfig::from_toml("[run]\nmethod = \"both\"\n", "x.toml").unwrap();
         assert_eq!(NetSpec::from_config(&f).input_width(), 2048);
+    }
+
+    #[test]
+    fn logs_name_how_the_gesture_is_read() {
+        let name = |network, pose| {
+            let mut c = tiny_config("both");
+            (c.model.gesture_network, c.model.person_pose) = (network, pose);
+            NetSpec::from_config(&c).gesture_name()
+        };
+        assert_eq!(name(GestureNetwork::Flat, true), "gesture");
+        assert_eq!(name(GestureNetwork::PerFrame, false), "gesture read per frame");
+        assert_eq!(name(GestureNetwork::PerFrame, true), "gesture read per frame with the person's pose");
+        assert_eq!(name(GestureNetwork::FlatAndPerFrame, false), "gesture read flat and per frame");
+        let both = name(GestureNetwork::FlatAndPerFrame, true);
+        assert_eq!(both, "gesture read flat and per frame with the person's pose");
     }
 }
