@@ -50,10 +50,14 @@ fn wrap_label(label: &str, fits: impl Fn(&str) -> bool) -> Vec<String> {
     lines.into_iter().map(|l| l.trim_end().to_string()).collect()
 }
 
-/// The series' legend in the charts' one style.
-fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(chart: &mut ChartContext<'a, DB, CT>) -> anyhow::Result<()> {
+/// The series' legend in the charts' one style, at `at`.
+fn legend<'a, DB: DrawingBackend + 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    at: SeriesLabelPosition,
+) -> anyhow::Result<()> {
     chart
         .configure_series_labels()
+        .position(at)
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .label_font(("sans-serif", 15))
@@ -290,8 +294,8 @@ pub fn grouped_bars(
     super::fonts::ensure();
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
-    let max = groups.iter().flat_map(|g| g.1.iter().map(|(m, e)| m + e)).fold(1.0, f64::max) * 1.15;
     let nb = buckets.len();
+    let (corner, max) = legend_corner(groups, nb);
     let slots = groups.len() * (nb + 1);
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 26))
@@ -350,9 +354,28 @@ pub fn grouped_bars(
             .label(b.to_string())
             .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 14, y + 6)], c.filled()));
     }
-    legend(&mut chart)?;
+    legend(&mut chart, corner)?;
     root.present().map_err(err)?;
     Ok(())
+}
+
+/// Height of a bar chart's plotting area, in pixels (of `H`, less the caption, margins and labels).
+const BARS_PLOT_PX: f64 = 400.0;
+
+/// Where grouped bars' legend of `buckets` entries goes and the top of the y axis that leaves it
+/// room: the upper corner above the lower of the two end groups (the legend is about one group
+/// wide), with the axis raised until that group's bars stay below it. In the middle right, its
+/// old place, it covered the last group's bars.
+fn legend_corner(groups: &[(String, Vec<(f64, f64)>)], buckets: usize) -> (SeriesLabelPosition, f64) {
+    let top =
+        |g: Option<&(String, Vec<(f64, f64)>)>| g.map_or(0.0, |g| g.1.iter().map(|(m, e)| m + e).fold(0.0, f64::max));
+    let all = groups.iter().map(|g| top(Some(g))).fold(1.0, f64::max) * 1.15;
+    let (first, last) = (top(groups.first()), top(groups.last()));
+    let (corner, under) =
+        if first <= last { (SeriesLabelPosition::UpperLeft, first) } else { (SeriesLabelPosition::UpperRight, last) };
+    // a line of 20 px per entry, the border's padding and a gap above the bars
+    let share = ((buckets as f64 * 20.0 + 40.0) / BARS_PLOT_PX).min(0.8);
+    (corner, all.max(under / (1.0 - share)))
 }
 
 #[cfg(test)]
@@ -363,6 +386,23 @@ mod tests {
     fn axis_counts_are_short() {
         let got: Vec<String> = [0.0, 250.0, 250_000.0, 1_000_000.0, 1_500_000.0, 4_497_408.0].map(short_count).into();
         assert_eq!(got, ["0", "250", "250k", "1M", "1.5M", "4.5M"]);
+    }
+
+    #[test]
+    fn the_bars_legend_sits_over_the_lower_end_group_with_room_above_it() {
+        let group = |name: &str, sr: f64| (name.to_string(), vec![(sr, 1.0), (sr * 0.6, 1.0)]);
+        // the study's sr_spl.png: +Both, last, among the tallest; Random, first, the lowest
+        let study = [group("Random", 11.3), group("VisSem", 16.4), group("+Intervention", 34.4), group("+Both", 32.0)];
+        let (corner, max) = legend_corner(&study, 2);
+        assert!(matches!(corner, SeriesLabelPosition::UpperLeft));
+        let legend_px = (max - 12.3) / max * BARS_PLOT_PX;
+        assert!(legend_px >= 2.0 * 20.0 + 40.0, "Random's bars end {legend_px:.0} px below the top");
+        assert!((max - 35.4 * 1.15).abs() < 1e-9, "no more headroom than the tallest bar's");
+
+        let reversed: Vec<_> = study.iter().rev().cloned().collect();
+        assert!(matches!(legend_corner(&reversed, 2).0, SeriesLabelPosition::UpperRight));
+        let (_, max) = legend_corner(&[group("flat", 50.0)], 2);
+        assert!(max >= 51.0 / (1.0 - 80.0 / BARS_PLOT_PX) - 1e-9, "one group: the axis makes room");
     }
 
     #[test]

@@ -161,7 +161,7 @@ fn table(name: &str, caption: &str, lines: &[Line], columns: &[Column], data: &L
     md.push('\n');
     let mut csv =
         String::from("table,scene_type,method,models,split,mode,instances,stops,metric,seeds,mean,std,dissertation\n");
-    let mut any = false;
+    let (mut any, mut dash) = (false, false);
     for line in lines {
         let (runs, models) = data.models(line);
         let cells: Vec<Vec<f64>> = columns.iter().map(|c| data.values(line, &runs, c)).collect();
@@ -187,6 +187,7 @@ fn table(name: &str, caption: &str, lines: &[Line], columns: &[Column], data: &L
             };
             if v.is_empty() {
                 let _ = write!(md, " -{bracket} |");
+                dash = true;
                 continue;
             }
             let (mean, std) = mean_std(v);
@@ -205,8 +206,15 @@ fn table(name: &str, caption: &str, lines: &[Line], columns: &[Column], data: &L
         }
         md.push('\n');
     }
+    if dash {
+        md.push_str(MISSING);
+    }
     any.then_some((md, csv))
 }
+
+/// Below a table with a dash in it: what the dash means.
+const MISSING: &str = "\n-: none of the method's records holds this evaluation. A record tested before an \
+                       evaluation mode existed has none of it; `study` tests a model once and does not add it.\n";
 
 const CELL: &str = "Each cell: ours, mean ± std over seeds (the dissertation's figure in brackets).";
 
@@ -423,5 +431,24 @@ mod tests {
         );
         let csv = std::fs::read_to_string(d.join("T4.5.csv")).unwrap();
         assert!(csv.lines().any(|l| l == "T4.5,all,VisSem,all types,test,normal,3+,1,SR,2,5.0000,1.4142,8.0"), "{csv}");
+    }
+
+    #[test]
+    fn a_dash_is_explained_below_its_table() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        // a record tested before the other-gesture evaluation existed
+        let old = result(d, "referencing", 1, 20.0);
+        let path = old.test_tables.clone().unwrap();
+        let tables = std::fs::read_to_string(&path).unwrap();
+        let tables: String =
+            tables.lines().filter(|l| !l.contains(",other_gesture,")).map(|l| format!("{l}\n")).collect();
+        std::fs::write(&path, tables).unwrap();
+        write(d, &[old, result(d, "both", 1, 10.0)]).unwrap();
+        let pointing = std::fs::read_to_string(d.join("pointing.md")).unwrap();
+        assert!(pointing.contains("| +Referencing | 20.0 ± 0.0 | - | 50.0 ± 0.0 | - |"), "{pointing}");
+        assert!(pointing.ends_with(MISSING), "{pointing}");
+        let t46 = std::fs::read_to_string(d.join("T4.6.md")).unwrap();
+        assert!(!t46.contains(" - ") && !t46.contains(MISSING), "no dash, no note: {t46}");
     }
 }
