@@ -22,7 +22,13 @@ pub struct Bar {
     /// Plain lines: at most one per `every`; the last one printed, to never repeat it.
     every: Duration,
     last: Mutex<(Option<Instant>, String)>,
+    /// The rate of the last few minutes, for plain lines' ETA: on a shared machine the rate
+    /// changes when another job starts or ends, and the average since the start lags by hours.
+    recent: Mutex<Rate>,
 }
+
+/// How far back a plain line's ETA looks.
+const ETA_WINDOW: Duration = Duration::from_secs(300);
 
 impl Bar {
     /// A bar on stderr; plain lines every `every` when stderr is not a terminal.
@@ -60,6 +66,7 @@ impl Bar {
             from: 0,
             every,
             last: Mutex::new((None, String::new())),
+            recent: Mutex::new(Rate::new(ETA_WINDOW)),
         }
     }
 
@@ -91,14 +98,25 @@ impl Bar {
         }
     }
 
-    /// `[name] pos/total unit (p%), eta …  msg`, the ETA from the average rate of this process.
+    /// `[name] pos/total unit (p%), eta …  msg`, the ETA from the rate of the last
+    /// [`ETA_WINDOW`] (from this process's average until a rate is seen).
     fn plain_line(&self, pos: u64, msg: &str) -> String {
+        self.plain_line_at(Instant::now(), pos, msg)
+    }
+
+    fn plain_line_at(&self, now: Instant, pos: u64, msg: &str) -> String {
         let pos = pos.min(self.total);
         let pct = if self.total == 0 { 100.0 } else { 100.0 * pos as f64 / self.total as f64 };
-        let elapsed = self.started.elapsed().as_secs_f64();
+        let recent = self.recent.lock().expect("no panic while printing").add(now, pos);
         let done = pos.saturating_sub(self.from);
-        let eta =
-            if done == 0 { "-".to_string() } else { duration_words((self.total - pos) as f64 * elapsed / done as f64) };
+        let rate = recent.filter(|&r| r > 0.0).or_else(|| {
+            let elapsed = now.duration_since(self.started).as_secs_f64();
+            (done > 0 && elapsed > 0.0).then(|| done as f64 / elapsed)
+        });
+        let eta = match rate {
+            Some(r) if done > 0 => duration_words((self.total - pos) as f64 / r),
+            _ => "-".to_string(),
+        };
         let msg = if msg.is_empty() { String::new() } else { format!("  {msg}") };
         format!("[{}] {pos}/{} {} ({pct:.0}%), eta {eta}{msg}", self.name, self.total, self.unit)
     }
@@ -168,6 +186,28 @@ mod tests {
         assert!(b.plain_line(2000, "").starts_with("[up] 1000/1000 frames (100%)"), "past the total reads as done");
         let resumed = Bar { shown: None, ..Bar::new("up", 1000, "frames", Duration::ZERO) }.starting_at(600);
         assert_eq!(resumed.plain_line(600, ""), "[up] 600/1000 frames (60%), eta -", "nothing done here yet");
+    }
+
+    /// A shared machine: slow while another job ran, then three times as fast once it ended. The
+    /// ETA follows the new rate within the window instead of the whole run's average.
+    #[test]
+    fn the_eta_follows_the_rate_of_the_last_minutes() {
+        let b = Bar { shown: None, ..Bar::new("up", 10_000_000, "frames", Duration::ZERO) };
+        let t0 = b.started;
+        let at = |s: u64| t0 + Duration::from_secs(s);
+        // an hour at 400 frames/s, then 1200 frames/s
+        let mut pos = 0;
+        for s in (0..=3600).step_by(60) {
+            pos = 400 * s;
+            b.plain_line_at(at(s), pos, "");
+        }
+        let mut line = String::new();
+        for s in (3660..=4200).step_by(60) {
+            pos += 1200 * 60;
+            line = b.plain_line_at(at(s), pos, "");
+        }
+        // 10M - 2.088M left at 1200/s ≈ 1 h 50 min; the whole run's average (497/s) would say 4 h 25 min
+        assert!(line.contains(&format!("eta {}", duration_words((10_000_000 - pos) as f64 / 1200.0))), "{line}");
     }
 
     /// Frames in bursts (500 a second, then nothing for a second while the learner updates):
