@@ -132,8 +132,9 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         );
         return Ok(0);
     }
-    // the bar counts the run's frames when it trains to the run's budget
-    let bar_from = if a.frames.is_none() && a.seconds.is_none() { trained } else { 0 };
+    // a resumed run's bar counts the run's frames: those trained before, then these (a study's
+    // log after a restart reads 2061472/5000000 frames, not 61472/2998304)
+    let bar_from = if a.seconds.is_none() { trained } else { 0 };
     spec.check = a.check;
     spec.synthetic = a.synthetic;
     spec.resume = resume;
