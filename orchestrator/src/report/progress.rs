@@ -206,7 +206,7 @@ mod tests {
             pos += 1200 * 60;
             line = b.plain_line_at(at(s), pos, "");
         }
-        // 10M - 2.088M left at 1200/s ≈ 1 h 50 min; the whole run's average (497/s) would say 4 h 25 min
+        // 7.84M frames left at 1200/s: 1 h 48 min; the whole run's average (514/s) would say 4 h 14 min
         assert!(line.contains(&format!("eta {}", duration_words((10_000_000 - pos) as f64 / 1200.0))), "{line}");
     }
 
