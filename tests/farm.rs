@@ -529,7 +529,8 @@ fn no_child_outlives_a_killed_orchestrator() {
 
 /// `orchestrator eval` of the shortest-path expert over a whole split: every program once, SR
 /// 100% and SPL above 70% with no path shorter than its l_i, trajectory pictures drawn; and the Random
-/// baseline on the same programs far below it.
+/// baseline on the same programs far below it. `eval --compare` puts the two side by side, by the
+/// target's nearness to the start too, every program in one class.
 #[test]
 fn eval_of_the_expert_scores_full_success_and_random_does_not() {
     let _g = serial();
@@ -577,6 +578,25 @@ fn eval_of_the_expert_scores_full_success_and_random_does_not() {
     let (n, sr, _) = eval(&[], &tmp.path().join("random"));
     assert_eq!(n, programs);
     assert!(sr < 50.0, "random SR {sr}");
+    let compared = tmp.path().join("compared");
+    let o = std::process::Command::new(bin("orchestrator"))
+        .args(["eval", "--split", "val", "--out"])
+        .arg(&compared)
+        .arg("--compare")
+        .args([&expert_dir, &tmp.path().join("random")])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(compared.join("compare.md")).unwrap();
+    let near = md.split("## By the target's nearness at the start").nth(1).expect("the nearness table");
+    let expert = near.lines().find(|l| l.starts_with("| Expert")).expect("the expert's row");
+    let cells: Vec<&str> = expert.split('|').map(str::trim).filter(|c| !c.is_empty()).skip(1).collect();
+    let count = |c: &str| c.rsplit('(').next().unwrap().trim_end_matches(')').parse::<usize>().unwrap();
+    assert_eq!(cells.iter().map(|c| count(c)).sum::<usize>(), n, "{near}");
+    assert!(cells.iter().all(|c| c.starts_with("100.0 / 100.0") || count(c) == 0), "{near}");
+    assert!(near.lines().any(|l| l.starts_with("| Random")), "{near}");
+    let own = std::fs::read_to_string(expert_dir.join("tables.md")).unwrap();
+    assert!(own.contains("## By the target's nearness at the start"), "{own}");
 }
 
 /// `orchestrator bench train` on a few hundred frames: the table, and a profile in the run's

@@ -17,8 +17,8 @@ use worker::gesture::{self, Motion, Pointing};
 use worker::program::{Hand, Program};
 use worker::scene::{Category, SceneType, Split};
 
-use crate::report::plot;
 use crate::report::progress::Bar;
+use crate::report::{nearness, plot};
 
 #[derive(Subcommand, Debug)]
 pub enum DatasetCmd {
@@ -170,7 +170,7 @@ fn stats_cmd(a: StatsArgs) -> anyhow::Result<()> {
         if let Some(file) = ds.split(s) {
             let programs = ds.index(s)?;
             lines.insert(s, aiming_lines(file, &programs));
-            ranks.insert(s, target_ranks(&ds, &programs)?);
+            ranks.insert(s, nearness::target_ranks(&ds, &programs)?);
             by_split.insert(s, programs);
         }
     }
@@ -178,24 +178,6 @@ fn stats_cmd(a: StatsArgs) -> anyhow::Result<()> {
     println!("{summary}");
     println!("figures and summary in {}", out.display());
     Ok(())
-}
-
-/// Per program, the target's rank among its room's objects by floor distance from the robot's
-/// start (0: it is the nearest).
-fn target_ranks(ds: &Dataset, programs: &[Program]) -> anyhow::Result<Vec<usize>> {
-    let mut rooms: BTreeMap<&str, Vec<[f32; 3]>> = BTreeMap::new();
-    let mut ranks = Vec::with_capacity(programs.len());
-    for p in programs {
-        if !rooms.contains_key(p.scene.as_str()) {
-            let scene = ds.scene(p.scene_id())?;
-            rooms.insert(&p.scene, scene.objects.iter().map(|o| o.position).collect());
-        }
-        let objects = &rooms[p.scene.as_str()];
-        let from_start = |q: [f32; 3]| (q[0] - p.robot_pos[0]).hypot(q[2] - p.robot_pos[2]);
-        let target = objects.get(p.target_object).map_or(f32::INFINITY, |&q| from_start(q));
-        ranks.push(objects.iter().filter(|&&q| from_start(q) < target).count());
-    }
-    Ok(ranks)
 }
 
 /// What the starts give away without the target: how often the target is the object nearest
@@ -229,7 +211,7 @@ fn aiming_lines(file: &worker::dataset::GondFile, programs: &[Program]) -> Vec<[
 
 /// Draws the figures and writes `summary.md`; returns the summary text. `lines` holds each
 /// program's aiming-line errors (shoulder→wrist, forearm; degrees) per split, `ranks` each
-/// program's target rank by distance from the start ([`target_ranks`]).
+/// program's target rank by distance from the start ([`nearness::target_ranks`]).
 pub fn write_stats(
     by_split: &BTreeMap<Split, Vec<Program>>,
     build: &worker::dataset::BuildParams,

@@ -22,6 +22,7 @@ use farm::metrics::{EpisodeResult, scores};
 use worker::program::Program;
 use worker::scene::Split;
 
+use crate::report::nearness;
 use crate::report::progress::Bar;
 use crate::report::tables::{EvalMode, Evaluation, compare, paired};
 use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg};
@@ -351,6 +352,10 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         let trajs = crate::report::trajectory::read(&trajectories)?;
         md += &crate::report::first_turn::FirstTurns::of(&trajs, &index, cfg.env.fov_deg).markdown();
     }
+    if let Some(eps) = evaluation.passes.get(&EvalMode::Normal) {
+        let ranks = nearness::target_ranks(&ds, &index)?;
+        md += &nearness::markdown(&[(label.clone(), eps.as_slice())], &ranks);
+    }
     if baseline && !a.expert {
         md += "\n";
         md += &evaluation.calibration().unwrap_or_default();
@@ -417,14 +422,16 @@ fn write_tensorboard(tb: &Path, step: u64, ev: &Evaluation, md: &str, maps: &[Pa
     Ok(())
 }
 
-/// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>.
-fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<EpisodeResult>)> {
+/// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>. Returns its
+/// label, its episodes and the pass's folder.
+fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<EpisodeResult>, PathBuf)> {
     let candidates = [p.join("normal/episodes.jsonl"), p.join("eval").join(split).join("normal/episodes.jsonl")];
     let f = candidates
         .iter()
         .find(|c| c.is_file())
         .with_context(|| format!("{}: no evaluation found (looked for {})", p.display(), candidates[0].display()))?;
-    let eval_dir = f.parent().and_then(|x| x.parent()).unwrap_or(p);
+    let pass_dir = f.parent().unwrap_or(p).to_path_buf();
+    let eval_dir = pass_dir.parent().unwrap_or(p);
     let label = std::fs::read_to_string(eval_dir.join("tables.md"))
         .ok()
         .and_then(|t| {
@@ -434,11 +441,36 @@ fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<Episode
         })
         .filter(|l| !l.is_empty())
         .unwrap_or_else(|| p.display().to_string());
-    Ok((label, read_episodes(f)?))
+    Ok((label, read_episodes(f)?, pass_dir))
+}
+
+/// The target's nearness rank of each program of the compared split, from `--dataset` or the
+/// dataset the first evaluation ran on; the comparison goes on without it when that is gone.
+fn compared_ranks(a: &EvalArgs, first_pass: &Path) -> Option<Vec<usize>> {
+    let ranks = || -> anyhow::Result<Vec<usize>> {
+        let split = Split::from_name(&a.split)
+            .with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
+        let dir = match &a.dataset {
+            Some(d) => d.clone(),
+            None => {
+                let config = first_pass.join("config.toml");
+                RunConfig::load(&config)
+                    .with_context(|| format!("{}: the evaluation's config", config.display()))?
+                    .run
+                    .dataset
+            }
+        };
+        let ds = worker::dataset::Dataset::open(&dir, worker::dataset::Verify::Quick)
+            .with_context(|| format!("dataset {} (pass --dataset)", dir.display()))?;
+        nearness::target_ranks(&ds, &ds.index(split)?)
+    };
+    ranks().map_err(|e| eprintln!("[eval] no table by the target's nearness: {e:#}")).ok()
 }
 
 fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
-    let mut evaluations = a.compare.iter().map(|p| normal_episodes(p, &a.split)).collect::<anyhow::Result<Vec<_>>>()?;
+    let found = a.compare.iter().map(|p| normal_episodes(p, &a.split)).collect::<anyhow::Result<Vec<_>>>()?;
+    let ranks = compared_ranks(a, &found[0].2);
+    let mut evaluations: Vec<(String, Vec<EpisodeResult>)> = found.into_iter().map(|(l, e, _)| (l, e)).collect();
     // one method evaluated twice (another gesture, another checkpoint): name each by its folder
     let labels: Vec<String> = evaluations.iter().map(|(l, _)| l.clone()).collect();
     for ((label, _), dir) in evaluations.iter_mut().zip(&a.compare) {
@@ -454,11 +486,13 @@ fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
         .map(|(label, eps)| (label.clone(), scores(eps, Some(1), a.dts_threshold), scores(eps, None, a.dts_threshold)))
         .collect();
     let mut md = format!("# Comparison on {} (first stop; ∞ = unlimited stops)\n\n{}", a.split, compare(&rows));
+    let refs: Vec<(String, &[EpisodeResult])> = evaluations.iter().map(|(l, e)| (l.clone(), e.as_slice())).collect();
     if evaluations.len() > 1 {
         md.push('\n');
-        let refs: Vec<(String, &[EpisodeResult])> =
-            evaluations.iter().map(|(l, e)| (l.clone(), e.as_slice())).collect();
         md.push_str(&paired(&refs));
+    }
+    if let Some(ranks) = &ranks {
+        md += &nearness::markdown(&refs, ranks);
     }
     if let Some(out) = &a.out {
         std::fs::create_dir_all(out)?;

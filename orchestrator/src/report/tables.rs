@@ -392,7 +392,7 @@ pub fn paired(evaluations: &[(String, &[EpisodeResult])]) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use farm::metrics::Stop;
     use worker::program::Hand;
@@ -422,7 +422,8 @@ mod tests {
         }
     }
 
-    fn result(program: u64, success: bool) -> EpisodeResult {
+    /// One episode of one stop at step 9 that succeeds or not.
+    pub(crate) fn result(program: u64, success: bool) -> EpisodeResult {
         EpisodeResult {
             program,
             worker: 0,
