@@ -1,7 +1,7 @@
 //! `orchestrator eval`: runs a split's programs on the farm, each exactly once, and writes the
-//! tables of chapter 4 (T4.2–T4.7) as Markdown and CSV; `--compare` puts several evaluations side
-//! by side like T4.2, and each against the first episode by episode; `--trajectories` draws
-//! episodes like Figs 4.2/4.3.
+//! tables of chapter 4 (T4.2–T4.7) as Markdown and CSV, with success by the target's nearness to
+//! the start; `--compare` puts several evaluations side by side like T4.2 and by that nearness,
+//! and each against the first episode by episode; `--trajectories` draws episodes like Figs 4.2/4.3.
 //!
 //! A checkpoint (or a run directory, whose latest *complete* checkpoint is used, so a training
 //! that is still writing can be evaluated) is evaluated greedily in several passes: with all its
