@@ -71,14 +71,8 @@ mod tests {
     use super::*;
 
     fn program(robot: [f32; 3], target_object: usize) -> Program {
-        serde_json::from_value(serde_json::json!({
-            "id": 0, "scene": "FloorPlan1", "scene_type": "Kitchen", "target": "Bread", "target_object": target_object,
-            "target_pos": [0.0, 0.0, 0.0], "instances": 1, "human_pos": [1.0, 0.0, 1.0], "human_yaw": 0.0,
-            "robot_pos": robot, "robot_yaw": 0.0, "geodesic": 1.0, "target_geodesic": 1.0,
-            "starts_successful": false, "robot_human_distance": 1.4, "gesture_accuracy": 1.0, "hand": "Right",
-            "style": 0, "seed": 1
-        }))
-        .expect("a program")
+        let p = crate::report::tables::tests::program(0, worker::scene::SceneType::Kitchen, 1);
+        Program { robot_pos: robot, target_object, ..p }
     }
 
     /// Succeeds at its first stop when `first`, else at a second stop when `late`.

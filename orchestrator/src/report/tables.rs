@@ -398,7 +398,8 @@ pub(crate) mod tests {
     use worker::program::Hand;
     use worker::scene::Category;
 
-    fn program(id: u64, t: SceneType, instances: u32) -> Program {
+    /// A program in FloorPlan1 with everyone at the origin.
+    pub(crate) fn program(id: u64, t: SceneType, instances: u32) -> Program {
         Program {
             id,
             scene: "FloorPlan1".into(),
