@@ -54,7 +54,8 @@ fn the_same_seed_gives_the_same_encoder() {
 }
 
 /// The label-free objectives read the pixels only: a copy of a frame set with every cell label,
-/// cell depth and facing changed gives the same weights; the semantic sensor's do change.
+/// cell depth and facing changed gives the same weights (the RGB-D encoder's and configs/faithful's
+/// ResNet-18's); the semantic sensor's do change.
 #[test]
 fn the_default_encoder_reads_no_label() {
     let _one_at_a_time = serial();
@@ -70,9 +71,11 @@ fn the_default_encoder_reads_no_label() {
     let relabelled = dir.path().join("relabelled.frames");
     set.write(&relabelled).unwrap();
     let train = |frames: &Path, out: &str, objective: &str| -> Value {
+        let (objective, trunk) = objective.split_once('/').unwrap_or((objective, "rgbd"));
         let out = dir.path().join(out);
         let o = Command::new(bin("learner"))
             .args(["--device", "cpu", "pretrain-encoder", "--seed", "5", "--epochs", "1", "--objective", objective])
+            .args(["--trunk", trunk])
             .arg("--frames")
             .arg(frames)
             .arg("--out")
@@ -86,6 +89,10 @@ fn the_default_encoder_reads_no_label() {
     assert_eq!(train(&frames, "c1", "contrast")["sha256"], ja["sha256"], "the orchestrator's run is the same");
     assert_eq!(train(&relabelled, "c2", "contrast")["sha256"], ja["sha256"]);
     assert_eq!(train(&frames, "r1", "reconstruct")["sha256"], train(&relabelled, "r2", "reconstruct")["sha256"]);
+    // configs/faithful's ResNet-18 trunk, by the same contrast
+    let resnet = train(&frames, "n1", "contrast/resnet18");
+    assert_eq!((&resnet["trunk"], &resnet["feature_channels"]), (&Value::from("resnet18"), &Value::from(512)));
+    assert_eq!(train(&relabelled, "n2", "contrast/resnet18")["sha256"], resnet["sha256"]);
     assert_ne!(train(&frames, "s1", "semantic")["sha256"], train(&relabelled, "s2", "semantic")["sha256"]);
 }
 

@@ -270,7 +270,8 @@ impl GestureInput {
 #[serde(deny_unknown_fields, default)]
 pub struct ModelConfig {
     pub encoder: Encoder,
-    /// torchvision ResNet-18 checkpoint (ImageNet weights); without it the encoder is trained.
+    /// torchvision ResNet-18 checkpoint (ImageNet weights, or the label-free trunk of `orchestrator
+    /// encoder pretrain --trunk resnet18`); without it the encoder is trained.
     pub resnet_weights: Option<PathBuf>,
     /// Weights of the pretrained encoder (`encoder = "pretrained"`), as `orchestrator encoder
     /// pretrain` writes them; relative to the working directory.

@@ -109,6 +109,9 @@ struct PretrainEncoderArgs {
     /// reconstruct or contrast (label-free), or semantic (the id target's labels: the semantic sensor).
     #[arg(long, default_value = "contrast")]
     objective: learner::encoder::Objective,
+    /// rgbd (configs/tiny's early-fusion encoder) or resnet18 (configs/faithful's trunk; contrast only).
+    #[arg(long, default_value = "rgbd")]
+    trunk: learner::encoder::Trunk,
     /// Reconstruction: share of cells hidden from the trunk (default 0).
     #[arg(long)]
     mask: Option<f64>,
@@ -293,6 +296,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::PretrainEncoder(a) => {
             let mut o = learner::encoder::PretrainOptions::new(a.frames, a.out, a.seed, a.epochs);
             o.objective = a.objective;
+            o.trunk = a.trunk;
             o.mask = a.mask.unwrap_or(o.mask);
             o.batch = a.batch.unwrap_or(o.batch);
             o.lr = a.lr.unwrap_or(o.lr);

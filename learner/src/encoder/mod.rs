@@ -3,7 +3,8 @@
 //!
 //! - [`net`]: the early-fusion RGB-D trunk, its input and its weights file
 //! - [`pretrain`]: `learner pretrain-encoder`: dense contrast or reconstruction (label-free), or
-//!   the semantic sensor (per-cell class and depth)
+//!   the semantic sensor (per-cell class and depth); the contrast also for configs/faithful's
+//!   ResNet-18 where no ImageNet checkpoint is supplied
 //! - [`probe`]: `learner probe-encoder`: linear probes of the category per cell and the person's
 //!   facing, in held-out rooms
 //! - [`gesture_probe`]: `learner probe-gesture`: what the gesture input says of the target's
@@ -16,7 +17,7 @@ pub mod probe;
 
 pub use gesture_probe::{GestureProbeOptions, GestureProbeReport, probe_gesture};
 pub use net::{EncoderFileError, EncoderInfo, RgbdEncoder, encoder_input, load_weights};
-pub use pretrain::{Objective, PretrainOptions, PretrainReport, pretrain};
+pub use pretrain::{Objective, PretrainOptions, PretrainReport, Trunk, pretrain};
 pub use probe::{ProbeOptions, ProbeReport, probe};
 
 #[cfg(test)]
@@ -28,12 +29,19 @@ mod tests {
 
     /// A random 16×16 frame set with 2×2 cells (random labels: enough to check the report).
     fn synthetic(dir: &std::path::Path, n: usize) -> std::path::PathBuf {
-        let header = FrameSetHeader { width: 16, height: 16, grid: 2, classes: CLASSES, seed: 5, held_out: vec![19] };
+        synthetic_of(dir, n, 16)
+    }
+
+    /// The same at `side`² pixels.
+    fn synthetic_of(dir: &std::path::Path, n: usize, side: u32) -> std::path::PathBuf {
+        let header =
+            FrameSetHeader { width: side, height: side, grid: 2, classes: CLASSES, seed: 5, held_out: vec![19] };
         let mut set = FrameSet::new(header).unwrap();
         let mut r = farm::seed::rng(5, &[]);
+        let px = (side * side) as usize;
         for i in 0..n {
-            let rgb: Vec<u8> = (0..16 * 16 * 3).map(|_| r.random()).collect();
-            let depth: Vec<u16> = (0..16 * 16).map(|_| r.random()).collect();
+            let rgb: Vec<u8> = (0..px * 3).map(|_| r.random()).collect();
+            let depth: Vec<u16> = (0..px).map(|_| r.random()).collect();
             let class: Vec<u8> = (0..4).map(|_| r.random_range(0..3)).collect();
             let room = if i % 8 == 0 { 19 } else { 1 + (i % 5) as u16 };
             set.push(&FrameRef {
@@ -107,5 +115,33 @@ mod tests {
         let c = run("c", Objective::Semantic);
         assert!(c.held_out.accuracy.is_some() && c.held_out.rgb_error.is_none(), "{:?}", c.held_out);
         assert_eq!(c.objective, Objective::Semantic);
+    }
+
+    /// configs/faithful's label-free trunk: the file holds every tensor of the frozen ResNet-18
+    /// with torchvision's names (what `model.resnet_weights` loads), trained (not the 0-epoch
+    /// trunk), and is refused as an RGB-D encoder; only the contrast pretrains it.
+    #[test]
+    fn a_resnet_trunk_is_written_for_the_faithful_config() {
+        use crate::net::resnet;
+        let dir = tempfile::tempdir().unwrap();
+        let frames = synthetic_of(dir.path(), 16, 64);
+        let mut o = PretrainOptions::new(frames, dir.path().join("r18"), 3, 1);
+        (o.trunk, o.batch) = (Trunk::Resnet18, 8);
+        let r = pretrain(&o, tch::Device::Cpu).unwrap();
+        assert_eq!((r.trunk, r.in_channels, r.feature_channels), (Trunk::Resnet18, 3, 512));
+        assert!(r.held_out.cells_matched.is_some_and(|m| (0.0..=1.0).contains(&m)), "{:?}", r.held_out);
+        let file = dir.path().join("r18.safetensors");
+        let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+        let _trunk = resnet::Resnet18::new(&(vs.root() / "resnet"));
+        assert_eq!(resnet::load_torchvision(&vs, "resnet.", &file).unwrap(), 100);
+        assert!(resnet::check_weights(&file).unwrap().contains("100 ResNet-18 tensors"));
+        let e = load_weights(&file, &vs, "encoder", (64, 64)).unwrap_err().to_string();
+        assert!(e.contains("r18.safetensors") && e.contains("resnet_weights"), "{e}");
+
+        let untrained = PretrainOptions { out: dir.path().join("r18-0"), epochs: 0, ..o.clone() };
+        assert_ne!(pretrain(&untrained, tch::Device::Cpu).unwrap().sha256, r.sha256);
+        o.objective = Objective::Semantic;
+        let e = pretrain(&o, tch::Device::Cpu).unwrap_err().to_string();
+        assert!(e.contains("ResNet-18") && e.contains("contrast objective only"), "{e}");
     }
 }

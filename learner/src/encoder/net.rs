@@ -27,6 +27,8 @@ pub const FEATURE_CHANNELS: i64 = 64;
 pub const STRIDE: i64 = 8;
 /// Tag in every weights file's metadata.
 pub const FORMAT: &str = "gesthor-rgbd-encoder-1";
+/// Tag of a pretrained ResNet-18 trunk's file (torchvision's names: `model.resnet_weights`).
+pub const RESNET18_FORMAT: &str = "gesthor-resnet18-torchvision-1";
 /// The one metadata key of a weights file (one key keeps the file's bytes deterministic: the
 /// safetensors writer orders several keys by a hash map).
 const META_KEY: &str = "gesthor_encoder";
@@ -99,6 +101,18 @@ impl EncoderInfo {
             stride: STRIDE,
         }
     }
+
+    /// A ResNet-18 trunk's: RGB or depth (grey) as a 3-channel image → conv5.
+    pub fn resnet18(width: u32, height: u32) -> EncoderInfo {
+        EncoderInfo {
+            format: RESNET18_FORMAT.into(),
+            width,
+            height,
+            in_channels: 3,
+            feature_channels: crate::net::resnet::CONV5_CHANNELS,
+            stride: crate::net::resnet::CONV5_STRIDE,
+        }
+    }
 }
 
 /// A weights file that cannot be used: which file, why.
@@ -160,6 +174,9 @@ pub fn read_weights(path: &Path) -> Result<(EncoderInfo, BTreeMap<String, Tensor
         .ok_or_else(|| file_error(path, "not an encoder weights file (no `gesthor_encoder` metadata)"))?;
     let info: EncoderInfo =
         serde_json::from_str(raw).map_err(|e| file_error(path, format!("metadata `{META_KEY}`: {e}")))?;
+    if info.format == RESNET18_FORMAT {
+        return Err(file_error(path, "a ResNet-18 trunk: give it as model.resnet_weights (configs/faithful)"));
+    }
     if info.format != FORMAT {
         return Err(file_error(path, format!("format `{}`; this build reads `{FORMAT}`", info.format)));
     }

@@ -17,6 +17,11 @@
 //! RGB or depth is zeroed in some frames so a policy may drop either (T4.7); with the
 //! reconstruction objective the missing modality is then predicted from the other.
 //!
+//! The trunk ([`Trunk`]) is the early-fusion RGB-D encoder of `configs/tiny`, or §4.3.3's
+//! ResNet-18 (contrast only): RGB and depth as two images through the one trunk, as
+//! `configs/faithful`'s frozen trunk reads them, written with torchvision's names — the faithful
+//! config's label-free trunk where no ImageNet checkpoint is supplied.
+//!
 //! Reproducible: the weights' sha256 depends only on the frame set, the seed and the options.
 //! Initial weights come from `tch::manual_seed`; shuffling, channel drops and flips from
 //! `farm::seed` streams; torch runs on a fixed number of CPU threads.
@@ -35,6 +40,8 @@ use tch::{Device, Kind, Reduction, Tensor, nn, nn::OptimizerConfig};
 use super::net::{
     EncoderInfo, FEATURE_CHANNELS, IN_CHANNELS, RgbdEncoder, STRIDE, encoder_input, sha256_hex, weights_bytes,
 };
+use crate::net::layers::resnet_input;
+use crate::net::resnet::Resnet18;
 
 /// Keys of the pretraining's random streams.
 const KEY_INIT: u64 = 0xE4C0_0100;
@@ -64,6 +71,57 @@ const JITTER: (f64, f64, f64) = (0.3, 0.1, 0.1);
 /// Contrast: cells a training step contrasts against all cells of the batch (all would make a
 /// 4,096² similarity matrix a step: too slow on two cores).
 const ANCHORS: usize = 512;
+
+/// The network pretrained.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Trunk {
+    /// The early-fusion RGB-D encoder (`super::net`): `configs/tiny`'s.
+    #[default]
+    Rgbd,
+    /// ResNet-18 up to conv5 (`crate::net::resnet`), RGB and depth (grey) as two images through
+    /// it: `configs/faithful`'s trunk.
+    Resnet18,
+}
+
+impl Trunk {
+    /// What its weights file says of it (channels in and out, pixels per cell) for frames of
+    /// `width`×`height`.
+    fn info(self, width: u32, height: u32) -> EncoderInfo {
+        match self {
+            Trunk::Rgbd => EncoderInfo::new(width, height),
+            Trunk::Resnet18 => EncoderInfo::resnet18(width, height),
+        }
+    }
+
+    /// Images the trunk sees per frame: one RGB-D image, or RGB and depth apart.
+    fn images_per_frame(self) -> usize {
+        match self {
+            Trunk::Rgbd => 1,
+            Trunk::Resnet18 => 2,
+        }
+    }
+}
+
+impl std::str::FromStr for Trunk {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Trunk, String> {
+        match s {
+            "rgbd" => Ok(Trunk::Rgbd),
+            "resnet18" => Ok(Trunk::Resnet18),
+            _ => Err(format!("`{s}`: the trunks are `rgbd` (configs/tiny) and `resnet18` (configs/faithful)")),
+        }
+    }
+}
+
+impl std::fmt::Display for Trunk {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Trunk::Rgbd => "rgbd",
+            Trunk::Resnet18 => "resnet18",
+        })
+    }
+}
 
 impl std::str::FromStr for Objective {
     type Err = String;
@@ -97,6 +155,7 @@ pub struct PretrainOptions {
     pub seed: u64,
     pub epochs: usize,
     pub objective: Objective,
+    pub trunk: Trunk,
     /// Reconstruction: the share of 8×8-pixel cells hidden from the trunk in each training frame.
     pub mask: f64,
     pub batch: usize,
@@ -122,6 +181,7 @@ impl PretrainOptions {
             seed,
             epochs,
             objective: Objective::default(),
+            trunk: Trunk::default(),
             mask: 0.0,
             batch: 64,
             lr: 2e-3,
@@ -179,6 +239,8 @@ pub struct PretrainReport {
     /// What the trunk was trained to give (`semantic` read the id target's labels).
     #[serde(default = "semantic")]
     pub objective: Objective,
+    #[serde(default)]
+    pub trunk: Trunk,
     /// Reconstruction's hidden share of cells.
     #[serde(default)]
     pub mask: f64,
@@ -218,6 +280,8 @@ fn semantic() -> Objective {
 pub enum PretrainError {
     #[error(transparent)]
     Frames(#[from] farm::frame_set::FrameSetError),
+    #[error("{0}")]
+    Options(String),
     #[error("{file}: {message}")]
     Unusable { file: String, message: String },
 }
@@ -264,8 +328,13 @@ impl Data {
 
 /// The trunk and the pretraining heads of its objective.
 struct Model {
-    trunk: RgbdEncoder,
+    trunk: TrunkNet,
     head: Head,
+}
+
+enum TrunkNet {
+    Rgbd(RgbdEncoder),
+    Resnet18(Resnet18),
 }
 
 enum Head {
@@ -286,8 +355,12 @@ enum Head {
 }
 
 impl Model {
-    fn new(root: &nn::Path, objective: Objective, grid: i64) -> Model {
-        let trunk = RgbdEncoder::new(&(root / "trunk"));
+    /// `features`: the trunk's feature channels.
+    fn new(root: &nn::Path, objective: Objective, trunk: Trunk, features: i64, grid: i64) -> Model {
+        let trunk = match trunk {
+            Trunk::Rgbd => TrunkNet::Rgbd(RgbdEncoder::new(&(root / "trunk"))),
+            Trunk::Resnet18 => TrunkNet::Resnet18(Resnet18::new(&(root / "trunk"))),
+        };
         let head = match objective {
             Objective::Semantic => Head::Semantic {
                 class: nn::conv2d(root / "class_head", FEATURE_CHANNELS, CLASSES as i64, 1, Default::default()),
@@ -304,23 +377,37 @@ impl Model {
                 ),
             },
             Objective::Contrast => Head::Contrast {
-                hidden: nn::conv2d(
-                    root / "projection_hidden",
-                    FEATURE_CHANNELS,
-                    FEATURE_CHANNELS,
-                    1,
-                    Default::default(),
-                ),
-                out: nn::conv2d(root / "projection_out", FEATURE_CHANNELS, PROJECTION, 1, Default::default()),
+                hidden: nn::conv2d(root / "projection_hidden", features, features, 1, Default::default()),
+                out: nn::conv2d(root / "projection_out", features, PROJECTION, 1, Default::default()),
             },
         };
         Model { trunk, head }
     }
 
-    /// Contrast: unit-length projections of every cell, `[B·g·g, PROJECTION]`.
-    fn project(&self, x: &Tensor) -> Tensor {
+    /// The feature maps of encoder inputs `[B, 4, H, W]`: one a frame (RGB-D), or for the
+    /// ResNet one a frame and modality in `keep` (RGB, depth), the RGB images first, each
+    /// ImageNet-normalised and depth as a grey image, as the policy's frozen trunk reads them.
+    fn features(&self, x: &Tensor, keep: (bool, bool)) -> Tensor {
+        match &self.trunk {
+            TrunkNet::Rgbd(t) => t.forward(x),
+            TrunkNet::Resnet18(t) => {
+                let mut images = Vec::new();
+                if keep.0 {
+                    images.push(resnet_input(&x.narrow(1, 0, 3)));
+                }
+                if keep.1 {
+                    images.push(resnet_input(&x.narrow(1, 3, 1)));
+                }
+                t.forward(&Tensor::cat(&images, 0))
+            }
+        }
+    }
+
+    /// Contrast: unit-length projections of every cell, `[images·g·g, PROJECTION]` (`keep`: the
+    /// ResNet's modalities; the RGB-D trunk's inputs come with their channels zeroed instead).
+    fn project(&self, x: &Tensor, keep: (bool, bool)) -> Tensor {
         let Head::Contrast { hidden, out } = &self.head else { unreachable!("a contrast head") };
-        let z = self.trunk.forward(x).apply(hidden).relu().apply(out).permute([0, 2, 3, 1]).reshape([-1, PROJECTION]);
+        let z = self.features(x, keep).apply(hidden).relu().apply(out).permute([0, 2, 3, 1]).reshape([-1, PROJECTION]);
         let norm = z.square().sum_dim_intlist(1, true, Kind::Float).sqrt() + 1e-6;
         z / norm
     }
@@ -328,7 +415,7 @@ impl Model {
     /// Semantic: class logits `[B, C, g, g]` and depth `[B, g, g]` (0..1) of encoder inputs.
     fn semantic(&self, x: &Tensor) -> (Tensor, Tensor) {
         let Head::Semantic { class, depth, grid } = &self.head else { unreachable!("a semantic head") };
-        let mut f = self.trunk.forward(x);
+        let mut f = self.features(x, (true, true));
         if f.size()[2] != *grid || f.size()[3] != *grid {
             f = f.adaptive_avg_pool2d([*grid, *grid]);
         }
@@ -338,7 +425,7 @@ impl Model {
     /// Reconstruction: the frame `[B, 4, H, W]` given back from encoder inputs.
     fn reconstruct(&self, x: &Tensor) -> Tensor {
         let Head::Reconstruct { pixels } = &self.head else { unreachable!("a reconstruction head") };
-        self.trunk.forward(x).apply(pixels).pixel_shuffle(STRIDE)
+        self.features(x, (true, true)).apply(pixels).pixel_shuffle(STRIDE)
     }
 }
 
@@ -365,11 +452,11 @@ fn jittered(x: &Tensor, jitter: &[f32]) -> Tensor {
     (x * gain + offset.view([b, 4, 1, 1])).clamp(0.0, 1.0)
 }
 
-/// Hides cells of the frames: `hide` is `[B, H/STRIDE, W/STRIDE]` of 0/1 (1: hidden).
-fn hide_cells(x: &Tensor, hide: &Tensor) -> Tensor {
+/// Hides cells of the frames: `hide` is `[B, H/stride, W/stride]` of 0/1 (1: hidden).
+fn hide_cells(x: &Tensor, hide: &Tensor, stride: i64) -> Tensor {
     let keep: Tensor = 1.0 - hide.unsqueeze(1);
-    let keep = keep.repeat_interleave_self_int(STRIDE, 2, None::<i64>);
-    x * keep.repeat_interleave_self_int(STRIDE, 3, None::<i64>)
+    let keep = keep.repeat_interleave_self_int(stride, 2, None::<i64>);
+    x * keep.repeat_interleave_self_int(stride, 3, None::<i64>)
 }
 
 /// Zeroes RGB or depth per frame: `keep_rgb`/`keep_depth` are 0/1 per frame.
@@ -442,8 +529,9 @@ fn evaluate_contrast(model: &Model, d: &Data, idx: &[i64], keep: (f64, f64), dev
             let (_, x) = held_batch(d, chunk, dev);
             let b = chunk.len() as i64;
             let fixed: Vec<f32> = (0..b).flat_map(|_| [0.85, 0.85, 0.85, 0.05, 1.05]).collect();
-            let z1 = model.project(&keep_channels(&x, keep));
-            let z2 = model.project(&keep_channels(&jittered(&x, &fixed), keep));
+            let modalities = (keep.0 > 0.0, keep.1 > 0.0);
+            let z1 = model.project(&keep_channels(&x, keep), modalities);
+            let z2 = model.project(&keep_channels(&jittered(&x, &fixed), keep), modalities);
             let (_, m) = info_nce(&z1, &z2, &Tensor::arange(z1.size()[0], (Kind::Int64, dev)));
             matched += m.double_value(&[]) * b as f64;
             chunks += b as f64;
@@ -491,10 +579,19 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
     if o.objective == Objective::Semantic && h.classes != CLASSES {
         return Err(unusable(format!("{} classes, the encoder's labels have {CLASSES}", h.classes)));
     }
-    if h.width as i64 % STRIDE != 0 || h.height as i64 % STRIDE != 0 || h.width as i64 / STRIDE < h.grid as i64 {
+    if o.trunk == Trunk::Resnet18 && o.objective != Objective::Contrast {
+        return Err(PretrainError::Options(format!(
+            "the ResNet-18 trunk is pretrained by the contrast objective only, not `{}`",
+            o.objective
+        )));
+    }
+    let info = o.trunk.info(h.width, h.height);
+    let stride = info.stride;
+    if h.width as i64 % stride != 0 || h.height as i64 % stride != 0 || h.width as i64 / STRIDE < h.grid as i64 {
         return Err(unusable(format!(
-            "frames of {}×{} with {} cells: the size must be a multiple of {STRIDE} and give at least one feature per cell",
-            h.width, h.height, h.grid
+            "frames of {}×{} with {} cells: for the {} trunk the size must be a multiple of {stride} and give at \
+             least one feature per cell",
+            h.width, h.height, h.grid, o.trunk
         )));
     }
     let data = Data::new(&set);
@@ -505,9 +602,14 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
     let vs = nn::VarStore::new(dev);
     let root = vs.root();
     let model = crate::device::seeded(farm::seed::mix(o.seed, &[KEY_INIT]) as i64, || {
-        Model::new(&root, o.objective, h.grid as i64)
+        Model::new(&root, o.objective, o.trunk, info.feature_channels, h.grid as i64)
     });
-    let cells = (h.height as i64 / STRIDE, h.width as i64 / STRIDE);
+    let cells = (h.height as i64 / stride, h.width as i64 / stride);
+    // The ResNet sees RGB and depth as images of their own: none is dropped.
+    let (drop_rgb, drop_depth) = match o.trunk {
+        Trunk::Rgbd => (o.drop_rgb, o.drop_depth),
+        Trunk::Resnet18 => (0.0, 0.0),
+    };
     let mut opt = nn::Adam::default().build(&vs, o.lr).expect("adam");
     let mut class_weights = vec![1f32; CLASSES as usize];
     class_weights[CLASS_OTHER as usize] = o.other_weight as f32;
@@ -529,9 +631,9 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
             let mut hidden = vec![0f32; b * (cells.0 * cells.1) as usize];
             for k in 0..b {
                 let u: f64 = rng.random();
-                if u < o.drop_rgb {
+                if u < drop_rgb {
                     keep_rgb[k] = 0.0;
-                } else if u < o.drop_rgb + o.drop_depth {
+                } else if u < drop_rgb + drop_depth {
                     keep_depth[k] = 0.0;
                 }
                 flip[k] = rng.random_bool(0.5);
@@ -555,10 +657,9 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
                         (0..hidden.len()).map(|_| if rng.random_bool(CONTRAST_HIDE) { 1.0 } else { 0.0 }).collect();
                     views.push((j, hide));
                 }
-                anchors = rand::seq::index::sample(&mut rng, hidden.len(), ANCHORS.min(hidden.len()))
-                    .into_iter()
-                    .map(|k| k as i64)
-                    .collect();
+                let rows = hidden.len() * o.trunk.images_per_frame();
+                anchors =
+                    rand::seq::index::sample(&mut rng, rows, ANCHORS.min(rows)).into_iter().map(|k| k as i64).collect();
             }
             let i = Tensor::from_slice(chunk);
             let whole = encoder_input(&data.rgb.index_select(0, &i), &data.depth.index_select(0, &i)).to_device(dev);
@@ -573,7 +674,7 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
             let loss = match o.objective {
                 Objective::Reconstruct => {
                     let hide = Tensor::from_slice(&hidden).view([b as i64, cells.0, cells.1]).to_device(dev);
-                    (model.reconstruct(&hide_cells(&x, &hide)) - &whole).abs().mean(Kind::Float)
+                    (model.reconstruct(&hide_cells(&x, &hide, stride)) - &whole).abs().mean(Kind::Float)
                 }
                 Objective::Contrast => {
                     let keep =
@@ -583,7 +684,7 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
                         .map(|(jitter, hide)| {
                             let v = drop_channels(&jittered(&whole, jitter), &keep.0, &keep.1);
                             let hide = Tensor::from_slice(hide).view([b as i64, cells.0, cells.1]).to_device(dev);
-                            model.project(&hide_cells(&v, &hide))
+                            model.project(&hide_cells(&v, &hide, stride), (true, true))
                         })
                         .collect();
                     info_nce(&z[0], &z[1], &Tensor::from_slice(&anchors).to_device(dev)).0
@@ -620,7 +721,7 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
     let depth_only = evaluate(&model, &data, &data.held, (0.0, 1.0), dev);
 
     let weights_path = with_ext(&o.out, "safetensors");
-    let bytes = weights_bytes(&vs, "trunk", &EncoderInfo::new(h.width, h.height))
+    let bytes = weights_bytes(&vs, "trunk", &info)
         .map_err(|m| PretrainError::Unusable { file: weights_path.display().to_string(), message: m })?;
     let write_error = |p: &Path, e: std::io::Error| PretrainError::Unusable {
         file: p.display().to_string(),
@@ -631,6 +732,7 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
         seed: o.seed,
         frames_seed: h.seed,
         objective: o.objective,
+        trunk: o.trunk,
         mask: match o.objective {
             Objective::Reconstruct => o.mask,
             Objective::Contrast => CONTRAST_HIDE,
@@ -641,8 +743,8 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
         height: h.height,
         grid: h.grid,
         classes: h.classes,
-        in_channels: IN_CHANNELS,
-        feature_channels: FEATURE_CHANNELS,
+        in_channels: info.in_channels,
+        feature_channels: info.feature_channels,
         rooms: room_names(data.train.iter().map(|&i| set.rooms[i as usize])),
         held_out_rooms: room_names(h.held_out.iter().copied()),
         frames: set.len(),

@@ -113,7 +113,8 @@ impl Agent {
         if spec.encoder == Encoder::Resnet18 && !spec.frozen && (spec.rgb || spec.depth) && !spec.random() {
             let msg = "NO IMAGENET WEIGHTS: model.resnet_weights is not set, so the ResNet-18 encoders start \
                        from random weights and are TRAINED end to end — not the dissertation's frozen ImageNet \
-                       backbone. Supply a torchvision resnet18 state dict to reproduce §4.3.3.";
+                       backbone. Supply a torchvision resnet18 state dict to reproduce §4.3.3, or the label-free \
+                       trunk of `orchestrator encoder pretrain --trunk resnet18 --size 224 --device cuda`.";
             tracing::warn!("{msg}");
             notes.push(msg.into());
         }

@@ -18,6 +18,8 @@ const IMAGENET_STD: [f64; 3] = [0.229, 0.224, 0.225];
 
 /// Channels of conv5.
 pub const CONV5_CHANNELS: i64 = 512;
+/// Input pixels per conv5 cell along each side (a stride of 2 five times).
+pub const CONV5_STRIDE: i64 = 32;
 
 /// Spatial size of conv5 for an input side of `n` pixels (224 → 7).
 pub fn conv5_side(n: i64) -> i64 {

@@ -9,7 +9,8 @@ use farm::config::{Encoder, GestureInput, GestureNetwork, Method, RunConfig};
 pub struct NetSpec {
     pub method: Method,
     pub encoder: Encoder,
-    /// ResNet-18 with user-supplied ImageNet weights, frozen. False: every encoder is trained.
+    /// ResNet-18 with supplied weights (ImageNet, or the label-free trunk of `encoder pretrain --trunk
+    /// resnet18`), frozen. False: every encoder is trained.
     pub frozen: bool,
     pub rgb: bool,
     pub depth: bool,
@@ -126,7 +127,7 @@ impl NetSpec {
             }
         }
         let enc = match (self.encoder, self.frozen) {
-            (Encoder::Resnet18, true) => "ResNet-18 (frozen, ImageNet weights)",
+            (Encoder::Resnet18, true) => "ResNet-18 (frozen, model.resnet_weights)",
             (Encoder::Resnet18, false) => "ResNet-18 (TRAINED from random weights)",
             (Encoder::SmallCnn, _) => "small CNN (trained)",
             (Encoder::Pretrained, _) => "pretrained RGB-D encoder (frozen, one for both)",

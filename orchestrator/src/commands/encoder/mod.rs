@@ -50,6 +50,11 @@ pub struct PretrainArgs {
     /// semantic sensor, trained on the id target's categories (an ablation: it reads the answer).
     #[arg(long, default_value = "contrast", value_parser = ["contrast", "reconstruct", "semantic"])]
     pub objective: String,
+    /// `rgbd`: configs/tiny's early-fusion encoder. `resnet18`: configs/faithful's ResNet-18 (RGB
+    /// and depth apart, torchvision's names; contrast only; `--size 224`, best with `--device
+    /// cuda`), for `model.resnet_weights` where no ImageNet checkpoint is supplied.
+    #[arg(long, default_value = "rgbd", value_parser = ["rgbd", "resnet18"])]
+    pub trunk: String,
     /// Reconstruction: the share of 8×8-pixel cells hidden from the encoder in each frame.
     #[arg(long, default_value_t = 0.0)]
     pub mask: f64,
@@ -184,7 +189,7 @@ fn pretrain(a: PretrainArgs) -> anyhow::Result<()> {
         .arg("--out")
         .arg(&a.out)
         .args(["--seed", &a.seed.to_string(), "--epochs", &a.epochs.to_string()])
-        .args(["--objective", &a.objective, "--mask", &a.mask.to_string()])
+        .args(["--objective", &a.objective, "--trunk", &a.trunk, "--mask", &a.mask.to_string()])
         .status()
         .with_context(|| format!("starting {}", learner.display()))?;
     anyhow::ensure!(status.success(), "{} pretrain-encoder failed ({status})", learner.display());
