@@ -38,6 +38,11 @@ Rule 3: under a folder of MAX_FILES_UNDER (orchestrator/src, learner/src), no fo
     files of its own (mod.rs included; files in its subfolders count for those): a role whose
     files outgrow that becomes a folder of its own.
 
+Rule 4: every relative link of the Markdown files (the root's *.md and every *.md below it, build
+    and data folders skipped) names a file or folder that exists, and a `#anchor` into a Markdown
+    file names one of its headings (GitHub's slugs). Links inside code (fenced blocks, `spans`)
+    and to other sites (http:, mailto:) are not checked.
+
 Test code is ignored by rules 1 and 2: every item under `#[cfg(test)]` (or `#[cfg(all(test, ..))]`):
 `#[cfg(test)] mod tests { .. }`, the files of `#[cfg(test)] mod tests;` (and their submodules),
 a `#[cfg(test)]` fn, impl, const or use, also one inside a fn body. Test code may look
@@ -1095,6 +1100,87 @@ def find_package(an: Analyzer, name: str) -> Package | None:
     return None
 
 
+# ---------------------------------------------------------------------------------------------
+# Rule 4: relative Markdown links
+
+
+# Folders not searched for Markdown files: build outputs, data, runs, hidden folders.
+MD_SKIP_DIRS = {'target', 'node_modules', 'runs', 'data', 'encoders', '__pycache__'}
+
+_MD_LINK = re.compile(r'!?\[(?:[^\[\]]|\[[^\[\]]*\])*\]\(\s*<?([^)\s>]+)>?(?:\s+"[^"]*")?\s*\)')
+_MD_REF = re.compile(r'^\s{0,3}\[[^\]]+\]:\s+<?(\S+?)>?(?:\s+"[^"]*")?\s*$')
+_MD_HEADING = re.compile(r'^\s{0,3}(#{1,6})\s+(.*?)\s*#*\s*$')
+
+
+def markdown_files(root: Path) -> list[Path]:
+    found = []
+    for d, dirs, files in os.walk(root):
+        dirs[:] = sorted(x for x in dirs if not x.startswith('.') and x not in MD_SKIP_DIRS)
+        found += [Path(d) / f for f in sorted(files) if f.endswith('.md')]
+    return found
+
+
+def _md_prose_lines(text: str):
+    """(line number, line with inline code removed) of the lines outside fenced code blocks."""
+    fence = None
+    for n, line in enumerate(text.split('\n'), 1):
+        m = re.match(r'^\s{0,3}(`{3,}|~{3,})', line)
+        if m:
+            if fence is None:
+                fence = m.group(1)[0] * len(m.group(1))
+            elif m.group(1).startswith(fence):
+                fence = None
+            continue
+        if fence is None:
+            yield n, re.sub(r'(`+)(?:(?!\1).)+?\1', '', line)
+
+
+def github_slug(heading: str) -> str:
+    h = re.sub(r'!?\[([^\]]*)\]\([^)]*\)', r'\1', heading).strip().lower()
+    return ''.join(c for c in h if c.isalnum() or c in ' -_').replace(' ', '-')
+
+
+def markdown_anchors(text: str) -> set[str]:
+    seen: dict[str, int] = {}
+    out = set()
+    for _, line in _md_prose_lines(text.replace('`', '')):
+        m = _MD_HEADING.match(line)
+        if not m:
+            continue
+        slug = github_slug(m.group(2))
+        k = seen.get(slug, 0)
+        seen[slug] = k + 1
+        out.add(slug if k == 0 else f'{slug}-{k}')
+    return out
+
+
+def broken_links(root: Path) -> list[str]:
+    """'file:line: target (why)' for each relative Markdown link that does not resolve."""
+    anchors: dict[Path, set[str]] = {}
+    bad = []
+    for md in markdown_files(root):
+        text = md.read_text(errors='replace')
+        for n, line in _md_prose_lines(text):
+            targets = [m.group(1) for m in _MD_LINK.finditer(line)]
+            m = _MD_REF.match(line)
+            if m:
+                targets.append(m.group(1))
+            for t in targets:
+                if re.match(r'^[a-zA-Z][a-zA-Z0-9+.-]*:', t) or t.startswith('//'):
+                    continue
+                path, _, frag = t.partition('#')
+                target = (md.parent / path).resolve() if path else md
+                where = f'{md.relative_to(root)}:{n}: {t}'
+                if path.startswith('/') or not target.exists():
+                    bad.append(f'{where} (no such file)')
+                elif frag and target.suffix == '.md' and target.is_file():
+                    if target not in anchors:
+                        anchors[target] = markdown_anchors(target.read_text(errors='replace'))
+                    if frag.lower() not in anchors[target]:
+                        bad.append(f'{where} (no such heading)')
+    return bad
+
+
 def run_checks(root: Path, out=sys.stdout) -> int:
     an = analyze(root)
     cycles = []
@@ -1141,13 +1227,20 @@ def run_checks(root: Path, out=sys.stdout) -> int:
             w(f'  {rel}/: {n} .rs files (limit {limit})\n')
     for rel, nt in stale:
         w(f'note: SIZE_ALLOWLIST entry {rel} is {"missing" if nt is None else f"at {nt} lines, under the limit"}; remove it\n')
-    if cycles or big or crowded:
+    links = broken_links(an.root)
+    if links:
+        w(f'Markdown links that do not resolve ({len(links)}):\n')
+        for line in links:
+            w(f'  {line}\n')
+    if cycles or big or crowded or links:
         w(f'FAIL: {len(cycles)} import cycle(s), {len(big)} file(s) over their non-test line limit '
-          f'({limits_text()}), {len(crowded)} folder(s) over their file limit\n')
+          f'({limits_text()}), {len(crowded)} folder(s) over their file limit, '
+          f'{len(links)} broken Markdown link(s)\n')
         return 1
     folders = ', '.join(f'{n} .rs files per folder under {d}/' for d, n in sorted(MAX_FILES_UNDER.items()))
     w(f'ok: {len(an.packages)} crates, {n_files} files, no import cycles, '
-      f'no file over its non-test line limit ({limits_text()}), at most {folders}\n')
+      f'no file over its non-test line limit ({limits_text()}), at most {folders}, '
+      f'every relative Markdown link resolves\n')
     return 0
 
 
@@ -1332,6 +1425,26 @@ def self_test() -> int:
         rc = run_checks(ws, buf)
         check('clean workspace: exit 0 and one-line summary',
               rc == 0 and buf.getvalue().startswith('ok: 1 crates, 2 files'), buf.getvalue())
+
+        # 8. Rule 4: relative Markdown links, outside code, with their anchors.
+        ws = base / 'links'
+        _workspace(ws, {'lk': {'src/lib.rs': ''}})
+        _write(ws, {
+            'README.md': '# Top\n\n## The study (1M, 5M)\n\n[ok](docs/a.md#part-two) [dir](docs/) '
+                         '[self](#the-study-1m-5m) ![pic](docs/p.png) [web](https://x.org/y.md)\n'
+                         '`[code](gone.md)`\n```sh\n[fenced](gone.md)\n```\n'
+                         '[gone](docs/gone.md) [bad anchor](docs/a.md#nowhere)\n[ref]: docs/old.md\n',
+            'docs/a.md': '# A\n## Part two\n[up](../README.md#top)\n',
+            'docs/p.png': '',
+        })
+        buf = io.StringIO()
+        rc = run_checks(ws, buf)
+        text = buf.getvalue()
+        check('broken Markdown links are reported, code and other sites are not',
+              rc == 1 and 'README.md:10: docs/gone.md (no such file)' in text
+              and 'README.md:10: docs/a.md#nowhere (no such heading)' in text
+              and 'README.md:11: docs/old.md (no such file)' in text
+              and '3 broken Markdown link(s)' in text and 'gone.md (' not in text.replace('docs/gone.md (', ''), text)
 
     print('self-test: ' + ('ok' if not failures else f'{len(failures)} FAILED'))
     return 1 if failures else 0

@@ -30,7 +30,7 @@ pub struct ProbeArgs {
     #[arg(long, default_value = "data/gond")]
     pub dataset: PathBuf,
     /// Output stem: STEM.json and STEM.md (and STEM.gestures while it runs).
-    #[arg(long, default_value = "docs/encoder/gesture-probe")]
+    #[arg(long, default_value = "docs/experiments/probes/gesture-probe")]
     pub out: PathBuf,
     /// Training programs the probes learn from (the first N of the train split; 0: all).
     #[arg(long, default_value_t = 0)]
