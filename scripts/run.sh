@@ -27,4 +27,7 @@ if ls "$RUN"/checkpoints/ckpt-*.safetensors >/dev/null 2>&1; then
 else
   "$ORCH" up --run-dir "$RUN" "$@"
 fi
-"$ORCH" eval --checkpoint "$RUN" --split val --max-programs 500
+# every pass the checkpoint allows, and the pointing check: each program again with another
+# room's referencing gesture (what of the arm's direction is read), beside the first turns
+"$ORCH" eval --checkpoint "$RUN" --split val --max-programs 500 \
+  --modes normal,blind,rgb_only,depth_only,other_gesture

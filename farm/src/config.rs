@@ -248,12 +248,23 @@ pub enum GestureNetwork {
     /// over the gesture alone (what the gesture is, wherever the person stands) and the per-frame
     /// network (with `model.person_pose`, where it points from where the robot is).
     FlatAndPerFrame,
+    /// Beyond the dissertation: the flat layer beside the per-frame network, which reads the
+    /// gesture alone, once per distinct gesture; the person's pose (`model.person_pose`) joins
+    /// after the pooling and turns what was pooled by their facing. A gesture lasts an episode
+    /// and the pose changes at every step: reading the pose beside every frame costs the per-frame
+    /// network over 100 frames of every step, this costs one layer.
+    FlatAndTurned,
 }
 
 impl GestureNetwork {
-    /// Whether the shared per-frame network is part of it (the one that reads the pose beside
-    /// the frames).
+    /// Whether the shared per-frame network is part of it.
     pub fn per_frame(self) -> bool {
+        !matches!(self, GestureNetwork::Flat)
+    }
+
+    /// Whether the person's pose, when it is an input, is read beside every frame (by the
+    /// per-frame network's first layer) rather than after the pooling.
+    pub fn pose_in_frames(self) -> bool {
         matches!(self, GestureNetwork::PerFrame | GestureNetwork::FlatAndPerFrame)
     }
 }
@@ -618,6 +629,8 @@ mod tests {
         assert_eq!(f.model.gesture_network, GestureNetwork::PerFrame);
         let h = c.with_overrides(&sets(&["model.gesture_network=flat_and_per_frame"])).unwrap();
         assert!(h.model.gesture_network.per_frame() && !c.model.gesture_network.per_frame());
+        let t = c.with_overrides(&sets(&["model.gesture_network=flat_and_turned"])).unwrap();
+        assert!(t.model.gesture_network.per_frame() && !t.model.gesture_network.pose_in_frames());
         for (bad, says) in [
             ("ppo.lrr=1", "ppo.lrr"),
             ("ppo.clip=-5", "ppo.clip"),

@@ -231,7 +231,11 @@ impl Agent {
             let gesture = match (self.net.gesture_net(), &x.gesture, &x.gesture_index) {
                 // with the pose beside its frames the features change at every step: read afresh
                 (Some(l), Some(g), None) if !self.spec.pose_in_frames() => {
-                    Some(self.gestures.features(l, g, at, self.n_envs))
+                    let part = self.gestures.parts(l, g, at, self.n_envs);
+                    let pose = self.spec.gesture_reads_pose().then(|| {
+                        crate::inputs::frame_pose(x.pose.as_ref().expect("the pose comes with the gesture"))
+                    });
+                    Some(l.join(&part, pose.as_ref()))
                 }
                 _ => None,
             };
@@ -530,7 +534,7 @@ mod tests {
         // gradients must be those of encoding every row — with the flat layer, and per frame
         // with the person's pose, which moves at every step while the gestures stay
         distinct_gestures_read_as_every_row(&tiny_config("both"));
-        for network in [GestureNetwork::PerFrame, GestureNetwork::FlatAndPerFrame] {
+        for network in [GestureNetwork::PerFrame, GestureNetwork::FlatAndPerFrame, GestureNetwork::FlatAndTurned] {
             let mut cfg = tiny_config("both");
             cfg.model.person_pose = true;
             cfg.model.gesture_network = network;

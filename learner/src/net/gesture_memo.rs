@@ -1,12 +1,14 @@
-//! Acting's gesture features, kept per env from one step to the next.
+//! Acting's gesture parts, kept per env from one step to the next.
 //!
 //! An env shows the same 100 × 95 gesture from an episode's start until intervention switches
 //! on or off, yet acting would run the gesture network (9,500 wide) over all N envs at every step —
-//! at 64×64 on a CPU, a third of a step's forward. The memo keeps each env's features and the
-//! gesture they came from, and recomputes only the envs whose gesture changed (compared element
-//! by element) or all of them when the network's weights changed: PPO's Adam and checkpoint
-//! loading write the variables in place, which bumps torch's version counters of its weights and
-//! biases (libtorch's own optimizers write through `.data()` and would not: the tests use ours).
+//! at 64×64 on a CPU, a third of a step's forward. The memo keeps each env's part
+//! ([`GestureNet::part`]: what the network reads of the gesture alone, the features themselves
+//! unless the pose joins after) and the gesture it came from, and recomputes only the envs whose
+//! gesture changed (compared element by element) or all of them when the network's weights
+//! changed: PPO's Adam and checkpoint loading write the variables in place, which bumps torch's
+//! version counters of its weights and biases (libtorch's own optimizers write through `.data()`
+//! and would not: the tests use ours).
 
 use tch::{Kind, Tensor};
 
@@ -14,10 +16,10 @@ use crate::net::gesture_net::GestureNet;
 
 #[derive(Debug, Default)]
 pub(crate) struct GestureMemo {
-    /// `[N, 100, 95]`: what each env showed when its features were computed.
+    /// `[N, 100, 95]`: what each env showed when its part was computed.
     shown: Option<Tensor>,
-    /// `[N, hidden]`.
-    features: Option<Tensor>,
+    /// `[N, part_width]`.
+    parts: Option<Tensor>,
     /// Rows computed with the current network (a round of one group of envs leaves the other
     /// rows as they were).
     fresh: Vec<bool>,
@@ -26,18 +28,17 @@ pub(crate) struct GestureMemo {
 }
 
 impl GestureMemo {
-    /// The network's features of `g` `[B, 100, 95]` — the gestures of envs `at..at + B` of
-    /// `total` — `[B, hidden]`, reusing every row whose gesture and network are unchanged since it
-    /// was last computed. Without gradients (acting only).
-    pub(crate) fn features(&mut self, net: &GestureNet, g: &Tensor, at: usize, total: usize) -> Tensor {
+    /// The network's parts of `g` `[B, 100, 95]` — the gestures of envs `at..at + B` of `total` —
+    /// `[B, part_width]`, reusing every row whose gesture and network are unchanged since it was
+    /// last computed. Without gradients (acting only); [`GestureNet::join`] makes features of them.
+    pub(crate) fn parts(&mut self, net: &GestureNet, g: &Tensor, at: usize, total: usize) -> Tensor {
         tch::no_grad(|| {
             let versions = net.versions();
             let mut all = g.size();
             all[0] = total as i64;
             if !self.shown.as_ref().is_some_and(|s| s.size() == all && s.kind() == g.kind()) {
                 self.shown = Some(g.new_zeros(all.as_slice(), (g.kind(), g.device())));
-                // the network's output: f32, `hidden` wide
-                self.features = Some(Tensor::zeros([total as i64, net.hidden()], (Kind::Float, g.device())));
+                self.parts = Some(Tensor::zeros([total as i64, net.part_width()], (Kind::Float, g.device())));
                 self.fresh = vec![false; total];
             }
             if versions != self.versions {
@@ -46,7 +47,7 @@ impl GestureMemo {
             }
             let (at, n) = (at as i64, g.size()[0]);
             let mut shown = self.shown.as_ref().unwrap().narrow(0, at, n);
-            let mut features = self.features.as_ref().unwrap().narrow(0, at, n);
+            let mut parts = self.parts.as_ref().unwrap().narrow(0, at, n);
             let fresh = &mut self.fresh[at as usize..(at + n) as usize];
             let same = g.eq_tensor(&shown).flatten(1, -1).all_dim(1, false).to_device(tch::Device::Cpu);
             let same = Vec::<bool>::try_from(same).expect("a bool per env");
@@ -54,12 +55,12 @@ impl GestureMemo {
             if !changed.is_empty() {
                 let rows = Tensor::from_slice(&changed).to_device(g.device());
                 let new = g.index_select(0, &rows);
-                let _ = features.index_copy_(0, &rows, &net.forward(&new));
+                let _ = parts.index_copy_(0, &rows, &net.part(&new));
                 let _ = shown.index_copy_(0, &rows, &new);
                 changed.iter().for_each(|&k| fresh[k as usize] = true);
             }
             // the memo's own storage is updated in place next step: hand out a copy
-            features.copy()
+            parts.copy()
         })
     }
 }
@@ -70,13 +71,23 @@ mod tests {
     use farm::config::GestureNetwork;
     use tch::{Device, nn};
 
-    /// Every kind of gesture network on gestures of 5 values per frame, 8 wide.
+    /// Every kind of gesture network acting keeps parts of, on gestures of 5 values per frame,
+    /// 8 wide (the one that turns by the pose reads it).
     fn nets(vs: &nn::VarStore) -> Vec<(String, GestureNet)> {
-        [GestureNetwork::Flat, GestureNetwork::PerFrame, GestureNetwork::FlatAndPerFrame]
+        [GestureNetwork::Flat, GestureNetwork::PerFrame, GestureNetwork::FlatAndPerFrame, GestureNetwork::FlatAndTurned]
             .into_iter()
             .enumerate()
-            .map(|(i, k)| (format!("g{i}."), GestureNet::new(&(vs.root() / format!("g{i}")), k, 5, 0, 8)))
+            .map(|(i, k)| {
+                let pose_dims = if k == GestureNetwork::FlatAndTurned { 4 } else { 0 };
+                (format!("g{i}."), GestureNet::new(&(vs.root() / format!("g{i}")), k, 5, pose_dims, 8))
+            })
             .collect()
+    }
+
+    /// The person's pose of 4 envs, for the network that reads it after the memo.
+    fn pose(net: &GestureNet) -> Option<Tensor> {
+        matches!(net, GestureNet::FlatAndTurned(..))
+            .then(|| crate::device::seeded(11, || Tensor::randn([4, 4], (Kind::Float, Device::Cpu))))
     }
 
     fn draw(seed: i64, n: i64) -> Tensor {
@@ -94,7 +105,7 @@ mod tests {
         tch::no_grad(|| v.shallow_clone().copy_(&other));
     }
 
-    /// Features from the memo equal the network run on every row: when some envs change gesture,
+    /// Features from the memo's parts equal the network run on every row: when some envs change gesture,
     /// when none does, and after the weights change in place.
     #[test]
     fn memo_equals_recomputing_every_row() {
@@ -103,9 +114,10 @@ mod tests {
         for (prefix, net) in &nets {
             let mut memo = GestureMemo::default();
             let mut g = draw(4, 4);
+            let pose = pose(net);
             let check = |memo: &mut GestureMemo, g: &Tensor| {
-                let got = memo.features(net, g, 0, 4);
-                let want = tch::no_grad(|| net.forward(g));
+                let got = net.join(&memo.parts(net, g, 0, 4), pose.as_ref());
+                let want = tch::no_grad(|| net.read(g, None, pose.as_ref()));
                 assert!(got.allclose(&want, 1e-5, 1e-6, false), "{prefix}: {got} vs {want}");
             };
             check(&mut memo, &g);
@@ -116,7 +128,7 @@ mod tests {
             check(&mut memo, &g);
             // PPO's optimizer step changes the network in place
             let mut opt = crate::ppo::optim::Adam::new(&vs, 0.5, 1e-5);
-            net.forward(&g).sum(Kind::Float).backward();
+            net.read(&g, None, pose.as_ref()).sum(Kind::Float).backward();
             opt.step();
             check(&mut memo, &g);
             // so does a checkpoint load
@@ -134,10 +146,12 @@ mod tests {
         let g = draw(9, 4);
         for (prefix, net) in &nets {
             let mut memo = GestureMemo::default();
+            let pose = pose(net);
             let mut check = |at: i64| {
                 let part = g.narrow(0, at, 2);
-                let got = memo.features(net, &part, at as usize, 4);
-                let want = tch::no_grad(|| net.forward(&part));
+                let pose = pose.as_ref().map(|p| p.narrow(0, at, 2));
+                let got = net.join(&memo.parts(net, &part, at as usize, 4), pose.as_ref());
+                let want = tch::no_grad(|| net.read(&part, None, pose.as_ref()));
                 assert!(got.allclose(&want, 1e-5, 1e-6, false), "{prefix} envs {at}..: {got} vs {want}");
             };
             for at in [0, 2, 0, 2] {
@@ -157,9 +171,9 @@ mod tests {
         let (_, net) = &nets[0];
         let mut memo = GestureMemo::default();
         let a = draw(1, 2).zeros_like();
-        let first = memo.features(net, &a, 0, 2);
+        let first = memo.parts(net, &a, 0, 2);
         let kept = first.copy();
-        let _ = memo.features(net, &a.ones_like(), 0, 2);
+        let _ = memo.parts(net, &a.ones_like(), 0, 2);
         assert!(first.equal(&kept));
     }
 }

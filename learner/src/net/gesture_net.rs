@@ -5,20 +5,24 @@
 //! per_frame:      each frame d ─ FC 64 ─ ReLU ─ FC 64 ─ ReLU ┐ mean and max over the 100 frames
 //!                                                            └ 128 ─ FC hidden ─ ReLU
 //! flat_and_per_frame: the two side by side, hidden/2 each, concatenated (the pose, if any,
-//!                 read by the per-frame half only)
+//!                 read beside every frame by the per-frame half)
+//! flat_and_turned: the two side by side; the per-frame half reads the gesture alone, and the
+//!                 pose joins its 128 pooled values p: ReLU(A·p + shown·(cos·B·p + sin·C·p + D·pose))
 //! ```
 //! The flat layer gives each frame its own weights: a pointing held in frames 40–60 and the same
 //! pointing in frames 50–70 are different inputs to learn, each from PPO's gradient alone. The
 //! per-frame network reads every frame with the same small weights and pools over time, so a
-//! pose held anywhere in the gesture is one thing to learn (beyond the dissertation). With
-//! `model.person_pose` each frame carries the person's pose too (`NetSpec::pose_in_frames`), so
-//! the arm's direction in the person's frame can be turned by their facing frame by frame — the
-//! gesture probe's per-frame column (docs/encoder).
+//! pose held anywhere in the gesture is one thing to learn (beyond the dissertation).
 //!
-//! The pose is the same in all 100 frames and changes at every step, the gesture only when an
-//! episode starts or intervention switches: the first layer on `[frame, pose]` is computed as its
-//! gesture part once per distinct gesture plus its pose part once per row ([`GestureNet::read`]),
-//! not over 100 concatenated frames per row.
+//! A pointing is a direction in the person's own frame (the muscles); it names a place for the
+//! robot only once turned by the person's facing relative to it. With `model.person_pose` the
+//! per-frame network reads the pose either beside every frame (`flat_and_per_frame`: the first
+//! layer on `[frame, pose]`) or after the pooling (`flat_and_turned`): cos·B·p + sin·C·p is any
+//! linear reading of p turned by the facing, D·pose says where the person stands. The pose changes
+//! at every step and the gesture only when an episode starts or intervention switches, so the
+//! second reads the 100 frames once per distinct gesture ([`GestureNet::part`]) and joins the pose
+//! per row in one layer ([`GestureNet::join`]); the first runs its second layer and pooling over
+//! 100 frames of every row (its first layer is split: [`PerFrame::read`]).
 
 use farm::config::GestureNetwork;
 use shm_schema::GESTURE_FRAMES;
@@ -33,6 +37,7 @@ pub(crate) enum GestureNet {
     Flat(nn::Linear),
     PerFrame(PerFrame),
     FlatAndPerFrame(nn::Linear, PerFrame),
+    FlatAndTurned(nn::Linear, Turned),
 }
 
 /// The shared per-frame network and its layer from the pooled frames to the feature.
@@ -40,33 +45,48 @@ pub(crate) enum GestureNet {
 pub(crate) struct PerFrame {
     frame: [nn::Linear; 2],
     out: nn::Linear,
+    /// Values of the pose its first layer reads beside every frame (0: none).
+    pose_dims: i64,
+}
+
+/// The per-frame network on the gesture alone, its pooled values turned by the person's facing
+/// and joined by where they stand (`flat_and_turned`).
+#[derive(Debug)]
+pub(crate) struct Turned {
+    /// Its `out` is A (with the bias).
+    frames: PerFrame,
+    /// B and C, `128 → 2 × width`, and D, `pose → width` (none without the pose).
+    turn_and_place: Option<(nn::Linear, nn::Linear)>,
 }
 
 impl GestureNet {
-    /// `dims` gesture values per frame (and `pose_dims` of the pose beside each, read by the
+    /// `dims` gesture values per frame (and `pose_dims` of the person's pose, read by the
     /// per-frame network) → `hidden`, initialised from torch's seed.
     pub(crate) fn new(p: &nn::Path, kind: GestureNetwork, dims: i64, pose_dims: i64, hidden: i64) -> GestureNet {
         let flat = |p: &nn::Path, width| nn::linear(p, GESTURE_FRAMES as i64 * dims, width, Default::default());
         match kind {
             GestureNetwork::Flat => GestureNet::Flat(flat(p, hidden)),
-            GestureNetwork::PerFrame => GestureNet::PerFrame(PerFrame::new(p, dims + pose_dims, hidden)),
+            GestureNetwork::PerFrame => GestureNet::PerFrame(PerFrame::new(p, dims, pose_dims, hidden)),
             GestureNetwork::FlatAndPerFrame => GestureNet::FlatAndPerFrame(
                 flat(&(p / "flat"), hidden / 2),
-                PerFrame::new(p, dims + pose_dims, hidden - hidden / 2),
+                PerFrame::new(p, dims, pose_dims, hidden - hidden / 2),
+            ),
+            GestureNetwork::FlatAndTurned => GestureNet::FlatAndTurned(
+                flat(&(p / "flat"), hidden / 2),
+                Turned::new(p, dims, pose_dims, hidden - hidden / 2),
             ),
         }
     }
 
-    /// Gestures `[B, 100, d]` (any float kind) → features `[B, hidden]` in f32.
+    /// Gestures `[B, 100, d]` (any float kind) → features `[B, hidden]` in f32, without the pose.
     pub(crate) fn forward(&self, g: &Tensor) -> Tensor {
         self.read(g, None, None)
     }
 
     /// Features `[R, hidden]` of `R` rows: with `rows` (i64 `[R]`), `g` holds distinct gestures
     /// `[G, 100, d]` and row `r` shows `g[rows[r]]`; without, `g` is `[R, 100, d]`. With `pose`
-    /// (`[R, 4]`, the per-frame network only) each row's frames are read with its person's pose
-    /// beside them — the last 4 inputs of the first layer — where a gesture is shown (an unshown
-    /// gesture is all zero, and so is what the network reads then).
+    /// (`[R, 4]`: right, forward, cos and sin of the facing) each row's gesture is read with its
+    /// person's pose where a gesture is shown (an unshown gesture is all zero, and reads no pose).
     pub(crate) fn read(&self, g: &Tensor, rows: Option<&Tensor>, pose: Option<&Tensor>) -> Tensor {
         let g = g.to_kind(Kind::Float);
         // fewer rows than distinct gestures (one that changes at every step, as keypoints seen
@@ -75,14 +95,46 @@ impl GestureNet {
             Some(i) if g.size()[0] > i.numel() as i64 => (g.index_select(0, i), None),
             r => (g, r),
         };
-        let flat = |l: &nn::Linear| gather(g.flatten(1, -1).apply(l).relu(), rows);
-        match self {
-            GestureNet::Flat(l) => {
-                assert!(pose.is_none(), "the flat layer reads the pose as its own input");
-                flat(l)
+        match (self, pose) {
+            (GestureNet::PerFrame(f), Some(pose)) if f.pose_dims > 0 => f.read(&g, rows, pose),
+            (GestureNet::FlatAndPerFrame(l, f), Some(pose)) if f.pose_dims > 0 => {
+                Tensor::cat(&[gather(flat(l, &g), rows), f.read(&g, rows, pose)], 1)
             }
-            GestureNet::PerFrame(f) => f.read(&g, rows, pose),
-            GestureNet::FlatAndPerFrame(l, f) => Tensor::cat(&[flat(l), f.read(&g, rows, pose)], 1),
+            _ => self.join(&gather(self.part(&g), rows), pose),
+        }
+    }
+
+    /// What the network reads of gestures `[G, 100, d]` alone, `[G, part_width]` f32: the
+    /// features themselves, or with `flat_and_turned` what the pose joins ([`GestureNet::join`]).
+    /// Not for a network that reads the pose beside every frame.
+    pub(crate) fn part(&self, g: &Tensor) -> Tensor {
+        let g = g.to_kind(Kind::Float);
+        match self {
+            GestureNet::Flat(l) => flat(l, &g),
+            GestureNet::PerFrame(f) => f.alone(&g).relu(),
+            GestureNet::FlatAndPerFrame(l, f) => Tensor::cat(&[flat(l, &g), f.alone(&g).relu()], 1),
+            GestureNet::FlatAndTurned(l, t) => Tensor::cat(&[flat(l, &g), t.part(&g)], 1),
+        }
+    }
+
+    /// Parts of `R` rows (`[R, part_width]`, [`GestureNet::part`]) and their person's pose
+    /// (`[R, 4]`, `flat_and_turned` only) → features `[R, hidden]`.
+    pub(crate) fn join(&self, part: &Tensor, pose: Option<&Tensor>) -> Tensor {
+        match self {
+            GestureNet::FlatAndTurned(l, t) => {
+                let h = l.ws.size()[0];
+                let rest = part.size()[1] - h;
+                Tensor::cat(&[part.narrow(1, 0, h), t.join(&part.narrow(1, h, rest), pose)], 1)
+            }
+            _ => part.shallow_clone(),
+        }
+    }
+
+    /// Width of [`GestureNet::part`].
+    pub(crate) fn part_width(&self) -> i64 {
+        match self {
+            GestureNet::FlatAndTurned(l, t) => l.ws.size()[0] + t.part_width(),
+            _ => self.hidden(),
         }
     }
 
@@ -92,6 +144,7 @@ impl GestureNet {
             GestureNet::Flat(l) => l.ws.size()[0],
             GestureNet::PerFrame(f) => f.out.ws.size()[0],
             GestureNet::FlatAndPerFrame(l, f) => l.ws.size()[0] + f.out.ws.size()[0],
+            GestureNet::FlatAndTurned(l, t) => l.ws.size()[0] + t.frames.out.ws.size()[0],
         }
     }
 
@@ -110,49 +163,106 @@ impl GestureNet {
             GestureNet::Flat(l) => vec![l],
             GestureNet::PerFrame(f) => f.layers(),
             GestureNet::FlatAndPerFrame(l, f) => [vec![l], f.layers()].concat(),
+            GestureNet::FlatAndTurned(l, t) => [vec![l], t.layers()].concat(),
         }
     }
 }
 
+/// The flat layer on f32 gestures `[G, 100, d]`.
+fn flat(l: &nn::Linear, g: &Tensor) -> Tensor {
+    g.flatten(1, -1).apply(l).relu()
+}
+
 impl PerFrame {
-    fn new(p: &nn::Path, dims: i64, hidden: i64) -> PerFrame {
+    fn new(p: &nn::Path, dims: i64, pose_dims: i64, hidden: i64) -> PerFrame {
         let c = Default::default;
         PerFrame {
             frame: [
-                nn::linear(p / "frame0", dims, FRAME_WIDTH, c()),
+                nn::linear(p / "frame0", dims + pose_dims, FRAME_WIDTH, c()),
                 nn::linear(p / "frame1", FRAME_WIDTH, FRAME_WIDTH, c()),
             ],
             out: nn::linear(p / "out", 2 * FRAME_WIDTH, hidden, c()),
+            pose_dims,
         }
     }
 
-    /// [`GestureNet::read`] for this network, on f32 gestures (gathered first where the rows are
-    /// fewer).
-    fn read(&self, g: &Tensor, rows: Option<&Tensor>, pose: Option<&Tensor>) -> Tensor {
+    /// The first layer on `[frame, pose]` is W_g·frame + b, once per gesture, + W_p·pose, once
+    /// per row; then the rest over the 100 frames of every row.
+    fn read(&self, g: &Tensor, rows: Option<&Tensor>, pose: &Tensor) -> Tensor {
         let [first, _] = &self.frame;
-        match pose {
-            None => gather(self.after_first(g.apply(first)), rows),
-            Some(pose) => {
-                // frame0([frame, pose]) = W_g·frame + b, once per gesture, + W_p·pose, once per row
-                let d = g.size()[2];
-                let gesture = g.linear(&first.ws.narrow(1, 0, d), first.bs.as_ref());
-                let shown = g.ne(0.0).flatten(1, -1).any_dim(1, true).to_kind(Kind::Float);
-                let pose = pose.linear::<Tensor>(&first.ws.narrow(1, d, pose.size()[1]), None) * gather(shown, rows);
-                self.after_first(gather(gesture, rows) + pose.unsqueeze(1))
-            }
-        }
+        let d = g.size()[2];
+        let gesture = g.linear(&first.ws.narrow(1, 0, d), first.bs.as_ref());
+        let pose = pose.linear::<Tensor>(&first.ws.narrow(1, d, pose.size()[1]), None) * gather(shown(g), rows);
+        let first = gather(gesture, rows) + pose.unsqueeze(1);
+        self.pooled(first).apply(&self.out).relu()
     }
 
-    /// From the first layer's output `[R, 100, 64]` on.
-    fn after_first(&self, first: Tensor) -> Tensor {
+    /// The out layer's input, before its ReLU, for gestures alone.
+    fn alone(&self, g: &Tensor) -> Tensor {
+        self.pooled(g.apply(&self.frame[0])).apply(&self.out)
+    }
+
+    /// From the first layer's output `[R, 100, 64]` to the pooled `[R, 128]` (mean and max).
+    fn pooled(&self, first: Tensor) -> Tensor {
         let f = first.relu().apply(&self.frame[1]).relu();
-        let pooled = Tensor::cat(&[f.mean_dim(1, false, Kind::Float), f.amax(1, false)], 1);
-        pooled.apply(&self.out).relu()
+        Tensor::cat(&[f.mean_dim(1, false, Kind::Float), f.amax(1, false)], 1)
     }
 
     fn layers(&self) -> Vec<&nn::Linear> {
         vec![&self.frame[0], &self.frame[1], &self.out]
     }
+}
+
+impl Turned {
+    fn new(p: &nn::Path, dims: i64, pose_dims: i64, width: i64) -> Turned {
+        let no_bias = || nn::LinearConfig { bias: false, ..Default::default() };
+        let turn_and_place = (pose_dims > 0).then(|| {
+            (nn::linear(p / "turn", 2 * FRAME_WIDTH, 2 * width, no_bias()), nn::linear(p / "place", pose_dims, width, no_bias()))
+        });
+        Turned { frames: PerFrame::new(p, dims, 0, width), turn_and_place }
+    }
+
+    /// `[A·p + b, B·p, C·p, shown]` of gestures `[G, 100, d]` (A·p + b alone without the pose).
+    fn part(&self, g: &Tensor) -> Tensor {
+        let f = &self.frames;
+        let p = f.pooled(g.apply(&f.frame[0]));
+        match &self.turn_and_place {
+            Some((turn, _)) => Tensor::cat(&[p.apply(&f.out), p.apply(turn), shown(g)], 1),
+            None => p.apply(&f.out),
+        }
+    }
+
+    fn part_width(&self) -> i64 {
+        let w = self.frames.out.ws.size()[0];
+        if self.turn_and_place.is_some() { 3 * w + 1 } else { w }
+    }
+
+    /// ReLU(A·p + b + shown·(cos·B·p + sin·C·p + D·pose)); without a pose, ReLU(A·p + b).
+    fn join(&self, part: &Tensor, pose: Option<&Tensor>) -> Tensor {
+        let w = self.frames.out.ws.size()[0];
+        let a = part.narrow(1, 0, w);
+        match (&self.turn_and_place, pose) {
+            (Some((_, place)), Some(pose)) => {
+                let (b, c, shown) = (part.narrow(1, w, w), part.narrow(1, 2 * w, w), part.narrow(1, 3 * w, 1));
+                let turned = b * pose.narrow(1, 2, 1) + c * pose.narrow(1, 3, 1) + pose.apply(place);
+                (a + shown * turned).relu()
+            }
+            _ => a.relu(),
+        }
+    }
+
+    fn layers(&self) -> Vec<&nn::Linear> {
+        let mut l = self.frames.layers();
+        if let Some((turn, place)) = &self.turn_and_place {
+            l.extend([turn, place]);
+        }
+        l
+    }
+}
+
+/// `[G, 1]`: 1 where gesture `g` is shown (not all zero), f32.
+fn shown(g: &Tensor) -> Tensor {
+    g.ne(0.0).flatten(1, -1).any_dim(1, true).to_kind(Kind::Float)
 }
 
 /// Row `r` of the result is `t[rows[r]]`; without `rows`, `t` itself.
@@ -231,6 +341,47 @@ mod tests {
         assert!(few.allclose(&want.narrow(0, 2, 1), 1e-5, 1e-6, false));
     }
 
+    /// The turned network reads rows through their distinct gestures as it reads them one by one
+    /// (features and gradients), and what it reads of the pose: the flat half nothing, the
+    /// per-frame half where the person stands and which way they face, for a shown gesture only.
+    #[test]
+    fn the_turned_network_joins_the_pose_after_the_frames() {
+        let vs = nn::VarStore::new(Device::Cpu);
+        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::FlatAndTurned, 5, 4, 32));
+        let distinct =
+            crate::device::seeded(2, || Tensor::randn([3, GESTURE_FRAMES as i64, 5], (Kind::Float, Device::Cpu)));
+        let _ = distinct.get(2).zero_();
+        let pose = crate::device::seeded(3, || Tensor::randn([5, 4], (Kind::Float, Device::Cpu)));
+        let rows = Tensor::from_slice(&[0i64, 2, 1, 0, 2]);
+        let read = |f: &dyn Fn() -> Tensor| {
+            vs.trainable_variables().iter_mut().for_each(|v| v.zero_grad());
+            let out = f();
+            out.square().sum(Kind::Float).backward();
+            (out.detach(), vs.trainable_variables().iter().map(|v| v.grad().copy()).collect::<Vec<_>>())
+        };
+        let g = distinct.index_select(0, &rows);
+        let (want, want_grads) = read(&|| net.read(&g, None, Some(&pose)));
+        let (got, grads) = read(&|| net.read(&distinct, Some(&rows), Some(&pose)));
+        assert!(got.allclose(&want, 1e-5, 1e-6, false), "{got} vs {want}");
+        // (summed in another order: float rounding of the gathered rows)
+        for (a, b) in grads.iter().zip(&want_grads) {
+            assert!(a.allclose(b, 1e-4, 1e-4, false), "gradients differ: {}", (a - b).abs().max());
+        }
+        // the same gestures with the person turned half round and moved
+        let other = Tensor::stack(&[pose.select(1, 0) + 1.0, pose.select(1, 1), -pose.select(1, 2), -pose.select(1, 3)], 1);
+        let moved = tch::no_grad(|| net.read(&g, None, Some(&other)));
+        let (flat, turned) = (want.narrow(1, 0, 16), want.narrow(1, 16, 16));
+        assert!(moved.narrow(1, 0, 16).equal(&flat), "the flat half reads the gesture alone");
+        for r in 0..5 {
+            let (a, b) = (turned.get(r), moved.narrow(1, 16, 16).get(r));
+            let shown = r != 1 && r != 4;
+            assert_eq!(!a.allclose(&b, 1e-4, 1e-4, false), shown, "row {r}: {a} vs {b}");
+        }
+        // without a pose, the pooled gesture alone
+        let none = tch::no_grad(|| net.read(&g, None, None));
+        assert!(!none.allclose(&want, 1e-3, 1e-3, false) && none.narrow(1, 0, 16).equal(&flat));
+    }
+
     #[test]
     fn widths_and_variable_names() {
         let vs = nn::VarStore::new(Device::Cpu);
@@ -248,5 +399,14 @@ mod tests {
         assert_eq!(v["both.frame0.weight"].size(), [64, 95 + 4]);
         assert_eq!(v["both.out.weight"].size(), [16, 128]);
         assert_eq!(both.versions().len(), 8);
+        // turned: the per-frame half reads the gesture alone; B and C, then D, without biases
+        let turned = GestureNet::new(&(vs.root() / "turned"), GestureNetwork::FlatAndTurned, 95, 4, 32);
+        let v = vs.variables();
+        assert_eq!(v["turned.frame0.weight"].size(), [64, 95]);
+        assert_eq!(v["turned.turn.weight"].size(), [32, 128]);
+        assert_eq!(v["turned.place.weight"].size(), [16, 4]);
+        assert!(!v.contains_key("turned.turn.bias") && !v.contains_key("turned.place.bias"));
+        assert_eq!((turned.hidden(), turned.part_width()), (32, 16 + 3 * 16 + 1));
+        assert_eq!(turned.versions().len(), 12, "a weight and a bias (or none) per layer");
     }
 }

@@ -88,7 +88,7 @@ impl PolicyNet {
         let rgb = (spec.rgb && !spec.fused()).then(|| visual("rgb", 3));
         let depth = (spec.depth && !spec.fused()).then(|| visual("depth", 1));
         let gesture = spec.gesture.then(|| {
-            GestureNet::new(&(&root / "gesture"), spec.gesture_network, spec.gesture_dims, spec.frame_pose_dims(), h)
+            GestureNet::new(&(&root / "gesture"), spec.gesture_network, spec.gesture_dims, spec.gesture_pose_dims(), h)
         });
         let target =
             spec.semantic.then(|| nn::embedding(&root / "target", TARGET_CATEGORIES as i64, h, Default::default()));
@@ -185,7 +185,7 @@ impl PolicyNet {
         if let (Some(l), Some(t)) = (&self.gesture, &x.gesture) {
             parts.push(gesture.unwrap_or_else(|| {
                 // distinct gestures are read once, then gathered for every row that shows them
-                let pose = self.spec.pose_in_frames().then(|| inputs::frame_pose(x.pose.as_ref().expect("the pose")));
+                let pose = self.spec.gesture_reads_pose().then(|| inputs::frame_pose(x.pose.as_ref().expect("the pose")));
                 l.read(t, x.gesture_index.as_ref(), pose.as_ref())
             }));
         }

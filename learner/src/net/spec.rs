@@ -74,13 +74,19 @@ impl NetSpec {
     /// an input: an arm's direction in the person's own frame (the muscles) becomes one in the
     /// robot's only through their facing, frame by frame (the gesture probe's per-frame row).
     pub fn pose_in_frames(&self) -> bool {
+        self.gesture && self.pose && self.gesture_network.pose_in_frames()
+    }
+
+    /// The gesture network reads the person's pose: beside every frame
+    /// ([`NetSpec::pose_in_frames`]) or after pooling them (`flat_and_turned`).
+    pub fn gesture_reads_pose(&self) -> bool {
         self.gesture && self.pose && self.gesture_network.per_frame()
     }
 
-    /// Values of the pose the per-frame network reads beside each frame (right, forward, cos and
-    /// sin of the facing) where [`NetSpec::pose_in_frames`], else none.
-    pub fn frame_pose_dims(&self) -> i64 {
-        if self.pose_in_frames() { crate::inputs::FRAME_POSE_DIMS } else { 0 }
+    /// Values of the pose the gesture network reads (right, forward, cos and sin of the facing)
+    /// where [`NetSpec::gesture_reads_pose`], else none.
+    pub fn gesture_pose_dims(&self) -> i64 {
+        if self.gesture_reads_pose() { crate::inputs::FRAME_POSE_DIMS } else { 0 }
     }
 
     /// Width of the concatenated features fed to the GRU.
@@ -107,8 +113,13 @@ impl NetSpec {
             GestureNetwork::Flat => return input.to_string(),
             GestureNetwork::PerFrame => "per frame",
             GestureNetwork::FlatAndPerFrame => "flat and per frame",
+            GestureNetwork::FlatAndTurned => "flat and per frame",
         };
-        let pose = if self.pose_in_frames() { " with the person's pose" } else { "" };
+        let pose = match (self.gesture_reads_pose(), self.pose_in_frames()) {
+            (false, _) => "",
+            (true, true) => " with the person's pose",
+            (true, false) => " turned by the person's pose",
+        };
         format!("{input} read {network}{pose}")
     }
 
@@ -196,5 +207,7 @@ pub(crate) mod tests {
         assert_eq!(name(GestureNetwork::FlatAndPerFrame, false), "gesture read flat and per frame");
         let both = name(GestureNetwork::FlatAndPerFrame, true);
         assert_eq!(both, "gesture read flat and per frame with the person's pose");
+        let turned = name(GestureNetwork::FlatAndTurned, true);
+        assert_eq!(turned, "gesture read flat and per frame turned by the person's pose");
     }
 }

@@ -138,22 +138,34 @@ impl Bar {
 }
 
 /// A rate over the last `window` of a growing count: what a progress line shows, steady where
-/// the count comes in bursts (a PPO update stops the frames for a second or two, then they rush).
+/// the count comes in bursts (a PPO update stops the frames, then they rush). The window
+/// stretches to twice the longest pause seen, so that it always holds a whole round of collecting
+/// and learning: an update longer than the window reads as the run's rate, not as 0.
 pub struct Rate {
     window: Duration,
     seen: VecDeque<(Instant, u64)>,
+    /// When the count last grew, and the longest time it stood still.
+    grew: Option<Instant>,
+    longest_pause: Duration,
 }
 
 impl Rate {
     pub fn new(window: Duration) -> Rate {
-        Rate { window, seen: VecDeque::new() }
+        Rate { window, seen: VecDeque::new(), grew: None, longest_pause: Duration::ZERO }
     }
 
     /// Records the count at `now`; returns the rate per second over the window (None until two
     /// points a second apart).
     pub fn add(&mut self, now: Instant, count: u64) -> Option<f64> {
+        let grew = self.seen.back().is_none_or(|&(_, c)| count > c);
+        let since = *self.grew.get_or_insert(now);
+        if grew {
+            self.grew = Some(now);
+        }
+        self.longest_pause = self.longest_pause.max(now.duration_since(since));
         self.seen.push_back((now, count));
-        while self.seen.len() > 2 && now.duration_since(self.seen[1].0) >= self.window {
+        let window = self.window.max(2 * self.longest_pause);
+        while self.seen.len() > 2 && now.duration_since(self.seen[1].0) >= window {
             self.seen.pop_front();
         }
         let (t0, c0) = *self.seen.front()?;
@@ -230,6 +242,30 @@ mod tests {
             }
         }
         assert!(last.is_some());
+    }
+
+    /// `up --workers 20`: a round collected in 40 s at 512 frames/s, then an update of 50 s
+    /// without a frame: the rate never reads 0 while the round is learned, and settles on the
+    /// run's rate (20,480 frames every 90 s).
+    #[test]
+    fn an_update_longer_than_the_window_does_not_read_as_zero() {
+        let t0 = Instant::now();
+        let mut r = Rate::new(Duration::from_secs(30));
+        let mut count = 0;
+        for tick in 1..=720u64 {
+            let s = tick as f64 / 2.0;
+            if s % 90.0 > 0.0 && s % 90.0 <= 40.0 {
+                count += 256;
+            }
+            let v = r.add(t0 + Duration::from_millis(tick * 500), count);
+            if tick >= 3 {
+                assert!(v.unwrap() > 100.0, "second {s}: {v:?}");
+            }
+            if tick >= 400 {
+                let v = v.unwrap();
+                assert!((0.7..=1.4).contains(&(v / (20_480.0 / 90.0))), "second {s}: {v}");
+            }
+        }
     }
 
     #[test]
