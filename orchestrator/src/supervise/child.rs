@@ -12,6 +12,20 @@ use nix::sys::signal::{Signal, killpg};
 use nix::sys::wait::{WaitPidFlag, WaitStatus, waitpid};
 use nix::unistd::{Pid, getpid, getppid};
 
+/// The environment a learner process starts with: torch's OpenMP threads wait passively unless
+/// the user chose otherwise. Spinning (libgomp's default) costs nothing on idle cores but, where
+/// anything else runs beside the learner (a build, a second training, 20 workers), the threads
+/// spin at every barrier for a partner that is not scheduled: one training beside a build made
+/// 24–42 frames/s spinning and 370–400 waiting passively (same updates, same weights;
+/// BENCHMARKS.md, issue 53).
+pub fn learner_env() -> Vec<(&'static str, String)> {
+    const OMP_WAIT: &str = "OMP_WAIT_POLICY";
+    match std::env::var_os(OMP_WAIT) {
+        Some(_) => Vec::new(),
+        None => vec![(OMP_WAIT, "PASSIVE".to_string())],
+    }
+}
+
 /// How a child ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Ended {

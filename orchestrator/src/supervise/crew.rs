@@ -290,7 +290,7 @@ impl Crew {
         args.extend(s.learner_args.iter().cloned());
         let log = self.log_path("learner");
         append_line(&log, &format!("=== learner, run {} ===", s.run_id));
-        let child = child::spawn(&self.learner_bin, &args, &[], &log, Signal::SIGINT)
+        let child = child::spawn(&self.learner_bin, &args, &child::learner_env(), &log, Signal::SIGINT)
             .with_context(|| format!("starting {}", self.learner_bin.display()))?;
         self.learner = Some(child);
         Ok(())
