@@ -9,7 +9,7 @@
 //! - **reconstruct** (label-free): one linear map per cell (64 features → the cell's 8×8 RGB-D
 //!   pixels) must give the whole frame back (`mask`: a share of cells hidden from the trunk).
 //!   Its features read the category and the person no better than the raw pixels do (the probes,
-//!   docs/encoder), the contrast's read the person better.
+//!   docs/experiments), the contrast's read the person better.
 //! - **semantic** (the "semantic sensor", an ablation beyond the dissertation): per feature cell,
 //!   the class the id target shows there (37 targets, the person, other; cross-entropy) and the
 //!   mean depth (L1) — a segmentation of the task's own answer.
