@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The README's main command: installs what is missing (idempotent), builds, makes the default
-# dataset if there is none and the label-free RGB-D encoder (configs/tiny/*) if it is
-# missing, then trains the embedded default configuration (tiny CPU +Both)
+# dataset if there is none and the label-free RGB-D encoder (configs/tiny/*; it ships with the
+# repository) if it is missing, then trains the embedded default configuration (tiny CPU +Both)
 # on the farm and evaluates its last checkpoint on the validation split.
 # Extra arguments go to `orchestrator up` (e.g. --workers 4, --seconds 600).
 set -euo pipefail
@@ -16,8 +16,8 @@ if [ ! -f "$DATA/manifest.json" ]; then
 fi
 ENCODER="${GESTHOR_ENCODER:-encoders/contrast64}"
 if [ ! -f "$ENCODER.safetensors" ]; then
-  # label-free (dense contrast), about 7 minutes on two cores; the same seed gives the same file
-  # (sha256 in $ENCODER.json)
+  # the default's ships with the repository; another is made label-free (dense contrast), about
+  # 4–7 minutes on two cores; the same seed gives the same file (sha256 in $ENCODER.json)
   "$ORCH" encoder pretrain --out "$ENCODER" --dataset "$DATA"
 fi
 RUN="${GESTHOR_RUN_DIR:-runs/default}"
