@@ -246,6 +246,7 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
             "--disable-component-update",
             "--disable-sync",
             "--no-first-run",
+            "--window-size=1400,1050",
             &format!("--user-data-dir={}", profile.display()),
         ];
         let mut caps = serde_json::Map::new();
@@ -290,6 +291,10 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
         click(&c, "step").await;
         wait_page(&c, "no third step", "window.live.steps == 3").await;
         assert_eq!(page(&c, "document.getElementById('shown').textContent").await, json!("intervention"));
+        // the page mid-episode, for the docs when asked (GESTHOR_LIVE_SCREENSHOT=docs/live.png)
+        if let Some(shot) = std::env::var_os("GESTHOR_LIVE_SCREENSHOT") {
+            std::fs::write(shot, c.screenshot().await.unwrap()).unwrap();
+        }
         click(&c, "run").await;
         let end2 = wait_page(&c, "the second episode never ended", "window.live.ended").await;
         c.close().await.unwrap();
@@ -324,26 +329,30 @@ fn bad_frames_and_programs_get_one_error_each_and_a_closed_tab_frees_its_session
             assert_eq!(m["type"], "error", "{m}");
             m["message"].as_str().unwrap().to_string()
         };
+        let refused = |m: Value| {
+            assert_eq!(m["type"], "frame_refused", "{m}");
+            m["message"].as_str().unwrap().to_string()
+        };
         ws.send(Message::Binary(b"GIF89a not a jpeg".to_vec().into())).await.unwrap();
-        assert!(error(next(&mut ws).await).contains("not a JPEG"));
+        assert!(refused(next(&mut ws).await).contains("not a JPEG"));
         let mut big = vec![0u8; 600 * 1024];
         big[..3].copy_from_slice(&[0xFF, 0xD8, 0xFF]);
         ws.send(Message::Binary(big.into())).await.unwrap();
-        assert!(error(next(&mut ws).await).contains("at most"));
+        assert!(refused(next(&mut ws).await).contains("at most"));
         ws.send(Message::Text(r#"{"type":"launch"}"#.into())).await.unwrap();
         assert!(error(next(&mut ws).await).contains("does not know"));
         ws.send(Message::Text(r#"{"type":"start","program":"val:99999","checkpoint":0}"#.into())).await.unwrap();
         assert!(error(next(&mut ws).await).contains("val:99999"));
         if capture_ready() {
-            // two frames at once: the second comes too fast
+            // two frames at once: the second comes before the first was answered
             let png = tmp.path().join("grey.png");
             image::RgbImage::from_pixel(240, 240, image::Rgb([90, 90, 90])).save(&png).unwrap();
             let jpeg = orchestrator::commands::bench::live::webcam_jpeg(&png).unwrap();
             ws.send(Message::Binary(jpeg.clone().into())).await.unwrap();
             ws.send(Message::Binary(jpeg.into())).await.unwrap();
             let (a, b) = (next(&mut ws).await, next(&mut ws).await);
-            assert_eq!(a["type"], "frame_seen", "{a}");
-            assert!(error(b).contains("after the one before"));
+            assert!(refused(a).contains("before the last one was answered"));
+            assert_eq!(b["type"], "frame_seen", "{b}");
         }
         // the session goes on
         ws.send(Message::Text(r#"{"type":"start","program":"val:0","checkpoint":0}"#.into())).await.unwrap();

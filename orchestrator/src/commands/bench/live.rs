@@ -18,7 +18,7 @@ use worker::humanoid::Humanoid;
 use crate::commands::gesture::film;
 use crate::commands::live::policy::Checkpoint;
 use crate::commands::live::session::{Session, Shared};
-use crate::commands::live::webcam::{MIN_FRAME_GAP, Webcam, muscles};
+use crate::commands::live::webcam::{Webcam, muscles};
 use crate::commands::live::wire::{GestureSource, Interventions, ToPage};
 
 #[derive(Args, Debug)]
@@ -93,14 +93,11 @@ pub fn run(a: BenchLiveArgs) -> anyhow::Result<()> {
         let mut cam = Webcam::start()?;
         let mut per_frame = Vec::new();
         let mut landmarks = Vec::new();
-        let mut last = Instant::now() - MIN_FRAME_GAP;
         for j in &jpegs {
-            // at most as fast as a page sends them
-            std::thread::sleep((last + MIN_FRAME_GAP).saturating_duration_since(Instant::now()));
+            // one at a time, as the page sends them
             let t = Instant::now();
             landmarks.push(cam.read(j, t)?);
-            last = Instant::now();
-            per_frame.push((last - t).as_secs_f64() * 1e3);
+            per_frame.push(t.elapsed().as_secs_f64() * 1e3);
         }
         let t = Instant::now();
         let c = muscles(Humanoid::seeded(p.seed).skeleton(), &landmarks)?;

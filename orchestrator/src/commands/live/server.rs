@@ -126,6 +126,8 @@ async fn carry(mut socket: WebSocket, app: Arc<App>) {
     if send(&mut socket, &hello).await.is_err() {
         return;
     }
+    // one webcam frame at a time: the next waits for the last one's answer
+    let mut frame_in_flight = false;
     loop {
         tokio::select! {
             m = socket.recv() => {
@@ -140,7 +142,18 @@ async fn carry(mut socket: WebSocket, app: Arc<App>) {
                             continue;
                         }
                     },
-                    Some(Ok(Message::Binary(b))) => Input::Frame(b.to_vec(), Instant::now()),
+                    Some(Ok(Message::Binary(_))) if frame_in_flight => {
+                        let message = "a webcam frame was refused: it came before the last one was answered \
+                                       (send one at a time)".to_string();
+                        if send(&mut socket, &ToPage::FrameRefused { message }).await.is_err() {
+                            return;
+                        }
+                        continue;
+                    }
+                    Some(Ok(Message::Binary(b))) => {
+                        frame_in_flight = true;
+                        Input::Frame(b.to_vec(), Instant::now())
+                    }
                     Some(Ok(_)) => continue,
                     // closed, or gone: dropping the channel ends the session
                     Some(Err(_)) | None => return,
@@ -150,7 +163,12 @@ async fn carry(mut socket: WebSocket, app: Arc<App>) {
                 }
             }
             out = from_session.recv() => match out {
-                Some(m) => if send(&mut socket, &m).await.is_err() { return },
+                Some(m) => {
+                    frame_in_flight &= !matches!(m, ToPage::FrameSeen { .. } | ToPage::FrameRefused { .. });
+                    if send(&mut socket, &m).await.is_err() {
+                        return;
+                    }
+                }
                 None => return,
             },
         }

@@ -98,7 +98,12 @@ pub fn run(shared: Arc<Shared>, id: String, rx: Receiver<Input>, tx: UnboundedSe
                 Ok(())
             }
             Some(Input::Message(m)) => s.handle(m),
-            Some(Input::Frame(jpeg, at)) => s.frame(&jpeg, at),
+            Some(Input::Frame(jpeg, at)) => {
+                if let Err(e) = s.frame(&jpeg, at) {
+                    s.send(ToPage::FrameRefused { message: format!("{e:#}") });
+                }
+                Ok(())
+            }
         };
         if let Err(e) = done {
             s.send(ToPage::Error { message: format!("{e:#}") });
@@ -298,8 +303,7 @@ impl Session {
     /// A webcam frame: checked, read by the landmark model, answered; a wave calls for an
     /// intervention, a capture under way takes it.
     pub fn frame(&mut self, jpeg: &[u8], at: Instant) -> anyhow::Result<()> {
-        let since = self.webcam.as_ref().and_then(|w| w.since_last(at));
-        if let Some(why) = refusal(jpeg, since) {
+        if let Some(why) = refusal(jpeg) {
             anyhow::bail!(why);
         }
         if self.webcam.is_none() {

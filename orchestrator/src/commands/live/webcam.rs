@@ -6,7 +6,7 @@
 use std::io::{BufRead, BufReader, Write};
 use std::path::PathBuf;
 use std::process::{Child, ChildStdin, ChildStdout, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::Context;
 use serde::Deserialize;
@@ -16,25 +16,17 @@ use worker::humanoid::Skeleton;
 
 /// A frame larger than this is refused (a 640×480 JPEG at quality 90 is ≈ 80 KiB).
 pub const MAX_FRAME_BYTES: usize = 512 * 1024;
-/// Frames closer together than this are refused: the page sends one at a time, after the
-/// answer to the one before, which the landmark model cannot give faster.
-pub const MIN_FRAME_GAP: Duration = Duration::from_millis(30);
 /// How much of the recent past a wave is read from.
 const WAVE_WINDOW: f32 = 1.5;
 
-/// Why a webcam frame was refused, in the words the page shows; `None`: it may be read.
-pub fn refusal(jpeg: &[u8], since_last: Option<Duration>) -> Option<String> {
+/// Why a webcam frame was refused, in the words the page shows; `None`: it may be read. (One
+/// sent before the last was answered is refused by the socket, `super::server`.)
+pub fn refusal(jpeg: &[u8]) -> Option<String> {
     if jpeg.len() > MAX_FRAME_BYTES {
         return Some(format!("a webcam frame of {} bytes was refused: at most {MAX_FRAME_BYTES}", jpeg.len()));
     }
     if !jpeg.starts_with(&[0xFF, 0xD8, 0xFF]) {
         return Some("a webcam frame was refused: it is not a JPEG".into());
-    }
-    if since_last.is_some_and(|d| d < MIN_FRAME_GAP) {
-        return Some(format!(
-            "a webcam frame was refused: it came {} ms after the one before (send the next after the answer)",
-            since_last.unwrap_or_default().as_millis()
-        ));
     }
     None
 }
@@ -53,7 +45,6 @@ pub struct Webcam {
     stdout: BufReader<ChildStdout>,
     script: PathBuf,
     started: Instant,
-    last: Option<Instant>,
     /// The frames of the last [`WAVE_WINDOW`] seconds.
     recent: Vec<LandmarkFrame>,
     /// A capture under way: until when, and its frames.
@@ -72,26 +63,11 @@ impl Webcam {
             .context("starting the landmark model (GESTHOR_CAPTURE_PYTHON)")?;
         let stdin = child.stdin.take().expect("piped");
         let stdout = BufReader::new(child.stdout.take().expect("piped"));
-        Ok(Webcam {
-            child,
-            stdin,
-            stdout,
-            script,
-            started: Instant::now(),
-            last: None,
-            recent: Vec::new(),
-            capturing: None,
-        })
-    }
-
-    /// Since the frame before, for [`refusal`].
-    pub fn since_last(&self, now: Instant) -> Option<Duration> {
-        self.last.map(|l| now.saturating_duration_since(l))
+        Ok(Webcam { child, stdin, stdout, script, started: Instant::now(), recent: Vec::new(), capturing: None })
     }
 
     /// The landmarks of one JPEG frame, timed from the webcam's start.
     pub fn read(&mut self, jpeg: &[u8], now: Instant) -> anyhow::Result<LandmarkFrame> {
-        self.last = Some(now);
         self.stdin.write_all(&(jpeg.len() as u32).to_le_bytes())?;
         self.stdin.write_all(jpeg)?;
         self.stdin.flush()?;
@@ -215,14 +191,12 @@ mod tests {
     }
 
     #[test]
-    fn frames_that_are_too_large_not_jpegs_or_too_fast_are_refused() {
+    fn frames_that_are_too_large_or_not_jpegs_are_refused() {
         let jpeg = [0xFF, 0xD8, 0xFF, 0xE0, 0, 0];
-        assert_eq!(refusal(&jpeg, None), None);
-        assert_eq!(refusal(&jpeg, Some(Duration::from_millis(70))), None);
-        assert!(refusal(&jpeg, Some(Duration::from_millis(5))).unwrap().contains("after the one before"));
-        assert!(refusal(b"\x89PNG....", None).unwrap().contains("not a JPEG"));
+        assert_eq!(refusal(&jpeg), None);
+        assert!(refusal(b"\x89PNG....").unwrap().contains("not a JPEG"));
         let mut big = vec![0u8; MAX_FRAME_BYTES + 1];
         big[..3].copy_from_slice(&[0xFF, 0xD8, 0xFF]);
-        assert!(refusal(&big, None).unwrap().contains("at most"));
+        assert!(refusal(&big).unwrap().contains("at most"));
     }
 }

@@ -88,6 +88,9 @@ pub enum ToPage {
     FrameSeen { person: bool, waving: bool, capturing: bool },
     /// A gesture was captured from the webcam; later episodes may use it.
     Captured { arm: String, seconds: [f32; 2], frames: usize, person_frames: usize },
+    /// A webcam frame was not read: not a JPEG, too large, sent before the last was answered,
+    /// or not an image; the session goes on. Every frame gets this or [`ToPage::FrameSeen`].
+    FrameRefused { message: String },
     /// Something the page asked could not be done; the session goes on.
     Error { message: String },
 }
@@ -157,6 +160,7 @@ mod tests {
         let to_page = [
             ToPage::FrameSeen { person: true, waving: false, capturing: true },
             ToPage::Error { message: "no".into() },
+            ToPage::FrameRefused { message: "not a JPEG".into() },
             ToPage::Step(StepView {
                 step: 2,
                 rgb_png: "x".into(),

@@ -92,6 +92,9 @@ const handlers = {
     live.captured = m;
     $("camera-status").textContent = `captured a ${m.arm} arm gesture (${m.seconds[0].toFixed(1)}–${m.seconds[1].toFixed(1)} s); choose "my webcam capture" and start`;
   },
+  frame_refused(m) {
+    handlers.error(m);
+  },
   error(m) {
     live.errors.push(m.message);
     $("errors").textContent = m.message;
