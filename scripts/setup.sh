@@ -4,6 +4,7 @@
 #   - libtorch 2.11.0 (from the PyPI wheel, no Python needed at run time) for tch 0.24
 #   - numpy, iceoryx2 0.10.0, tensorboard 2.21.0, gymnasium 1.4.0 for the Python tests (tests/python)
 #   - MediaPipe 0.10.14 (with its landmark models) for `orchestrator gesture capture`
+#   - Chromium and its WebDriver, for the browser test of `orchestrator live`
 # Prints the environment to source as its last lines; `source scripts/env.sh` does that for you.
 set -euo pipefail
 
@@ -14,7 +15,7 @@ mkdir -p "$DEPS"
 log() { printf '[setup] %s\n' "$*" >&2; }
 
 need_apt=()
-for pkg in mesa-vulkan-drivers libvulkan1 python3-pip; do
+for pkg in mesa-vulkan-drivers libvulkan1 python3-pip chromium chromium-driver; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need_apt+=("$pkg")
 done
 if ((${#need_apt[@]})); then
@@ -81,5 +82,7 @@ export GESTHOR_CAPTURE_PATH="$CAPDIR"
 # must find an adapter, tests that read with Python must find their packages
 export GESTHOR_ADAPTER_REQUIRED=1
 export GESTHOR_PYTHON_REQUIRED=1
+# chromium and chromium-driver are installed above: the live page's browser test must run
+export GESTHOR_BROWSER_REQUIRED=1
 ENV
 log "ready; environment in $DEPS/env.sh"

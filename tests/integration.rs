@@ -9,6 +9,7 @@ mod encoder;
 // `farm` is the crate of the same name
 #[path = "farm.rs"]
 mod farm_runs;
+mod live;
 mod multihost;
 mod observability;
 mod python_package;

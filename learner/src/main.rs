@@ -29,6 +29,21 @@ struct Cli {
 enum Command {
     /// Serve a policy to the run's workers over shared memory (started by `orchestrator up`).
     Serve(ServeArgs),
+    /// One env's policy over a pipe: observations on stdin, actions with the policy's
+    /// probabilities and value as JSON lines on stdout (started by `orchestrator live`).
+    Act {
+        /// Run configuration (TOML): the checkpoint's run's, with one env per worker.
+        #[arg(long)]
+        config: PathBuf,
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// Take the policy's most likely action instead of sampling it.
+        #[arg(long)]
+        greedy: bool,
+        /// Torch CPU threads.
+        #[arg(long, default_value_t = 1)]
+        threads: i32,
+    },
     /// Which device torch sees, and how the CUDA backend was loaded.
     Info,
     /// Train on a synthetic "go where the gesture points" task in-process: shows learning end to end.
@@ -280,6 +295,16 @@ fn run(cli: Cli) -> Result<()> {
     device::configure(dev);
     match cli.command {
         Command::Serve(a) => run_serve(a, dev)?,
+        Command::Act { config, checkpoint, greedy, threads } => {
+            process::die_with_parent(Signal::SIGTERM)?;
+            if !dev.is_cuda() {
+                tch::set_num_threads(threads.max(1));
+            }
+            let cfg = RunConfig::load(&config)?;
+            let (stdin, stdout) = (std::io::stdin().lock(), std::io::stdout().lock());
+            learner::serve::pipe::serve_pipe(&cfg, &checkpoint, dev, greedy, stdin, stdout)
+                .with_context(|| checkpoint.display().to_string())?;
+        }
         Command::Info => println!("{}", device::report(dev)),
         Command::Smoke { updates, envs, run_dir, resume } => {
             // Ctrl-C stops after the current update, with a checkpoint.

@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 use tracing_subscriber::Layer;
 
 use orchestrator::commands::{
-    bench, dataset, encoder, eval, follow, gesture, hosts, program, render, soak, study, up, workers,
+    bench, dataset, encoder, eval, follow, gesture, hosts, live, program, render, soak, study, up, workers,
 };
 
 #[derive(Parser)]
@@ -38,6 +38,9 @@ enum Command {
     Gesture(gesture::GestureCmd),
     /// A trained agent answers a gesture: one program with a captured motion, a GIF and SR/SPL.
     Follow(follow::FollowArgs),
+    /// A person in the scene with a trained robot, in the browser: a local web server running
+    /// the simulator for each tab, the person's gesture from a program or their webcam.
+    Live(live::LiveArgs),
     /// Start a run: the learner and N worker processes, supervised; Ctrl-C stops it cleanly.
     Up(up::UpArgs),
     /// Evaluate a checkpoint (or the Random baseline) on a split: the tables of chapter 4.
@@ -81,6 +84,7 @@ fn main() -> ExitCode {
         Command::Replay(a) => program::replay(a).map(|_| 0),
         Command::Gesture(c) => gesture::run(c).map(|_| 0),
         Command::Follow(a) => follow::run(a).map(|_| 0),
+        Command::Live(a) => live::run(a).map(|_| 0),
         Command::Up(a) => up::run(a),
         Command::Eval(a) => eval::run(a).map(|_| 0),
         Command::Encoder(c) => encoder::run(c).map(|_| 0),

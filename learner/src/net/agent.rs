@@ -172,11 +172,18 @@ impl Agent {
     }
 
     pub fn act_with(&mut self, obs: &EnvBatch, mode: ActMode) -> Result<Actions, ObsError> {
+        self.act_explained(obs, mode).map(|(a, _)| a)
+    }
+
+    /// [`Agent::act_with`], with each env's probability of every action (`[N * action::COUNT]`):
+    /// what a person watching the robot reads (`learner act`).
+    pub fn act_explained(&mut self, obs: &EnvBatch, mode: ActMode) -> Result<(Actions, Vec<f32>), ObsError> {
         let (inputs, starts) = self.prepare(obs)?;
         let fwd = self.forward(&inputs, starts);
+        let probs = fwd.logits.chunks(action::COUNT).flat_map(|l| log_softmax(l).into_iter().map(f32::exp)).collect();
         let actions = self.choose(&fwd, mode);
         self.commit(fwd, obs);
-        Ok(actions)
+        Ok((actions, probs))
     }
 
     /// Forgets every env's memory (a new evaluation round).

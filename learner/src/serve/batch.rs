@@ -45,11 +45,15 @@ impl<'a> WorkerObs<'a> {
 
     /// `[E, 100, 95]` half floats.
     pub fn gesture(&self) -> &'a [f16] {
-        let bits = self.view.gesture_bits_all();
-        // SAFETY: `f16` is a transparent wrapper of its u16 bit pattern (same size, alignment,
-        // and every bit pattern is a valid f16).
-        unsafe { std::slice::from_raw_parts(bits.as_ptr() as *const f16, bits.len()) }
+        as_f16(self.view.gesture_bits_all())
     }
+}
+
+/// Half floats read in place from their bit patterns (the payload's gesture section).
+pub fn as_f16(bits: &[u16]) -> &[f16] {
+    // SAFETY: `f16` is a transparent wrapper of its u16 bit pattern (same size, alignment,
+    // and every bit pattern is a valid f16).
+    unsafe { std::slice::from_raw_parts(bits.as_ptr() as *const f16, bits.len()) }
 }
 
 /// Every worker that answered this round, in worker order.

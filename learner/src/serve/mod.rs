@@ -5,10 +5,12 @@
 //! - [`policy`]: what the server asks of a policy ([`policy::Policy`]), and the random and expert
 //!   baselines;
 //! - [`ppo_policy`]: PPO served to the farm, training or evaluating;
-//! - [`server`]: the serve loop ([`server::serve`]).
+//! - [`server`]: the serve loop ([`server::serve`]);
+//! - [`pipe`]: one env's policy over a pipe, for a person watching (`learner act`).
 
 pub mod batch;
 pub mod integrity;
 pub mod policy;
 pub mod ppo_policy;
 pub mod server;
+pub mod pipe;

@@ -160,7 +160,8 @@ impl PpoPolicy {
     }
 }
 
-fn env_step(r: &EnvRecord) -> EnvStep {
+/// The agent's per-env fields of a worker's record.
+pub(crate) fn env_step(r: &EnvRecord) -> EnvStep {
     let done = r.terminated != 0 || r.truncated != 0;
     let s = &r.summary;
     let spl = if done && s.success != 0 {

@@ -51,6 +51,8 @@ pub struct Env {
     last: StepResult,
     last_action: Option<Action>,
     collided: bool,
+    /// A person's call on the intervention gesture (live), in place of the angle rule.
+    person_calls: Option<bool>,
 }
 
 impl Env {
@@ -104,6 +106,7 @@ impl Env {
             last: StepResult::default(),
             last_action: None,
             collided: false,
+            person_calls: None,
         };
         env.see_gesture();
         Ok(env)
@@ -143,12 +146,24 @@ impl Env {
 
     /// The gesture the robot perceives now.
     pub fn gesture_kind(&self) -> u8 {
-        schedule::gesture_kind(
-            self.cfg.run.method.schedule(),
-            &self.pose,
-            self.goal.center,
-            self.cfg.task.intervention_angle_deg,
-        )
+        let away = self.person_calls.unwrap_or_else(|| self.facing_away());
+        schedule::shown(self.cfg.run.method.schedule(), away)
+    }
+
+    /// What the angle rule would show now, whoever decides (§4.4.1).
+    pub fn rule_kind(&self) -> u8 {
+        schedule::shown(self.cfg.run.method.schedule(), self.facing_away())
+    }
+
+    fn facing_away(&self) -> bool {
+        schedule::facing_away(&self.pose, self.goal.center, self.cfg.task.intervention_angle_deg)
+    }
+
+    /// Lets a person decide when the intervention gesture is shown (`Some(true)`: now), in place
+    /// of the angle rule (`None`), for the methods whose schedule shows it.
+    pub fn set_person_calls(&mut self, calls: Option<bool>) {
+        self.person_calls = calls;
+        self.see_gesture();
     }
 
     /// The 100 × 95 motion the robot perceives now, if any.

@@ -95,6 +95,7 @@ pub struct EnvPool {
     env_steps: Vec<u64>,
     episodes: Vec<u64>,
     ids: Vec<Vec<u16>>,
+    person_calls: Vec<Option<bool>>,
     shape: ObsShape,
     /// Time spent in the renderer since the pool was made (the training profile).
     render_time: std::time::Duration,
@@ -147,6 +148,7 @@ impl EnvPool {
             env_steps: vec![0; n],
             episodes: vec![0; n],
             ids: vec![vec![0; px]; n],
+            person_calls: vec![None; n],
             shape,
             render_time: std::time::Duration::ZERO,
         })
@@ -173,6 +175,15 @@ impl EnvPool {
         match &self.envs[i] {
             Slot::Running(e) => Some(e),
             Slot::Idle => None,
+        }
+    }
+
+    /// A person's call on the intervention gesture for env `i` (live; [`Env::set_person_calls`]),
+    /// kept for the episodes it starts later; it shows from the next observation.
+    pub fn set_person_calls(&mut self, i: usize, calls: Option<bool>) {
+        self.person_calls[i] = calls;
+        if let Slot::Running(e) = &mut self.envs[i] {
+            e.set_person_calls(calls);
         }
     }
 
@@ -212,7 +223,10 @@ impl EnvPool {
             ProgramSource::Sequence(_) => seed::mix(self.cfg.run.seed, &[INTERVENTION_KEY, program.seed]),
         };
         let iv = (key % self.interventions.len() as u64) as usize;
-        let env = Env::new(&self.cfg, room, program, index, motion, (iv as u8, self.interventions[iv].clone()))?;
+        let mut env = Env::new(&self.cfg, room, program, index, motion, (iv as u8, self.interventions[iv].clone()))?;
+        if self.person_calls[i].is_some() {
+            env.set_person_calls(self.person_calls[i]);
+        }
         self.envs[i] = Slot::Running(Box::new(env));
         self.episodes[i] += 1;
         Ok(())

@@ -13,8 +13,18 @@ use farm::config::GestureSchedule;
 /// target (the true angle, not the original code's atan2(dz, dx) against Unity's yaw);
 /// or both (intervention when facing away, referencing otherwise).
 pub fn gesture_kind(schedule: GestureSchedule, pose: &RobotPose, target: Point3<f32>, angle: f32) -> u8 {
+    shown(schedule, facing_away(pose, target, angle))
+}
+
+/// The angle rule: the heading more than `angle` degrees from the bearing to the target.
+pub fn facing_away(pose: &RobotPose, target: Point3<f32>, angle: f32) -> bool {
     let to = Vector2::new(target.x - pose.x, target.z - pose.z);
-    let away = to.norm() > 1e-6 && angle_diff_deg(pose.yaw, yaw_of(to)).abs() > angle;
+    to.norm() > 1e-6 && angle_diff_deg(pose.yaw, yaw_of(to)).abs() > angle
+}
+
+/// What the schedule shows when the intervention is called for (`away`) or not: by the angle
+/// rule in training, by a person watching in `orchestrator live`.
+pub fn shown(schedule: GestureSchedule, away: bool) -> u8 {
     match schedule {
         GestureSchedule::None => NONE,
         GestureSchedule::Referencing => REFERENCING,

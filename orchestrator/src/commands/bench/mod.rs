@@ -2,6 +2,7 @@
 
 pub mod capture;
 pub mod farm;
+pub mod live;
 pub mod remote;
 pub mod sim;
 pub mod train;
@@ -10,6 +11,7 @@ use clap::Subcommand;
 
 use capture::BenchCaptureArgs;
 use farm::BenchFarmArgs;
+use live::BenchLiveArgs;
 use remote::BenchRemoteArgs;
 use sim::SimArgs;
 use train::BenchTrainArgs;
@@ -30,6 +32,9 @@ pub enum BenchCmd {
     /// The closed loop of `gesture capture`: filmed avatar gestures captured back, pointing
     /// lines against the originals.
     Capture(BenchCaptureArgs),
+    /// `orchestrator live` without a browser: the live loop's steps/s over whole episodes, and
+    /// a filmed gesture's webcam frames → landmarks → the 95 muscles.
+    Live(BenchLiveArgs),
 }
 
 pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
@@ -42,5 +47,6 @@ pub fn run(cmd: BenchCmd) -> anyhow::Result<()> {
         BenchCmd::Train(a) => train::run(a),
         BenchCmd::Remote(a) => remote::run(a),
         BenchCmd::Capture(a) => capture::run(a),
+        BenchCmd::Live(a) => live::run(a),
     }
 }

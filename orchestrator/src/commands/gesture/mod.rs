@@ -129,9 +129,12 @@ pub fn film(human: &Humanoid, motion: &Motion, angle: f32, size: u32, out: &Path
     Ok(())
 }
 
-/// The landmarks of every frame of `source`, written to `out` as the landmark script does.
-pub fn landmarks(source: &str, out: &Path, fps: Option<f32>, seconds: f32) -> anyhow::Result<Vec<LandmarkFrame>> {
-    let script = std::env::temp_dir().join(format!("gesthor-landmarks-{}.py", std::process::id()));
+/// The landmark script run by setup.sh's Python (`GESTHOR_CAPTURE_PYTHON`) with its model's
+/// folder on the path: the command, and the script's temporary file (the caller removes it).
+pub fn landmark_command() -> anyhow::Result<(Command, PathBuf)> {
+    static STARTED: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = STARTED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let script = std::env::temp_dir().join(format!("gesthor-landmarks-{}-{n}.py", std::process::id()));
     std::fs::write(&script, include_str!("landmarks.py")).with_context(|| format!("writing {}", script.display()))?;
     let python = std::env::var("GESTHOR_CAPTURE_PYTHON").unwrap_or_else(|_| "python3".into());
     // setup.sh's folder for the landmark model, unless the environment names another
@@ -145,14 +148,19 @@ pub fn landmarks(source: &str, out: &Path, fps: Option<f32>, seconds: f32) -> an
         path = if path.is_empty() { p } else { format!("{path}:{p}") };
     }
     let mut cmd = Command::new(&python);
-    cmd.arg(&script).arg(source).arg(out).args(["--seconds", &seconds.to_string()]);
+    cmd.arg(&script).env("PYTHONPATH", path).env("GLOG_minloglevel", "2").env("TF_CPP_MIN_LOG_LEVEL", "3");
+    Ok((cmd, script))
+}
+
+/// The landmarks of every frame of `source`, written to `out` as the landmark script does.
+pub fn landmarks(source: &str, out: &Path, fps: Option<f32>, seconds: f32) -> anyhow::Result<Vec<LandmarkFrame>> {
+    let (mut cmd, script) = landmark_command()?;
+    cmd.arg(source).arg(out).args(["--seconds", &seconds.to_string()]);
     if let Some(f) = fps {
         cmd.args(["--fps", &f.to_string()]);
     }
+    let python = cmd.get_program().to_string_lossy().into_owned();
     let mut child = cmd
-        .env("PYTHONPATH", path)
-        .env("GLOG_minloglevel", "2")
-        .env("TF_CPP_MIN_LOG_LEVEL", "3")
         .stderr(Stdio::piped())
         .spawn()
         .with_context(|| format!("starting {python} (GESTHOR_CAPTURE_PYTHON) for the landmark model"))?;

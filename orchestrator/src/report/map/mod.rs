@@ -512,6 +512,13 @@ impl TopDownMap {
         (self.size.0 / SS as u32, self.size.1 / SS as u32)
     }
 
+    /// Where world points land in the output image, as an affine map of (x, z) in metres:
+    /// column = a·x + b·z + c, row = d·x + e·z + f, returned as [a, b, c, d, e, f].
+    pub fn transform(&self) -> [f32; 6] {
+        let k = self.ppm / SS as f32;
+        [k, 0.0, -self.x_min * k, 0.0, -k, self.z_max * k + TITLE_PX as f32]
+    }
+
     /// Where a world point (x, z) lands in the output image (column, row).
     pub fn pixel_of(&self, x: f32, z: f32) -> (u32, u32) {
         let (px, py) = self.px(x, z);

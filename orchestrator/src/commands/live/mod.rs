@@ -1,0 +1,110 @@
+//! `orchestrator live`: a person in the scene with a trained robot, in the browser. A local web
+//! server runs the simulator for each open tab (one session a tab) with the checkpoints it was
+//! given; the page shows what the robot sees, the map, what the policy thinks at each step and
+//! the outcome, takes the person's gesture from the program's recording or their webcam, and
+//! lets a wave call for the intervention gesture. Every episode is recorded as GOND's files.
+//!
+//! - [`wire`]: the messages, one enum a direction;
+//! - [`policy`]: a checkpoint acting through a `learner act` child;
+//! - [`record`]: the episode's files, its simulator, and their replay;
+//! - [`webcam`]: frames → landmarks → a wave, or a gesture in the 95 muscles;
+//! - [`session`]: one tab's simulator, policies, webcam and record;
+//! - [`server`]: the page's files, the socket, the sessions open.
+
+pub mod policy;
+pub mod record;
+pub mod server;
+pub mod session;
+pub mod webcam;
+pub mod wire;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::Context;
+use clap::{Args, Subcommand};
+
+use worker::dataset::{Dataset, Verify};
+
+use policy::{Checkpoint, Policy};
+
+#[derive(Args, Debug)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct LiveArgs {
+    #[command(subcommand)]
+    pub cmd: Option<LiveCmd>,
+    /// A checkpoint file or a run directory (its newest complete checkpoint); repeat it to
+    /// choose between several on the page.
+    #[arg(long = "checkpoint")]
+    pub checkpoints: Vec<PathBuf>,
+    #[arg(long, default_value = "data/gond")]
+    pub dataset: PathBuf,
+    /// Where to listen. Beyond loopback the page asks for a token printed at start, and the
+    /// webcam's frames would travel unencrypted: that needs --insecure.
+    #[arg(long, default_value = "127.0.0.1:8480")]
+    pub listen: SocketAddr,
+    /// Listen beyond loopback over plain HTTP (behind a TLS proxy, or on a network you trust).
+    #[arg(long)]
+    pub insecure: bool,
+    /// Where the sessions are recorded (a folder per session, one per episode in it).
+    #[arg(long, default_value = "runs/live")]
+    pub out: PathBuf,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum LiveCmd {
+    /// Step the simulator through a recorded episode's actions and check that the robot takes
+    /// the recorded path and sees the recorded gestures.
+    Replay {
+        /// An episode folder of a session (SESSION/episode-NNN).
+        episode: PathBuf,
+    },
+}
+
+pub fn run(a: LiveArgs) -> anyhow::Result<()> {
+    if let Some(LiveCmd::Replay { episode }) = &a.cmd {
+        let r = record::replay(episode)?;
+        return match r.first_difference {
+            None => {
+                println!("{}: {} steps replayed, the same path", episode.display(), r.steps);
+                Ok(())
+            }
+            Some((step, what)) => anyhow::bail!("{}: step {step} differs: {what}", episode.display()),
+        };
+    }
+    anyhow::ensure!(!a.checkpoints.is_empty(), "--checkpoint: name at least one checkpoint or run directory");
+    let beyond = !a.listen.ip().is_loopback();
+    anyhow::ensure!(
+        !beyond || a.insecure,
+        "--listen {}: beyond loopback the page and the webcam's frames would travel unencrypted; \
+         TLS is not built in: pass --insecure to serve plain HTTP (behind a TLS proxy), or listen on 127.0.0.1",
+        a.listen
+    );
+    let dataset =
+        Dataset::open(&a.dataset, Verify::Quick).with_context(|| format!("--dataset {}", a.dataset.display()))?;
+    let mut checkpoints = Vec::new();
+    for c in &a.checkpoints {
+        let ck = Checkpoint::open(c)?;
+        // a checkpoint that does not load says so now, in one line, not in a tab later
+        drop(Policy::start(&ck, &ck.config).with_context(|| format!("--checkpoint {}", c.display()))?);
+        checkpoints.push(ck);
+    }
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    // A secret, not a simulation draw: from the operating system, not the run's seed.
+    let token = beyond.then(|| format!("{:032x}", rand::random::<u128>()));
+    let shared = Arc::new(session::Shared { dataset: Arc::new(dataset), checkpoints, out: a.out.clone() });
+    let app = Arc::new(server::App::new(shared, token.clone()));
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    rt.block_on(async move {
+        let listener =
+            tokio::net::TcpListener::bind(a.listen).await.with_context(|| format!("--listen {}", a.listen))?;
+        let at = listener.local_addr()?;
+        let host = if at.ip().is_loopback() { format!("localhost:{}", at.port()) } else { at.to_string() };
+        let query = token.map(|t| format!("?token={t}")).unwrap_or_default();
+        println!("GesTHOR live: open http://{host}/{query} (sessions are recorded in {})", a.out.display());
+        use std::io::Write;
+        std::io::stdout().flush()?;
+        axum::serve(listener, server::router(app)).await.context("serving the page")
+    })
+}

@@ -1,0 +1,181 @@
+// The page of `orchestrator live`: one WebSocket to this tab's session. JSON messages both
+// ways (orchestrator/src/commands/live/wire.rs); the webcam's frames go as binary JPEGs, one
+// at a time: the next leaves once the server has answered the last.
+
+const ACTIONS = ["MoveAhead", "RotateLeft", "RotateRight", "Stop"];
+const GESTURES = ["none", "referencing", "intervention"];
+const $ = (id) => document.getElementById(id);
+
+// What the page has seen, for people reading the console and for the browser test.
+const live = (window.live = {
+  session: null, steps: 0, path: [], episode: null, ended: null, episodes: [],
+  framesSent: 0, framesSeen: 0, waving: false, captured: null, errors: [],
+});
+
+const token = new URLSearchParams(location.search).get("token");
+const scheme = location.protocol === "https:" ? "wss" : "ws";
+const ws = new WebSocket(`${scheme}://${location.host}/ws${token ? "?token=" + encodeURIComponent(token) : ""}`);
+ws.binaryType = "arraybuffer";
+const send = (m) => ws.readyState === WebSocket.OPEN && ws.send(JSON.stringify(m));
+
+ws.onopen = () => ($("status").textContent = "connected");
+ws.onclose = () => ($("status").textContent = "disconnected: reload the page");
+ws.onmessage = (ev) => {
+  const m = JSON.parse(ev.data);
+  const on = handlers[m.type];
+  if (on) on(m);
+};
+
+const map = { img: null, t: null, target: null, person: null };
+
+const handlers = {
+  hello(m) {
+    live.session = m.session;
+    $("status").textContent = `session ${m.session}`;
+    $("checkpoint").replaceChildren(...m.checkpoints.map((c, i) =>
+      new Option(`${c.name} (${c.method}, ${c.size[0]}×${c.size[1]})`, i)));
+    $("split").replaceChildren(...m.splits.map(([name, n]) => new Option(`${name} (${n})`, name)));
+    const val = m.splits.findIndex(([name]) => name === "val");
+    if (val >= 0) $("split").selectedIndex = val;
+  },
+  episode(m) {
+    live.episode = m; live.ended = null; live.steps = 0; live.path = [];
+    $("episode-label").textContent = `episode ${m.number}: ${m.label} · ${m.checkpoint}`;
+    $("outcome").textContent = ""; $("outcome").className = "";
+    const img = new Image();
+    img.onload = () => { map.img = img; drawMap(); };
+    img.src = "data:image/png;base64," + m.map_png;
+    Object.assign(map, { t: m.map_transform, target: m.target, person: m.person });
+  },
+  step(m) {
+    live.steps += 1;
+    live.path.push(m.robot);
+    $("rgb").src = "data:image/png;base64," + m.rgb_png;
+    $("depth").src = "data:image/png;base64," + m.depth_png;
+    $("step-number").textContent = m.step;
+    $("value").textContent = m.value.toFixed(3);
+    $("distance").textContent = m.distance.toFixed(2);
+    $("shown").textContent = GESTURES[m.shown] ?? m.shown;
+    $("rule").textContent = GESTURES[m.rule] ?? m.rule;
+    $("probs").replaceChildren(...m.probs.map((p, a) => {
+      const row = document.createElement("div");
+      row.className = "bar" + (a === m.action ? " chosen" : "");
+      row.innerHTML = `<span>${ACTIONS[a]}</span><div style="width:${(p * 160).toFixed(0)}px"></div><small>${(p * 100).toFixed(1)}%</small>`;
+      return row;
+    }));
+    drawMap();
+  },
+  end(m) {
+    live.ended = m;
+    live.episodes.push(m);
+    const e = live.episode;
+    $("outcome").textContent = m.success
+      ? `success at the first stop · SPL ${m.spl.toFixed(2)}`
+      : `no success at the first stop · DTS ${m.dts.toFixed(2)} m${m.success_any_stop ? " (found after more stops)" : ""}`;
+    $("outcome").className = m.success ? "success" : "failure";
+    const row = document.createElement("tr");
+    for (const v of [m.number, e.program, e.checkpoint, e.gesture, m.steps, m.success ? "yes" : "no",
+                     m.spl.toFixed(2), m.dts.toFixed(2), m.record]) {
+      const td = document.createElement("td"); td.textContent = v; row.append(td);
+    }
+    $("episodes").append(row);
+  },
+  frame_seen(m) {
+    live.framesSeen += 1;
+    live.waving = m.waving;
+    $("camera-status").textContent =
+      `${live.framesSeen} frames read · ${m.person ? "you are seen" : "no one seen"}` +
+      (m.waving ? " · waving: intervention!" : "") + (m.capturing ? " · capturing…" : "");
+    camera.inFlight = false;
+  },
+  captured(m) {
+    live.captured = m;
+    $("camera-status").textContent = `captured a ${m.arm} arm gesture (${m.seconds[0].toFixed(1)}–${m.seconds[1].toFixed(1)} s); choose "my webcam capture" and start`;
+  },
+  frame_refused(m) {
+    handlers.error(m);
+  },
+  error(m) {
+    live.errors.push(m.message);
+    $("errors").textContent = m.message;
+    camera.inFlight = false;
+  },
+};
+
+function drawMap() {
+  const c = $("map"), g = c.getContext("2d");
+  if (!map.img) return;
+  if (c.width !== map.img.width) { c.width = map.img.width; c.height = map.img.height; }
+  g.drawImage(map.img, 0, 0);
+  const [a, b, cc, d, e, f] = map.t;
+  const px = ([x, z]) => [a * x + b * z + cc, d * x + e * z + f];
+  if (live.path.length) {
+    g.strokeStyle = "#d62728"; g.lineWidth = 3; g.beginPath();
+    live.path.forEach(([x, z], i) => { const [u, v] = px([x, z]); i ? g.lineTo(u, v) : g.moveTo(u, v); });
+    g.stroke();
+    const [x, z, yaw] = live.path[live.path.length - 1];
+    const [u, v] = px([x, z]);
+    const r = (yaw * Math.PI) / 180;
+    // yaw 0 faces +z (up on the map), 90 faces +x
+    g.fillStyle = "#d62728"; g.beginPath();
+    g.moveTo(u + 12 * Math.sin(r), v - 12 * Math.cos(r));
+    g.lineTo(u + 7 * Math.cos(r), v + 7 * Math.sin(r));
+    g.lineTo(u - 7 * Math.cos(r), v - 7 * Math.sin(r));
+    g.fill();
+  }
+}
+
+// controls
+$("start").onclick = () => send({
+  type: "start",
+  program: `${$("split").value}:${$("index").value}`,
+  checkpoint: Number($("checkpoint").value),
+  gesture: $("gesture").value,
+  interventions: $("interventions").value,
+});
+const speed = () => Number($("speed").value);
+$("speed").oninput = () => { $("speed-value").textContent = speed(); if (running) send({ type: "run", speed: speed() }); };
+let running = false;
+$("run").onclick = () => { running = true; send({ type: "run", speed: speed() }); };
+$("pause").onclick = () => { running = false; send({ type: "pause" }); };
+$("step").onclick = () => { running = false; send({ type: "step" }); };
+$("intervene").onclick = () => send({ type: "intervene" });
+$("capture").onclick = () => send({ type: "capture_gesture", seconds: 4 });
+document.addEventListener("keydown", (e) => {
+  if (e.target.tagName === "INPUT" || e.target.tagName === "SELECT") return;
+  if (e.key === "i" || e.key === "I") send({ type: "intervene" });
+  if (e.key === " ") { e.preventDefault(); $("step").click(); }
+});
+
+// the webcam: 320×240 JPEGs, one in flight, at most 15 a second
+const camera = { stream: null, inFlight: false, canvas: document.createElement("canvas") };
+camera.canvas.width = 320; camera.canvas.height = 240;
+$("camera").onclick = async () => {
+  if (camera.stream) {
+    camera.stream.getTracks().forEach((t) => t.stop());
+    camera.stream = null; $("camera").textContent = "Camera on"; $("camera-status").textContent = "camera off";
+    return;
+  }
+  try {
+    camera.stream = await navigator.mediaDevices.getUserMedia({ video: { width: 320, height: 240 } });
+  } catch (e) {
+    handlers.error({ message: `the camera: ${e.message} (the page needs localhost or HTTPS)` });
+    return;
+  }
+  $("video").srcObject = camera.stream;
+  await $("video").play();
+  $("camera").textContent = "Camera off";
+  sendFrames();
+};
+function sendFrames() {
+  if (!camera.stream) return;
+  setTimeout(sendFrames, 1000 / 15);
+  if (camera.inFlight || ws.readyState !== WebSocket.OPEN) return;
+  camera.inFlight = true;
+  camera.canvas.getContext("2d").drawImage($("video"), 0, 0, 320, 240);
+  camera.canvas.toBlob(async (blob) => {
+    if (!blob) { camera.inFlight = false; return; }
+    ws.send(await blob.arrayBuffer());
+    live.framesSent += 1;
+  }, "image/jpeg", 0.85);
+}

@@ -1,0 +1,344 @@
+//! One browser tab's session: its own simulator, the checkpoints it has asked for (one `learner
+//! act` each), its webcam's landmark model and its record. It runs on a thread of its own and
+//! hears the page through a channel; when the tab closes the channel does, and everything the
+//! session started is dropped with it.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use base64::Engine;
+use tokio::sync::mpsc::UnboundedSender;
+
+use farm::metrics::{EpisodeResult, scores};
+use worker::dataset::{Dataset, write_subset};
+use worker::gesture::capture::LandmarkFrame;
+use worker::humanoid::Humanoid;
+
+use super::policy::{Checkpoint, Policy};
+use super::record::{EpisodeRecord, Recorder, Sim, StepRecord, episode_config};
+use super::webcam::{Webcam, muscles, refusal};
+use super::wire::{EpisodeEnd, GestureSource, Interventions, MAX_SPEED, StepView, ToPage, ToServer};
+use crate::commands::program::{dataset_program, parse_ref};
+use crate::report::map::TopDownMap;
+
+/// Steps a person's call (a wave, the key) shows the intervention gesture for.
+pub const CALL_STEPS: u32 = 3;
+/// DTS counts the distance beyond this (m), as `eval`'s default.
+const DTS_THRESHOLD: f64 = 1.5;
+
+/// What the server holds for every session.
+pub struct Shared {
+    pub dataset: Arc<Dataset>,
+    pub checkpoints: Vec<Checkpoint>,
+    /// Where sessions are recorded.
+    pub out: PathBuf,
+}
+
+/// What reaches a session from its tab.
+pub enum Input {
+    Message(ToServer),
+    /// A webcam frame (a JPEG, unless the page is wrong) and when it arrived.
+    Frame(Vec<u8>, Instant),
+}
+
+struct Episode {
+    number: usize,
+    checkpoint: usize,
+    program: String,
+    gesture: GestureSource,
+    interventions: Interventions,
+    sim: Sim,
+    rec: Recorder,
+    ended: bool,
+}
+
+/// A session's state; [`run`] drives it.
+pub struct Session {
+    shared: Arc<Shared>,
+    pub dir: PathBuf,
+    tx: UnboundedSender<ToPage>,
+    policies: Vec<Option<Policy>>,
+    episode: Option<Episode>,
+    episodes: usize,
+    running: Option<Duration>,
+    webcam: Option<Webcam>,
+    /// The last gesture captured from the webcam, as landmarks: fitted to each program's person.
+    captured: Option<Vec<LandmarkFrame>>,
+    calls_left: u32,
+}
+
+/// Runs a session until its tab closes.
+pub fn run(shared: Arc<Shared>, id: String, rx: Receiver<Input>, tx: UnboundedSender<ToPage>) {
+    let mut s = Session::new(shared, &id, tx);
+    let mut next = Instant::now();
+    loop {
+        let input = match s.running.filter(|_| s.episode.as_ref().is_some_and(|e| !e.ended)) {
+            Some(period) => match rx.recv_timeout(next.saturating_duration_since(Instant::now())) {
+                Ok(i) => Some(i),
+                Err(RecvTimeoutError::Timeout) => {
+                    next = Instant::now().max(next) + period;
+                    None
+                }
+                Err(RecvTimeoutError::Disconnected) => return,
+            },
+            None => match rx.recv() {
+                Ok(i) => Some(i),
+                Err(_) => return,
+            },
+        };
+        let done = match input {
+            None => s.step(),
+            Some(Input::Message(ToServer::Run { speed })) => {
+                let speed = if speed.is_finite() { speed.clamp(0.5, MAX_SPEED) } else { 10.0 };
+                s.running = Some(Duration::from_secs_f32(1.0 / speed));
+                next = Instant::now();
+                Ok(())
+            }
+            Some(Input::Message(m)) => s.handle(m),
+            Some(Input::Frame(jpeg, at)) => {
+                if let Err(e) = s.frame(&jpeg, at) {
+                    s.send(ToPage::FrameRefused { message: format!("{e:#}") });
+                }
+                Ok(())
+            }
+        };
+        if let Err(e) = done {
+            s.send(ToPage::Error { message: format!("{e:#}") });
+        }
+    }
+}
+
+impl Session {
+    /// A session recorded in the server's output folder under `id`, speaking through `tx`.
+    pub fn new(shared: Arc<Shared>, id: &str, tx: UnboundedSender<ToPage>) -> Session {
+        let n = shared.checkpoints.len();
+        Session {
+            dir: shared.out.join(id),
+            shared,
+            tx,
+            policies: (0..n).map(|_| None).collect(),
+            episode: None,
+            episodes: 0,
+            running: None,
+            webcam: None,
+            captured: None,
+            calls_left: 0,
+        }
+    }
+
+    fn send(&self, m: ToPage) {
+        // a closed tab: the receiving end is gone and the session ends at its next input
+        let _ = self.tx.send(m);
+    }
+
+    fn handle(&mut self, m: ToServer) -> anyhow::Result<()> {
+        match m {
+            ToServer::Start { program, checkpoint, gesture, interventions } => {
+                self.running = None;
+                self.start(&program, checkpoint, gesture, interventions)
+            }
+            ToServer::Run { .. } => Ok(()),
+            ToServer::Pause => {
+                self.running = None;
+                Ok(())
+            }
+            ToServer::Step => {
+                self.running = None;
+                self.step()
+            }
+            ToServer::Intervene => {
+                self.calls_left = CALL_STEPS;
+                Ok(())
+            }
+            ToServer::CaptureGesture { seconds } => {
+                anyhow::ensure!(self.webcam.is_some(), "no webcam frames yet: turn the camera on first");
+                anyhow::ensure!((1.0..=10.0).contains(&seconds), "a capture of {seconds} s: 1 to 10 seconds");
+                self.webcam.as_mut().expect("checked").start_capture(seconds);
+                Ok(())
+            }
+        }
+    }
+
+    /// Starts episode `program` (SPLIT:INDEX) with checkpoint `k`.
+    pub fn start(
+        &mut self,
+        program: &str,
+        k: usize,
+        gesture: GestureSource,
+        interventions: Interventions,
+    ) -> anyhow::Result<()> {
+        let ck =
+            self.shared.checkpoints.get(k).with_context(|| format!("checkpoint {k}: there is no such checkpoint"))?;
+        let (split, i) =
+            parse_ref(program).with_context(|| format!("program `{program}` is not SPLIT:INDEX (e.g. val:17)"))?;
+        let ds = &self.shared.dataset;
+        let (p, own) = dataset_program(ds, split, i).with_context(|| format!("program {program}"))?;
+        let motion = match gesture {
+            GestureSource::Program => own.as_flat().to_vec(),
+            GestureSource::Webcam => {
+                let frames = self.captured.as_ref().context("no gesture captured from the webcam yet")?;
+                muscles(Humanoid::seeded(p.seed).skeleton(), frames)?.motion.as_flat().to_vec()
+            }
+        };
+        let number = self.episodes + 1;
+        let dir = self.dir.join(format!("episode-{number:03}"));
+        let data = dir.join("dataset");
+        write_subset(&data, ds, split, &[(p.clone(), motion)])
+            .with_context(|| format!("writing {}", data.display()))?;
+        let cfg = episode_config(&ck.cfg, &data, split);
+        let rec = Recorder::new(&dir, &cfg)?;
+        if self.policies[k].is_none() {
+            self.policies[k] = Some(Policy::start(ck, &ck.config)?);
+        }
+        let sim = Sim::start(&cfg, interventions == Interventions::Person)?;
+        self.episodes = number;
+        self.calls_left = 0;
+
+        let scene = ds.scene(p.scene_id())?;
+        let mut map = TopDownMap::new(&scene, 60.0);
+        let others: Vec<usize> = scene.instances(p.target).filter(|&o| o != p.target_object).collect();
+        map.person([p.human_pos[0], p.human_pos[2]], p.human_yaw).target(p.target_object).other_instances(&others);
+        self.send(ToPage::Episode {
+            number,
+            program: program.to_string(),
+            label: format!("{} {program} → {}", p.scene, p.target.name()),
+            checkpoint: ck.name.clone(),
+            map_png: png_base64(&map.to_rgb_image())?,
+            map_transform: map.transform(),
+            target: [p.target_pos[0], p.target_pos[2]],
+            person: [p.human_pos[0], p.human_pos[2]],
+            gesture,
+            interventions,
+        });
+        self.episode = Some(Episode {
+            number,
+            checkpoint: k,
+            program: program.into(),
+            gesture,
+            interventions,
+            sim,
+            rec,
+            ended: false,
+        });
+        Ok(())
+    }
+
+    /// The policy acts on the current observation, the simulator takes the action; the page
+    /// sees both, and the end of the episode when it comes.
+    pub fn step(&mut self) -> anyhow::Result<()> {
+        let Some(e) = self.episode.as_mut().filter(|e| !e.ended) else {
+            anyhow::bail!("no episode under way: start one");
+        };
+        let policy = self.policies[e.checkpoint].as_mut().expect("started with the episode");
+        let view = e.sim.view();
+        let r = view.records()[0];
+        let env = e.sim.pool.env(0).context("the episode's env")?;
+        let rule = env.rule_kind();
+        let a = policy.act(e.sim.payload())?;
+        let (w, h) = (e.sim.shape.width as u32, e.sim.shape.height as u32);
+        let rgb = image::RgbImage::from_raw(w, h, view.rgb(0).to_vec()).context("frame size")?;
+        // depth: near is bright, 10 m and beyond black
+        let depth = image::GrayImage::from_raw(w, h, view.depth(0).iter().map(|d| 255 - (d >> 8) as u8).collect())
+            .context("frame size")?;
+        let step = StepRecord {
+            step: r.episode_step,
+            robot: r.robot,
+            shown: r.gesture_kind,
+            rule,
+            action: a.action,
+            probs: a.probs.clone(),
+            value: a.value,
+        };
+        e.rec.step(&step)?;
+        let _ = self.tx.send(ToPage::Step(StepView {
+            step: step.step,
+            rgb_png: png_base64(&rgb)?,
+            depth_png: png_base64(&depth)?,
+            robot: r.robot,
+            shown: r.gesture_kind,
+            rule,
+            action: a.action,
+            probs: a.probs,
+            value: a.value,
+            distance: r.distance,
+        }));
+        if e.interventions == Interventions::Person {
+            e.sim.pool.set_person_calls(0, Some(self.calls_left > 0));
+            self.calls_left = self.calls_left.saturating_sub(1);
+        }
+        e.sim.step(a.action)?;
+        let r = e.sim.view().records()[0];
+        if r.terminated != 0 || r.truncated != 0 {
+            e.ended = true;
+            let result = EpisodeResult::from_record(&r, 0, 0, 0);
+            let first = scores([&result], Some(1), DTS_THRESHOLD);
+            let record = EpisodeRecord {
+                program: e.program.clone(),
+                checkpoint: self.shared.checkpoints[e.checkpoint].file.clone(),
+                gesture: e.gesture,
+                interventions: e.interventions,
+                steps: result.steps,
+                success: first.sr > 0.0,
+                spl: first.spl / 100.0,
+                dts: first.dts,
+                success_any_stop: result.success,
+            };
+            e.rec.finish(&record)?;
+            let _ = self.tx.send(ToPage::End(EpisodeEnd {
+                number: e.number,
+                steps: record.steps,
+                success: record.success,
+                spl: record.spl,
+                dts: record.dts,
+                success_any_stop: record.success_any_stop,
+                record: e.rec.dir.display().to_string(),
+            }));
+        }
+        Ok(())
+    }
+
+    /// A webcam frame: checked, read by the landmark model, answered; a wave calls for an
+    /// intervention, a capture under way takes it.
+    pub fn frame(&mut self, jpeg: &[u8], at: Instant) -> anyhow::Result<()> {
+        if let Some(why) = refusal(jpeg) {
+            anyhow::bail!(why);
+        }
+        if self.webcam.is_none() {
+            self.webcam = Some(Webcam::start()?);
+        }
+        let cam = self.webcam.as_mut().expect("started");
+        let f = cam.read(jpeg, at)?;
+        let waving = cam.waving();
+        if waving {
+            self.calls_left = CALL_STEPS;
+        }
+        let capturing = cam.capturing();
+        let _ = self.tx.send(ToPage::FrameSeen { person: f.pose.is_some(), waving, capturing });
+        if let Some(frames) = cam.captured() {
+            // fitted to a default person here to say what was found; to each program's at its start
+            let c = muscles(Humanoid::seeded(0).skeleton(), &frames)?;
+            let arm = if c.side == worker::humanoid::Side::Left { "left" } else { "right" };
+            let _ = self.tx.send(ToPage::Captured {
+                arm: arm.into(),
+                seconds: [c.times[c.span.0], c.times[c.span.1]],
+                frames: c.frames.len(),
+                person_frames: c.person_frames,
+            });
+            self.captured = Some(frames);
+        }
+        Ok(())
+    }
+}
+
+/// A picture as the page shows it: PNG, base64.
+pub fn png_base64<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> anyhow::Result<String>
+where
+    [P::Subpixel]: image::EncodableLayout,
+{
+    let mut png = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
+    Ok(base64::engine::general_purpose::STANDARD.encode(png))
+}

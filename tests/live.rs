@@ -1,0 +1,399 @@
+//! `orchestrator live` as a person meets it: in a real browser (Debian's Chromium over
+//! chromedriver, driven by fantoccini) whose fake camera plays our own avatar performing a GOND
+//! referencing gesture (filmed by `gesture film`), and at the socket: bad frames, a bad program,
+//! a closed tab, the listening rules, a bad checkpoint.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use futures_util::{SinkExt, StreamExt};
+use gesthor_tests::{bin, capture_ready, dataset};
+use serde_json::{Value, json};
+use tokio_tungstenite::tungstenite::Message;
+
+type Socket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// The server's next message.
+async fn next(ws: &mut Socket) -> Value {
+    loop {
+        match ws.next().await.expect("the socket closed").expect("the socket failed") {
+            Message::Text(t) => return serde_json::from_str(t.as_str()).unwrap(),
+            _ => continue,
+        }
+    }
+}
+
+/// A small trained +Both checkpoint (a run directory), made once for the module.
+fn trained_run() -> PathBuf {
+    static RUN: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let tmp = tempfile::tempdir().unwrap();
+        let cfg = gesthor_tests::small_ppo_config(tmp.path(), "");
+        let run = tmp.path().join("run");
+        let o = Command::new(bin("orchestrator"))
+            .args(["up", "--config", &cfg.display().to_string(), "--run-dir", &run.display().to_string()])
+            .args(["--workers", "1", "--frames", "64"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        (tmp, run)
+    })
+    .1
+    .clone()
+}
+
+/// A running `orchestrator live` on a free loopback port; killed when dropped.
+struct Server {
+    child: Child,
+    url: String,
+    port: u16,
+}
+
+impl Server {
+    fn start(out: &Path, extra: &[&str]) -> Server {
+        let mut child = Command::new(bin("orchestrator"))
+            .args(["live", "--checkpoint", &trained_run().display().to_string()])
+            .args(["--dataset", &dataset().display().to_string(), "--out", &out.display().to_string()])
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+        let url = line.split_whitespace().find(|w| w.starts_with("http://")).unwrap_or_else(|| panic!("{line}"));
+        let port = url.trim_start_matches("http://").split(['/', ':']).nth(1).unwrap().parse().unwrap();
+        Server { child, url: url.to_string(), port }
+    }
+
+    /// How many sessions have a simulator running.
+    fn open_sessions(&self) -> u64 {
+        let body = http_get(self.port, "/sessions");
+        serde_json::from_str::<Value>(&body).unwrap()["open"].as_u64().unwrap()
+    }
+
+    /// The server's `learner` children (one per checkpoint a session started).
+    fn learners(&self) -> usize {
+        children(self.child.id()).iter().filter(|c| c.as_str() == "learner").count()
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The command names of `pid`'s children.
+fn children(pid: u32) -> Vec<String> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(stat) = std::fs::read_to_string(e.path().join("stat")) else { continue };
+        // pid (comm) state ppid ...
+        let Some((head, rest)) = stat.rsplit_once(") ") else { continue };
+        let ppid: u32 = rest.split_whitespace().nth(1).and_then(|p| p.parse().ok()).unwrap_or(0);
+        if ppid == pid {
+            out.push(head.split_once(" (").map(|(_, c)| c.to_string()).unwrap_or_default());
+        }
+    }
+    out
+}
+
+/// The body of a GET on loopback.
+fn http_get(port: u16, path: &str) -> String {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    write!(s, "GET {path} HTTP/1.0\r\nHost: localhost\r\n\r\n").unwrap();
+    let mut text = String::new();
+    s.read_to_string(&mut text).unwrap();
+    text.split_once("\r\n\r\n").map(|(_, b)| b.to_string()).unwrap_or(text)
+}
+
+/// Waits for `what` to hold, failing with `why` if it never does (a guard against a hang, not
+/// a speed bound: a busy two-core machine gets minutes).
+fn eventually(why: &str, mut what: impl FnMut() -> bool) {
+    let t = Instant::now();
+    while !what() {
+        assert!(t.elapsed() < Duration::from_secs(180), "{why}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+/// Whether Chromium and chromedriver are here; where setup.sh installed them, they must be.
+fn browser_ready() -> bool {
+    let found = ["/usr/bin/chromium", "/usr/bin/chromedriver"].iter().all(|p| Path::new(p).is_file());
+    if !found && std::env::var("GESTHOR_BROWSER_REQUIRED").is_ok_and(|v| v == "1") {
+        panic!("chromium or chromedriver is missing, but scripts/setup.sh installed them");
+    }
+    if !found {
+        eprintln!("skipped: no chromium and chromedriver (scripts/setup.sh installs them)");
+    }
+    found
+}
+
+/// The fake camera's video: our avatar performing val:1's referencing gesture (`gesture film`),
+/// each frame on a grey 320×240 canvas, as YUV4MPEG2 (I420, which Chromium reads).
+fn filmed_y4m(dir: &Path) -> PathBuf {
+    let frames = dir.join("film");
+    let o = Command::new(bin("orchestrator"))
+        .args(["gesture", "film", "val:1", "--dataset", &dataset().display().to_string()])
+        .args(["--size", "240", "--out", &frames.display().to_string()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let path = dir.join("cam.y4m");
+    let mut y4m = b"YUV4MPEG2 W320 H240 F30:1 Ip A1:1 C420\n".to_vec();
+    for t in 0..100 {
+        let img = image::open(frames.join(format!("{t:03}.png"))).unwrap().to_rgb8();
+        let rgb = |x: u32, y: u32| {
+            let p = if (40..280).contains(&x) { img.get_pixel(x - 40, y).0 } else { [128; 3] };
+            p.map(f32::from)
+        };
+        y4m.extend_from_slice(b"FRAME\n");
+        let (mut u, mut v) = (Vec::new(), Vec::new());
+        for y in 0..240 {
+            for x in 0..320 {
+                let [r, g, b] = rgb(x, y);
+                y4m.push((16.0 + 0.257 * r + 0.504 * g + 0.098 * b).round() as u8);
+            }
+        }
+        for y in (0..240).step_by(2) {
+            for x in (0..320).step_by(2) {
+                let [r, g, b] = rgb(x, y);
+                u.push((128.0 - 0.148 * r - 0.291 * g + 0.439 * b).round() as u8);
+                v.push((128.0 + 0.439 * r - 0.368 * g - 0.071 * b).round() as u8);
+            }
+        }
+        y4m.extend(u);
+        y4m.extend(v);
+    }
+    std::fs::write(&path, y4m).unwrap();
+    path
+}
+
+/// chromedriver on a free port; killed when dropped.
+struct Driver(Child, u16);
+
+impl Driver {
+    fn start() -> Driver {
+        let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        let child = Command::new("/usr/bin/chromedriver")
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        eventually("chromedriver never listened", || TcpStream::connect(("127.0.0.1", port)).is_ok());
+        Driver(child, port)
+    }
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Evaluates `js` (an expression) in the page.
+async fn page(c: &fantoccini::Client, js: &str) -> Value {
+    c.execute(&format!("return {js};"), vec![]).await.unwrap()
+}
+
+async fn wait_page(c: &fantoccini::Client, why: &str, js: &str) -> Value {
+    let t = Instant::now();
+    loop {
+        let v = page(c, js).await;
+        if !v.is_null() && v != json!(false) {
+            return v;
+        }
+        let errors = page(c, "window.live && window.live.errors").await;
+        assert!(t.elapsed() < Duration::from_secs(180), "{why} (the page's errors: {errors})");
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+}
+
+async fn click(c: &fantoccini::Client, id: &str) {
+    c.find(fantoccini::Locator::Id(id)).await.unwrap().click().await.unwrap();
+}
+
+#[test]
+fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
+    if !browser_ready() || !capture_ready() {
+        return;
+    }
+    let _g = gesthor_tests::serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cam = filmed_y4m(tmp.path());
+    let out = tmp.path().join("live");
+    let server = Server::start(&out, &["--listen", "127.0.0.1:0"]);
+    let driver = Driver::start();
+    let profile = tmp.path().join("profile");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (record, person_record) = rt.block_on(async {
+        let args = [
+            "--headless=new",
+            "--no-sandbox",
+            "--use-fake-ui-for-media-stream",
+            "--use-fake-device-for-media-stream",
+            &format!("--use-file-for-fake-video-capture={}", cam.display()),
+            "--disable-gpu",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--no-first-run",
+            "--window-size=1400,1050",
+            &format!("--user-data-dir={}", profile.display()),
+        ];
+        let mut caps = serde_json::Map::new();
+        caps.insert("goog:chromeOptions".into(), json!({"binary": "/usr/bin/chromium", "args": args}));
+        let c = fantoccini::ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+            .capabilities(caps)
+            .connect(&format!("http://127.0.0.1:{}", driver.1))
+            .await
+            .expect("chromedriver starts Chromium");
+        c.goto(&server.url).await.unwrap();
+        wait_page(&c, "the page never got its session", "window.live && window.live.session").await;
+
+        // the camera's frames reach the landmark model, and a gesture is captured from them
+        click(&c, "camera").await;
+        wait_page(&c, "the webcam's frames were not read", "window.live.framesSeen >= 10").await;
+        click(&c, "capture").await;
+        let captured = wait_page(&c, "no gesture was captured from the webcam", "window.live.captured").await;
+        assert!(captured["person_frames"].as_u64().unwrap() * 2 >= captured["frames"].as_u64().unwrap(), "{captured}");
+
+        // an episode on the captured gesture, run at speed to its end
+        page(&c, "(document.getElementById('gesture').value = 'webcam', document.getElementById('index').value = '1')").await;
+        click(&c, "start").await;
+        wait_page(&c, "the episode did not start", "window.live.episode").await;
+        page(&c, "(document.getElementById('speed').value = '30', true)").await;
+        click(&c, "run").await;
+        let end = wait_page(&c, "the episode never ended", "window.live.ended").await;
+        let path = page(&c, "window.live.path").await;
+        let steps = path.as_array().unwrap();
+        assert_eq!(steps.len() as u64, end["steps"].as_u64().unwrap(), "one step shown per action taken");
+        assert!(steps.iter().any(|p| p != &steps[0]), "the robot never moved: {path}");
+        assert_eq!(page(&c, "document.querySelectorAll('#episodes tr').length").await, json!(1));
+
+        // the person calls the intervention gesture with the key: shown beside the rule's call
+        page(&c, "(document.getElementById('gesture').value = 'program', document.getElementById('interventions').value = 'person')").await;
+        click(&c, "start").await;
+        wait_page(&c, "the second episode did not start", "window.live.episode && window.live.episode.number == 2").await;
+        click(&c, "step").await;
+        wait_page(&c, "no first step", "window.live.steps == 1").await;
+        assert_eq!(page(&c, "document.getElementById('shown').textContent").await, json!("referencing"));
+        click(&c, "intervene").await;
+        click(&c, "step").await;
+        click(&c, "step").await;
+        wait_page(&c, "no third step", "window.live.steps == 3").await;
+        assert_eq!(page(&c, "document.getElementById('shown').textContent").await, json!("intervention"));
+        // the page mid-episode, for the docs when asked (GESTHOR_LIVE_SCREENSHOT=docs/live.png)
+        if let Some(shot) = std::env::var_os("GESTHOR_LIVE_SCREENSHOT") {
+            std::fs::write(shot, c.screenshot().await.unwrap()).unwrap();
+        }
+        click(&c, "run").await;
+        let end2 = wait_page(&c, "the second episode never ended", "window.live.ended").await;
+        c.close().await.unwrap();
+        (PathBuf::from(end["record"].as_str().unwrap()), PathBuf::from(end2["record"].as_str().unwrap()))
+    });
+
+    // both records replay to the same path and the same gestures
+    for r in [&record, &person_record] {
+        let o = Command::new(bin("orchestrator")).args(["live", "replay", &r.display().to_string()]).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(String::from_utf8_lossy(&o.stdout).contains("the same path"));
+        assert!(r.join("dataset/manifest.json").is_file() && r.join("episode.json").is_file());
+    }
+    let steps = std::fs::read_to_string(person_record.join("steps.jsonl")).unwrap();
+    assert!(steps.lines().any(|l| l.contains("\"shown\":2")), "the person's call is recorded");
+    // the closed tab freed its session
+    eventually("the closed tab's session kept running", || server.open_sessions() == 0);
+}
+
+#[test]
+fn bad_frames_and_programs_get_one_error_each_and_a_closed_tab_frees_its_session() {
+    let _g = gesthor_tests::serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let server = Server::start(&tmp.path().join("live"), &["--listen", "127.0.0.1:0"]);
+    assert!(http_get(server.port, "/").contains("GesTHOR live"));
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{}/ws", server.port)).await.unwrap();
+        let hello = next(&mut ws).await;
+        assert_eq!(hello["type"], "hello", "{hello}");
+        let error = |m: Value| {
+            assert_eq!(m["type"], "error", "{m}");
+            m["message"].as_str().unwrap().to_string()
+        };
+        let refused = |m: Value| {
+            assert_eq!(m["type"], "frame_refused", "{m}");
+            m["message"].as_str().unwrap().to_string()
+        };
+        ws.send(Message::Binary(b"GIF89a not a jpeg".to_vec().into())).await.unwrap();
+        assert!(refused(next(&mut ws).await).contains("not a JPEG"));
+        let mut big = vec![0u8; 600 * 1024];
+        big[..3].copy_from_slice(&[0xFF, 0xD8, 0xFF]);
+        ws.send(Message::Binary(big.into())).await.unwrap();
+        assert!(refused(next(&mut ws).await).contains("at most"));
+        ws.send(Message::Text(r#"{"type":"launch"}"#.into())).await.unwrap();
+        assert!(error(next(&mut ws).await).contains("does not know"));
+        ws.send(Message::Text(r#"{"type":"start","program":"val:99999","checkpoint":0}"#.into())).await.unwrap();
+        assert!(error(next(&mut ws).await).contains("val:99999"));
+        if capture_ready() {
+            // two frames at once: the second comes before the first was answered
+            let png = tmp.path().join("grey.png");
+            image::RgbImage::from_pixel(240, 240, image::Rgb([90, 90, 90])).save(&png).unwrap();
+            let jpeg = orchestrator::commands::bench::live::webcam_jpeg(&png).unwrap();
+            ws.send(Message::Binary(jpeg.clone().into())).await.unwrap();
+            ws.send(Message::Binary(jpeg.into())).await.unwrap();
+            let (a, b) = (next(&mut ws).await, next(&mut ws).await);
+            assert!(refused(a).contains("before the last one was answered"));
+            assert_eq!(b["type"], "frame_seen", "{b}");
+        }
+        // the session goes on
+        ws.send(Message::Text(r#"{"type":"start","program":"val:0","checkpoint":0}"#.into())).await.unwrap();
+        assert_eq!(next(&mut ws).await["type"], "episode");
+        ws.send(Message::Text(r#"{"type":"step"}"#.into())).await.unwrap();
+        assert_eq!(next(&mut ws).await["type"], "step");
+        assert_eq!(server.open_sessions(), 1);
+        assert_eq!(server.learners(), 1);
+        ws.close(None).await.unwrap();
+    });
+    eventually("the closed tab's session kept running", || server.open_sessions() == 0);
+    eventually("the closed tab's policy kept running", || server.learners() == 0);
+}
+
+#[test]
+fn listening_beyond_loopback_asks_for_a_token_and_a_bad_checkpoint_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = Command::new(bin("orchestrator"))
+        .args(["live", "--checkpoint", &trained_run().display().to_string(), "--listen", "0.0.0.0:0"])
+        .args(["--dataset", &dataset().display().to_string()])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("--insecure"), "{e}");
+    let server = Server::start(&tmp.path().join("live"), &["--listen", "0.0.0.0:0", "--insecure"]);
+    assert!(server.url.contains("?token="), "{}", server.url);
+    assert!(http_get(server.port, "/").contains("token"));
+    assert!(http_get(server.port, "/sessions").contains("token"));
+    let token = server.url.split("?token=").nth(1).unwrap();
+    assert!(http_get(server.port, &format!("/?token={token}")).contains("GesTHOR live"));
+
+    // a run whose checkpoint is not one: the learner cannot load it
+    let run = tmp.path().join("badrun");
+    std::fs::create_dir_all(run.join("checkpoints")).unwrap();
+    std::fs::copy(trained_run().join("config.toml"), run.join("config.toml")).unwrap();
+    let bad = run.join("checkpoints/bad.safetensors");
+    std::fs::write(&bad, b"not a checkpoint").unwrap();
+    let o = Command::new(bin("orchestrator"))
+        .args(["live", "--checkpoint", &bad.display().to_string(), "--dataset", &dataset().display().to_string()])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("bad.safetensors") && e.trim().lines().count() == 1, "{e}");
+}
