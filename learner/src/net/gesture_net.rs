@@ -197,9 +197,14 @@ impl PerFrame {
         self.pooled(first).apply(&self.out).relu()
     }
 
-    /// The out layer's input, before its ReLU, for gestures alone.
+    /// The out layer's output, before its ReLU, for gestures alone.
     fn alone(&self, g: &Tensor) -> Tensor {
-        self.pooled(g.apply(&self.frame[0])).apply(&self.out)
+        self.pooled_alone(g).apply(&self.out)
+    }
+
+    /// The pooled `[G, 128]` of gestures alone (a first layer without the pose).
+    fn pooled_alone(&self, g: &Tensor) -> Tensor {
+        self.pooled(g.apply(&self.frame[0]))
     }
 
     /// From the first layer's output `[R, 100, 64]` to the pooled `[R, 128]` (mean and max).
@@ -217,18 +222,21 @@ impl Turned {
     fn new(p: &nn::Path, dims: i64, pose_dims: i64, width: i64) -> Turned {
         let no_bias = || nn::LinearConfig { bias: false, ..Default::default() };
         let turn_and_place = (pose_dims > 0).then(|| {
-            (nn::linear(p / "turn", 2 * FRAME_WIDTH, 2 * width, no_bias()), nn::linear(p / "place", pose_dims, width, no_bias()))
+            (
+                nn::linear(p / "turn", 2 * FRAME_WIDTH, 2 * width, no_bias()),
+                nn::linear(p / "place", pose_dims, width, no_bias()),
+            )
         });
         Turned { frames: PerFrame::new(p, dims, 0, width), turn_and_place }
     }
 
     /// `[A·p + b, B·p, C·p, shown]` of gestures `[G, 100, d]` (A·p + b alone without the pose).
     fn part(&self, g: &Tensor) -> Tensor {
-        let f = &self.frames;
-        let p = f.pooled(g.apply(&f.frame[0]));
+        let p = self.frames.pooled_alone(g);
+        let a = p.apply(&self.frames.out);
         match &self.turn_and_place {
-            Some((turn, _)) => Tensor::cat(&[p.apply(&f.out), p.apply(turn), shown(g)], 1),
-            None => p.apply(&f.out),
+            Some((turn, _)) => Tensor::cat(&[a, p.apply(turn), shown(g)], 1),
+            None => a,
         }
     }
 
@@ -303,6 +311,24 @@ mod tests {
         assert!(!a.allclose(&b, 1e-3, 1e-3, false));
     }
 
+    /// Three distinct gestures of 5 values a frame (the last all zero: none shown), five rows
+    /// showing them (`[0, 2, 1, 0, 2]`) and a pose per row.
+    fn distinct_rows_and_poses() -> (Tensor, Tensor, Tensor) {
+        let distinct =
+            crate::device::seeded(2, || Tensor::randn([3, GESTURE_FRAMES as i64, 5], (Kind::Float, Device::Cpu)));
+        let _ = distinct.get(2).zero_();
+        let pose = crate::device::seeded(3, || Tensor::randn([5, 4], (Kind::Float, Device::Cpu)));
+        (distinct, pose, Tensor::from_slice(&[0i64, 2, 1, 0, 2]))
+    }
+
+    /// `f`'s output and the gradients of its squared sum for every variable of `vs`.
+    fn read_with_gradients(vs: &nn::VarStore, f: &dyn Fn() -> Tensor) -> (Tensor, Vec<Tensor>) {
+        vs.trainable_variables().iter_mut().for_each(|v| v.zero_grad());
+        let out = f();
+        out.square().sum(Kind::Float).backward();
+        (out.detach(), vs.trainable_variables().iter().map(|v| v.grad().copy()).collect())
+    }
+
     /// The pose read beside the frames (the split first layer) is the pose read in them: the
     /// features and gradients of concatenating it to every frame of a shown gesture (an unshown,
     /// all-zero gesture reads none), whether the rows are read through their distinct gestures
@@ -311,19 +337,10 @@ mod tests {
     fn the_pose_beside_the_frames_reads_as_the_pose_in_them() {
         let vs = nn::VarStore::new(Device::Cpu);
         let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::PerFrame, 5, 4, 8));
-        let distinct =
-            crate::device::seeded(2, || Tensor::randn([3, GESTURE_FRAMES as i64, 5], (Kind::Float, Device::Cpu)));
-        let _ = distinct.get(2).zero_();
-        let pose = crate::device::seeded(3, || Tensor::randn([5, 4], (Kind::Float, Device::Cpu)));
-        let rows = Tensor::from_slice(&[0i64, 2, 1, 0, 2]);
+        let (distinct, pose, rows) = distinct_rows_and_poses();
         let shown = Tensor::from_slice(&[1f32, 0.0, 1.0, 1.0, 0.0]).view([5, 1, 1]);
         let frames = pose.unsqueeze(1).expand([5, GESTURE_FRAMES as i64, 4], false) * shown;
-        let read = |f: &dyn Fn() -> Tensor| {
-            vs.trainable_variables().iter_mut().for_each(|v| v.zero_grad());
-            let out = f();
-            out.square().sum(Kind::Float).backward();
-            (out.detach(), vs.trainable_variables().iter().map(|v| v.grad().copy()).collect::<Vec<_>>())
-        };
+        let read = |f: &dyn Fn() -> Tensor| read_with_gradients(&vs, f);
         let g = distinct.index_select(0, &rows);
         let (want, want_grads) = read(&|| net.forward(&Tensor::cat(&[&g, &frames], 2)));
         for (name, got) in [
@@ -348,17 +365,8 @@ mod tests {
     fn the_turned_network_joins_the_pose_after_the_frames() {
         let vs = nn::VarStore::new(Device::Cpu);
         let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::FlatAndTurned, 5, 4, 32));
-        let distinct =
-            crate::device::seeded(2, || Tensor::randn([3, GESTURE_FRAMES as i64, 5], (Kind::Float, Device::Cpu)));
-        let _ = distinct.get(2).zero_();
-        let pose = crate::device::seeded(3, || Tensor::randn([5, 4], (Kind::Float, Device::Cpu)));
-        let rows = Tensor::from_slice(&[0i64, 2, 1, 0, 2]);
-        let read = |f: &dyn Fn() -> Tensor| {
-            vs.trainable_variables().iter_mut().for_each(|v| v.zero_grad());
-            let out = f();
-            out.square().sum(Kind::Float).backward();
-            (out.detach(), vs.trainable_variables().iter().map(|v| v.grad().copy()).collect::<Vec<_>>())
-        };
+        let (distinct, pose, rows) = distinct_rows_and_poses();
+        let read = |f: &dyn Fn() -> Tensor| read_with_gradients(&vs, f);
         let g = distinct.index_select(0, &rows);
         let (want, want_grads) = read(&|| net.read(&g, None, Some(&pose)));
         let (got, grads) = read(&|| net.read(&distinct, Some(&rows), Some(&pose)));
@@ -368,7 +376,8 @@ mod tests {
             assert!(a.allclose(b, 1e-4, 1e-4, false), "gradients differ: {}", (a - b).abs().max());
         }
         // the same gestures with the person turned half round and moved
-        let other = Tensor::stack(&[pose.select(1, 0) + 1.0, pose.select(1, 1), -pose.select(1, 2), -pose.select(1, 3)], 1);
+        let other =
+            Tensor::stack(&[pose.select(1, 0) + 1.0, pose.select(1, 1), -pose.select(1, 2), -pose.select(1, 3)], 1);
         let moved = tch::no_grad(|| net.read(&g, None, Some(&other)));
         let (flat, turned) = (want.narrow(1, 0, 16), want.narrow(1, 16, 16));
         assert!(moved.narrow(1, 0, 16).equal(&flat), "the flat half reads the gesture alone");
