@@ -239,9 +239,10 @@ impl Agent {
                 // with the pose beside its frames the features change at every step: read afresh
                 (Some(l), Some(g), None) if !self.spec.pose_in_frames() => {
                     let part = self.gestures.parts(l, g, at, self.n_envs);
-                    let pose = self.spec.gesture_reads_pose().then(|| {
-                        crate::inputs::frame_pose(x.pose.as_ref().expect("the pose comes with the gesture"))
-                    });
+                    let pose = self
+                        .spec
+                        .gesture_reads_pose()
+                        .then(|| crate::inputs::frame_pose(x.pose.as_ref().expect("the pose comes with the gesture")));
                     Some(l.join(&part, pose.as_ref()))
                 }
                 _ => None,

@@ -185,7 +185,8 @@ impl PolicyNet {
         if let (Some(l), Some(t)) = (&self.gesture, &x.gesture) {
             parts.push(gesture.unwrap_or_else(|| {
                 // distinct gestures are read once, then gathered for every row that shows them
-                let pose = self.spec.gesture_reads_pose().then(|| inputs::frame_pose(x.pose.as_ref().expect("the pose")));
+                let pose =
+                    self.spec.gesture_reads_pose().then(|| inputs::frame_pose(x.pose.as_ref().expect("the pose")));
                 l.read(t, x.gesture_index.as_ref(), pose.as_ref())
             }));
         }

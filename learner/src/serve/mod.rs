@@ -10,7 +10,7 @@
 
 pub mod batch;
 pub mod integrity;
+pub mod pipe;
 pub mod policy;
 pub mod ppo_policy;
 pub mod server;
-pub mod pipe;
