@@ -253,7 +253,11 @@ impl Progressline {
             (None, s) => (Bar::new("up", s.unwrap_or(0.0).ceil() as u64, "s", every), false),
         };
         let now = Instant::now();
-        let rate = std::cell::RefCell::new(Rate::new(Duration::from_secs(30)));
+        // counted from the start: the first report already holds a rollout's frames, and the
+        // first update's pause must not read as 0 frames/s
+        let mut rate = Rate::new(Duration::from_secs(30));
+        rate.add(now, 0);
+        let rate = std::cell::RefCell::new(rate);
         Progressline { bar, by_frames, from, rate, started: now, polled: std::cell::Cell::new(now) }
     }
 

@@ -269,6 +269,18 @@ mod tests {
     }
 
     #[test]
+    fn the_first_update_reads_the_rollout_before_it() {
+        // the learner's first report comes after a whole rollout; then it learns for a while
+        let t0 = Instant::now();
+        let mut r = Rate::new(Duration::from_secs(30));
+        r.add(t0, 0);
+        for tick in 8..=100u64 {
+            let v = r.add(t0 + Duration::from_millis(tick * 500), 2336);
+            assert!(v.unwrap() > 40.0, "second {}: {v:?}", tick / 2);
+        }
+    }
+
+    #[test]
     fn durations_read_as_words() {
         assert_eq!(duration_words(42.4), "42 s");
         assert_eq!(duration_words(200.0), "3 min 20 s");
