@@ -14,7 +14,7 @@ use serde_json::Value;
 /// each; 13.8° from the landmarks alone: most of it is the landmark model's depth) and 16.2° on
 /// the GOND recording; the test dataset's first 4 gestures: 11.9, 16.0, 22.1, 22.9° (median
 /// 19.1°). 25° leaves room for that spread without admitting a lost or wrong arm (≥ 40°).
-const BOUND_DEG: f64 = 25.0;
+pub(crate) const BOUND_DEG: f64 = 25.0;
 
 /// The real GOND recording (the repository's copy of reference/gond-sample).
 fn gond_sample() -> std::path::PathBuf {

@@ -1,7 +1,7 @@
 //! `orchestrator live` as a person meets it: in a real browser (Debian's Chromium over
 //! chromedriver, driven by fantoccini) whose fake camera plays our own avatar performing a GOND
-//! referencing gesture (filmed by `gesture film`), and at the socket: bad frames, a bad program,
-//! a closed tab, the listening rules, a bad checkpoint.
+//! referencing gesture (filmed by `gesture film`), two checkpoints side by side, and at the
+//! socket: bad frames, a bad program, a closed tab, the listening rules, a bad checkpoint.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -14,6 +14,12 @@ use futures_util::{SinkExt, StreamExt};
 use gesthor_tests::{bin, capture_ready, dataset};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
+use worker::dataset::{Dataset, Verify};
+use worker::gesture::Motion;
+use worker::gesture::capture::{arm_activity, pointing_line};
+use worker::humanoid::{Humanoid, Side};
+use worker::program::Program;
+use worker::scene::Split;
 
 type Socket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
@@ -175,6 +181,28 @@ fn filmed_y4m(dir: &Path) -> PathBuf {
     path
 }
 
+/// The gesturing arm of program `i` in the dataset at `dir` and its shoulder → wrist line
+/// during the hold (where the arm's activity is within 80% of its peak, as `bench capture`
+/// reads it), in the program's own skeleton's axes.
+fn held_arm(dir: &Path, i: usize) -> (Side, [f32; 3]) {
+    let ds = Dataset::open(dir, Verify::Quick).unwrap();
+    let file = ds.require(Split::Val).unwrap();
+    let p = Program::from_record(i as u64, &file.record(i)).unwrap();
+    let motion = Motion::from_flat(&file.motion(i)).unwrap();
+    let human = Humanoid::seeded(p.seed);
+    let sk = human.skeleton();
+    let (side, act) = arm_activity(sk, &motion);
+    let act = &act[if side == Side::Left { 0 } else { 1 }];
+    let peak = act.iter().copied().fold(0.0f32, f32::max);
+    let line = (0..act.len())
+        .filter(|&t| act[t] >= 0.8 * peak)
+        .map(|t| pointing_line(sk, motion.frame(t), side))
+        .reduce(|a, b| a + b)
+        .unwrap()
+        .normalize();
+    (side, [line.x, line.y, line.z])
+}
+
 /// chromedriver on a free port; killed when dropped.
 struct Driver(Child, u16);
 
@@ -272,44 +300,79 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
         wait_page(&c, "the episode did not start", "window.live.episode").await;
         page(&c, "(document.getElementById('speed').value = '30', true)").await;
         click(&c, "run").await;
-        let end = wait_page(&c, "the episode never ended", "window.live.ended").await;
-        let path = page(&c, "window.live.path").await;
+        wait_page(&c, "the episode never ended", "window.live.ended").await;
+        let end = page(&c, "window.live.sides[0].end").await;
+        let path = page(&c, "window.live.sides[0].path").await;
         let steps = path.as_array().unwrap();
         assert_eq!(steps.len() as u64, end["steps"].as_u64().unwrap(), "one step shown per action taken");
         assert!(steps.iter().any(|p| p != &steps[0]), "the robot never moved: {path}");
         assert_eq!(page(&c, "document.querySelectorAll('#episodes tr').length").await, json!(1));
 
-        // the person calls the intervention gesture with the key: shown beside the rule's call
-        page(&c, "(document.getElementById('gesture').value = 'program', document.getElementById('interventions').value = 'person')").await;
+        // two checkpoints side by side on the program's own gesture (here the same one twice:
+        // two policies, two simulators); the person calls the intervention gesture with the
+        // key, and both robots see it at the same step, beside the rule's call
+        let shown = |k: usize| format!("document.querySelector('#side-{k} .shown').textContent");
+        page(&c, "(document.getElementById('gesture').value = 'program', document.getElementById('interventions').value = 'person', document.getElementById('versus').value = '0')").await;
         click(&c, "start").await;
-        wait_page(&c, "the second episode did not start", "window.live.episode && window.live.episode.number == 2").await;
+        let sides = wait_page(&c, "the side-by-side episode did not start", "window.live.episode && window.live.episode.sides.length == 2 && window.live.episode.sides").await;
+        assert_eq!((sides[0]["number"].as_u64(), sides[1]["number"].as_u64()), (Some(2), Some(3)), "{sides}");
         click(&c, "step").await;
-        wait_page(&c, "no first step", "window.live.steps == 1").await;
-        assert_eq!(page(&c, "document.getElementById('shown').textContent").await, json!("referencing"));
+        wait_page(&c, "no first step", "window.live.sides.every(s => s.steps == 1)").await;
+        for k in 0..2 {
+            assert_eq!(page(&c, &shown(k)).await, json!("referencing"));
+        }
         click(&c, "intervene").await;
         click(&c, "step").await;
         click(&c, "step").await;
-        wait_page(&c, "no third step", "window.live.steps == 3").await;
-        assert_eq!(page(&c, "document.getElementById('shown').textContent").await, json!("intervention"));
+        wait_page(&c, "no third step", "window.live.sides.every(s => s.steps == 3)").await;
+        for k in 0..2 {
+            assert_eq!(page(&c, &shown(k)).await, json!("intervention"), "side {k}");
+        }
+        // both robots' views and policies are on the page
+        let views = "[...document.querySelectorAll('.side .rgb, .side .depth')].filter(i => i.naturalWidth > 0).length";
+        wait_page(&c, "the two robots' views were not shown", &format!("{views} == 4")).await;
+        assert_eq!(page(&c, "document.querySelectorAll('.side .bar').length").await, json!(8));
         // the page mid-episode, for the docs when asked (GESTHOR_LIVE_SCREENSHOT=docs/live.png)
         if let Some(shot) = std::env::var_os("GESTHOR_LIVE_SCREENSHOT") {
             std::fs::write(shot, c.screenshot().await.unwrap()).unwrap();
         }
         click(&c, "run").await;
-        let end2 = wait_page(&c, "the second episode never ended", "window.live.ended").await;
+        wait_page(&c, "the side-by-side episode never ended", "window.live.ended").await;
+        let ends = page(&c, "window.live.sides.map(s => s.end)").await;
+        let lengths = page(&c, "window.live.sides.map(s => s.path.length)").await;
+        for k in 0..2 {
+            assert_eq!(lengths[k], ends[k]["steps"], "side {k}: one step shown per action taken");
+        }
+        assert_eq!(page(&c, "document.querySelectorAll('#episodes tr').length").await, json!(3));
         c.close().await.unwrap();
-        (PathBuf::from(end["record"].as_str().unwrap()), PathBuf::from(end2["record"].as_str().unwrap()))
+        let record = |e: &Value| PathBuf::from(e["record"].as_str().unwrap());
+        (record(&end), [record(&ends[0]), record(&ends[1])])
     });
 
-    // both records replay to the same path and the same gestures
-    for r in [&record, &person_record] {
+    // the arm captured from the webcam points where the filmed one did, within the closed
+    // loop's error (`gesture capture` on the same film, tests/capture.rs): the webcam's frames
+    // are timed by their arrival, so the holds are compared, not frame by frame
+    let (filmed_side, filmed) = held_arm(&dataset(), 1);
+    let (captured_side, captured) = held_arm(&record.join("dataset"), 0);
+    assert_eq!(captured_side, filmed_side, "the captured arm is the filmed one");
+    let cos: f32 = filmed.iter().zip(&captured).map(|(a, b)| a * b).sum();
+    let deg = f64::from(cos.clamp(-1.0, 1.0).acos().to_degrees());
+    assert!(deg < crate::capture::BOUND_DEG, "the captured arm's hold is {deg:.1}° from the filmed one's");
+
+    // every record replays to the same path and the same gestures; each side is an episode of
+    // its own that names the one beside it
+    for r in [&record, &person_record[0], &person_record[1]] {
         let o = Command::new(bin("orchestrator")).args(["live", "replay", &r.display().to_string()]).output().unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         assert!(String::from_utf8_lossy(&o.stdout).contains("the same path"));
         assert!(r.join("dataset/manifest.json").is_file() && r.join("episode.json").is_file());
     }
-    let steps = std::fs::read_to_string(person_record.join("steps.jsonl")).unwrap();
-    assert!(steps.lines().any(|l| l.contains("\"shown\":2")), "the person's call is recorded");
+    for (r, beside) in person_record.iter().zip([3, 2]) {
+        let steps = std::fs::read_to_string(r.join("steps.jsonl")).unwrap();
+        assert!(steps.lines().any(|l| l.contains("\"shown\":2")), "the person's call is recorded");
+        let episode: Value = serde_json::from_str(&std::fs::read_to_string(r.join("episode.json")).unwrap()).unwrap();
+        assert_eq!(episode["beside"], beside, "{}", r.display());
+    }
     // the closed tab freed its session
     eventually("the closed tab's session kept running", || server.open_sessions() == 0);
 }
@@ -354,13 +417,19 @@ fn bad_frames_and_programs_get_one_error_each_and_a_closed_tab_frees_its_session
             assert!(refused(a).contains("before the last one was answered"));
             assert_eq!(b["type"], "frame_seen", "{b}");
         }
-        // the session goes on
-        ws.send(Message::Text(r#"{"type":"start","program":"val:0","checkpoint":0}"#.into())).await.unwrap();
-        assert_eq!(next(&mut ws).await["type"], "episode");
+        ws.send(Message::Text(r#"{"type":"start","program":"val:0","checkpoint":0,"versus":5}"#.into())).await.unwrap();
+        assert!(error(next(&mut ws).await).contains("versus 5"));
+        // the session goes on: two robots side by side, a step each
+        ws.send(Message::Text(r#"{"type":"start","program":"val:0","checkpoint":0,"versus":0}"#.into())).await.unwrap();
+        let episode = next(&mut ws).await;
+        assert_eq!(episode["type"], "episode");
+        assert_eq!(episode["sides"].as_array().unwrap().len(), 2, "{}", episode["sides"]);
         ws.send(Message::Text(r#"{"type":"step"}"#.into())).await.unwrap();
-        assert_eq!(next(&mut ws).await["type"], "step");
+        let (a, b) = (next(&mut ws).await, next(&mut ws).await);
+        assert_eq!((a["type"].as_str(), b["type"].as_str()), (Some("step"), Some("step")));
+        assert_eq!((a["side"].as_u64(), b["side"].as_u64()), (Some(0), Some(1)));
         assert_eq!(server.open_sessions(), 1);
-        assert_eq!(server.learners(), 1);
+        assert_eq!(server.learners(), 2);
         ws.close(None).await.unwrap();
     });
     eventually("the closed tab's session kept running", || server.open_sessions() == 0);

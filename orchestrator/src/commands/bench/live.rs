@@ -55,7 +55,7 @@ pub fn run(a: BenchLiveArgs) -> anyhow::Result<()> {
     // the live loop: whole episodes, stepped as fast as they go
     let (mut steps, mut busy) = (0u64, Duration::ZERO);
     for i in 0..a.programs {
-        s.start(&format!("val:{i}"), 0, GestureSource::Program, Interventions::Rule)?;
+        s.start(&format!("val:{i}"), 0, None, GestureSource::Program, Interventions::Rule)?;
         let t = Instant::now();
         let mut ended = false;
         while !ended {

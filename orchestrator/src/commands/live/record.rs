@@ -7,7 +7,9 @@
 //! SESSION/episode-001/steps.jsonl   per step: the robot, the gesture shown and the angle rule's,
 //!                                   the action, the policy's probabilities and value
 //! SESSION/episode-001/episode.json  the program, checkpoint, gesture source, who called the
-//!                                   interventions, and the outcome (SR/SPL/DTS)
+//!                                   interventions, the episode run beside it (two checkpoints
+//!                                   compared: each side is an episode of its own), and the
+//!                                   outcome (SR/SPL/DTS)
 //! ```
 //!
 //! `orchestrator replay val:0 --dataset …/dataset` shows the gesture, `follow`/`eval` run any
@@ -25,21 +27,7 @@ use farm::stepper::PayloadBuf;
 use shm_schema::{ObsShape, ObsView, gesture_kind};
 use worker::env::{EnvPool, PoolSpec, ProgramSource};
 
-use super::wire::{GestureSource, Interventions};
-
-/// One step of a recorded episode.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct StepRecord {
-    pub step: u32,
-    /// x, z (m), yaw (degrees) where the robot observed.
-    pub robot: [f32; 3],
-    /// The gesture shown with the observation, and the angle rule's (`shm_schema::gesture_kind`).
-    pub shown: u8,
-    pub rule: u8,
-    pub action: u8,
-    pub probs: Vec<f32>,
-    pub value: f32,
-}
+use super::wire::{GestureSource, Interventions, Outcome, StepRecord};
 
 /// What an episode was and how it ended.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -48,12 +36,11 @@ pub struct EpisodeRecord {
     pub checkpoint: PathBuf,
     pub gesture: GestureSource,
     pub interventions: Interventions,
-    pub steps: u32,
-    /// At the first stop.
-    pub success: bool,
-    pub spl: f64,
-    pub dts: f64,
-    pub success_any_stop: bool,
+    /// The episode run beside this one on the same program (two checkpoints compared).
+    #[serde(default)]
+    pub beside: Option<usize>,
+    #[serde(flatten)]
+    pub outcome: Outcome,
 }
 
 /// Where an episode's files go, and the steps file being written.

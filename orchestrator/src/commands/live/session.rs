@@ -1,5 +1,6 @@
-//! One browser tab's session: its own simulator, the checkpoints it has asked for (one `learner
-//! act` each), its webcam's landmark model and its record. It runs on a thread of its own and
+//! One browser tab's session: its own simulator (two, side by side, when two checkpoints are
+//! compared on one program), the checkpoints it has asked for (one `learner act` a side each),
+//! its webcam's landmark model and its record. It runs on a thread of its own and
 //! hears the page through a channel; when the tab closes the channel does, and everything the
 //! session started is dropped with it.
 
@@ -18,9 +19,11 @@ use worker::gesture::capture::LandmarkFrame;
 use worker::humanoid::Humanoid;
 
 use super::policy::{Checkpoint, Policy};
-use super::record::{EpisodeRecord, Recorder, Sim, StepRecord, episode_config};
+use super::record::{EpisodeRecord, Recorder, Sim, episode_config};
 use super::webcam::{Webcam, muscles, refusal};
-use super::wire::{EpisodeEnd, GestureSource, Interventions, MAX_SPEED, StepView, ToPage, ToServer};
+use super::wire::{
+    EpisodeEnd, GestureSource, Interventions, MAX_SPEED, Outcome, Side, StepRecord, StepView, ToPage, ToServer,
+};
 use crate::commands::program::{dataset_program, parse_ref};
 use crate::report::map::TopDownMap;
 
@@ -44,15 +47,29 @@ pub enum Input {
     Frame(Vec<u8>, Instant),
 }
 
-struct Episode {
+/// One robot of an episode: a checkpoint acting in a simulator of its own, recorded as an
+/// episode of its own.
+struct Robot {
     number: usize,
     checkpoint: usize,
-    program: String,
-    gesture: GestureSource,
-    interventions: Interventions,
     sim: Sim,
     rec: Recorder,
     ended: bool,
+}
+
+/// An episode under way: one program, one gesture, one source of interventions, and one robot
+/// a side, stepped in lockstep.
+struct Episode {
+    program: String,
+    gesture: GestureSource,
+    interventions: Interventions,
+    robots: Vec<Robot>,
+}
+
+impl Episode {
+    fn ended(&self) -> bool {
+        self.robots.iter().all(|r| r.ended)
+    }
 }
 
 /// A session's state; [`run`] drives it.
@@ -60,7 +77,9 @@ pub struct Session {
     shared: Arc<Shared>,
     pub dir: PathBuf,
     tx: UnboundedSender<ToPage>,
-    policies: Vec<Option<Policy>>,
+    /// A side's policy for each checkpoint (`[side][checkpoint]`): each keeps its own recurrent
+    /// memory, so one checkpoint on both sides runs twice.
+    policies: [Vec<Option<Policy>>; 2],
     episode: Option<Episode>,
     episodes: usize,
     running: Option<Duration>,
@@ -75,7 +94,7 @@ pub fn run(shared: Arc<Shared>, id: String, rx: Receiver<Input>, tx: UnboundedSe
     let mut s = Session::new(shared, &id, tx);
     let mut next = Instant::now();
     loop {
-        let input = match s.running.filter(|_| s.episode.as_ref().is_some_and(|e| !e.ended)) {
+        let input = match s.running.filter(|_| s.episode.as_ref().is_some_and(|e| !e.ended())) {
             Some(period) => match rx.recv_timeout(next.saturating_duration_since(Instant::now())) {
                 Ok(i) => Some(i),
                 Err(RecvTimeoutError::Timeout) => {
@@ -119,7 +138,7 @@ impl Session {
             dir: shared.out.join(id),
             shared,
             tx,
-            policies: (0..n).map(|_| None).collect(),
+            policies: [0, 1].map(|_| (0..n).map(|_| None).collect()),
             episode: None,
             episodes: 0,
             running: None,
@@ -136,9 +155,9 @@ impl Session {
 
     fn handle(&mut self, m: ToServer) -> anyhow::Result<()> {
         match m {
-            ToServer::Start { program, checkpoint, gesture, interventions } => {
+            ToServer::Start { program, checkpoint, versus, gesture, interventions } => {
                 self.running = None;
-                self.start(&program, checkpoint, gesture, interventions)
+                self.start(&program, checkpoint, versus, gesture, interventions)
             }
             ToServer::Run { .. } => Ok(()),
             ToServer::Pause => {
@@ -162,16 +181,20 @@ impl Session {
         }
     }
 
-    /// Starts episode `program` (SPLIT:INDEX) with checkpoint `k`.
+    /// Starts episode `program` (SPLIT:INDEX) with checkpoint `k`, and `versus` beside it.
     pub fn start(
         &mut self,
         program: &str,
         k: usize,
+        versus: Option<usize>,
         gesture: GestureSource,
         interventions: Interventions,
     ) -> anyhow::Result<()> {
-        let ck =
-            self.shared.checkpoints.get(k).with_context(|| format!("checkpoint {k}: there is no such checkpoint"))?;
+        let checkpoints = std::iter::once(k).chain(versus).collect::<Vec<_>>();
+        for (side, &c) in checkpoints.iter().enumerate() {
+            let field = ["checkpoint", "versus"][side];
+            anyhow::ensure!(c < self.shared.checkpoints.len(), "{field} {c}: there is no such checkpoint");
+        }
         let (split, i) =
             parse_ref(program).with_context(|| format!("program `{program}` is not SPLIT:INDEX (e.g. val:17)"))?;
         let ds = &self.shared.dataset;
@@ -183,18 +206,23 @@ impl Session {
                 muscles(Humanoid::seeded(p.seed).skeleton(), frames)?.motion.as_flat().to_vec()
             }
         };
-        let number = self.episodes + 1;
-        let dir = self.dir.join(format!("episode-{number:03}"));
-        let data = dir.join("dataset");
-        write_subset(&data, ds, split, &[(p.clone(), motion)])
-            .with_context(|| format!("writing {}", data.display()))?;
-        let cfg = episode_config(&ck.cfg, &data, split);
-        let rec = Recorder::new(&dir, &cfg)?;
-        if self.policies[k].is_none() {
-            self.policies[k] = Some(Policy::start(ck, &ck.config)?);
+        let mut robots = Vec::new();
+        for (side, &c) in checkpoints.iter().enumerate() {
+            let ck = &self.shared.checkpoints[c];
+            let number = self.episodes + 1 + side;
+            let dir = self.dir.join(format!("episode-{number:03}"));
+            let data = dir.join("dataset");
+            write_subset(&data, ds, split, &[(p.clone(), motion.clone())])
+                .with_context(|| format!("writing {}", data.display()))?;
+            let cfg = episode_config(&ck.cfg, &data, split);
+            let rec = Recorder::new(&dir, &cfg)?;
+            if self.policies[side][c].is_none() {
+                self.policies[side][c] = Some(Policy::start(ck, &ck.config)?);
+            }
+            let sim = Sim::start(&cfg, interventions == Interventions::Person)?;
+            robots.push(Robot { number, checkpoint: c, sim, rec, ended: false });
         }
-        let sim = Sim::start(&cfg, interventions == Interventions::Person)?;
-        self.episodes = number;
+        self.episodes += robots.len();
         self.calls_left = 0;
 
         let scene = ds.scene(p.scene_id())?;
@@ -202,10 +230,12 @@ impl Session {
         let others: Vec<usize> = scene.instances(p.target).filter(|&o| o != p.target_object).collect();
         map.person([p.human_pos[0], p.human_pos[2]], p.human_yaw).target(p.target_object).other_instances(&others);
         self.send(ToPage::Episode {
-            number,
             program: program.to_string(),
             label: format!("{} {program} → {}", p.scene, p.target.name()),
-            checkpoint: ck.name.clone(),
+            sides: robots
+                .iter()
+                .map(|r| Side { number: r.number, checkpoint: self.shared.checkpoints[r.checkpoint].name.clone() })
+                .collect(),
             map_png: png_base64(&map.to_rgb_image())?,
             map_transform: map.transform(),
             target: [p.target_pos[0], p.target_pos[2]],
@@ -213,90 +243,37 @@ impl Session {
             gesture,
             interventions,
         });
-        self.episode = Some(Episode {
-            number,
-            checkpoint: k,
-            program: program.into(),
-            gesture,
-            interventions,
-            sim,
-            rec,
-            ended: false,
-        });
+        self.episode = Some(Episode { program: program.into(), gesture, interventions, robots });
         Ok(())
     }
 
-    /// The policy acts on the current observation, the simulator takes the action; the page
-    /// sees both, and the end of the episode when it comes.
+    /// Each robot still under way takes a step: its policy acts on its observation, its
+    /// simulator takes the action; the page sees both, and each side's end when it comes. A
+    /// person's call reaches both sides at the same step.
     pub fn step(&mut self) -> anyhow::Result<()> {
-        let Some(e) = self.episode.as_mut().filter(|e| !e.ended) else {
+        let Some(e) = self.episode.as_mut().filter(|e| !e.ended()) else {
             anyhow::bail!("no episode under way: start one");
         };
-        let policy = self.policies[e.checkpoint].as_mut().expect("started with the episode");
-        let view = e.sim.view();
-        let r = view.records()[0];
-        let env = e.sim.pool.env(0).context("the episode's env")?;
-        let rule = env.rule_kind();
-        let a = policy.act(e.sim.payload())?;
-        let (w, h) = (e.sim.shape.width as u32, e.sim.shape.height as u32);
-        let rgb = image::RgbImage::from_raw(w, h, view.rgb(0).to_vec()).context("frame size")?;
-        // depth: near is bright, 10 m and beyond black
-        let depth = image::GrayImage::from_raw(w, h, view.depth(0).iter().map(|d| 255 - (d >> 8) as u8).collect())
-            .context("frame size")?;
-        let step = StepRecord {
-            step: r.episode_step,
-            robot: r.robot,
-            shown: r.gesture_kind,
-            rule,
-            action: a.action,
-            probs: a.probs.clone(),
-            value: a.value,
-        };
-        e.rec.step(&step)?;
-        let _ = self.tx.send(ToPage::Step(StepView {
-            step: step.step,
-            rgb_png: png_base64(&rgb)?,
-            depth_png: png_base64(&depth)?,
-            robot: r.robot,
-            shown: r.gesture_kind,
-            rule,
-            action: a.action,
-            probs: a.probs,
-            value: a.value,
-            distance: r.distance,
-        }));
-        if e.interventions == Interventions::Person {
-            e.sim.pool.set_person_calls(0, Some(self.calls_left > 0));
-            self.calls_left = self.calls_left.saturating_sub(1);
-        }
-        e.sim.step(a.action)?;
-        let r = e.sim.view().records()[0];
-        if r.terminated != 0 || r.truncated != 0 {
-            e.ended = true;
-            let result = EpisodeResult::from_record(&r, 0, 0, 0);
-            let first = scores([&result], Some(1), DTS_THRESHOLD);
-            let record = EpisodeRecord {
+        let beside = |side: usize| e.robots.get(1 - side).map(|r| r.number);
+        let besides: Vec<Option<usize>> = (0..e.robots.len()).map(beside).collect();
+        let call = self.calls_left > 0;
+        for (side, robot) in e.robots.iter_mut().enumerate().filter(|(_, r)| !r.ended) {
+            let policy = self.policies[side][robot.checkpoint].as_mut().expect("started with the episode");
+            let Some(outcome) = step_robot(robot, policy, side, e.interventions, call, &self.tx)? else {
+                continue;
+            };
+            robot.rec.finish(&EpisodeRecord {
                 program: e.program.clone(),
-                checkpoint: self.shared.checkpoints[e.checkpoint].file.clone(),
+                checkpoint: self.shared.checkpoints[robot.checkpoint].file.clone(),
                 gesture: e.gesture,
                 interventions: e.interventions,
-                steps: result.steps,
-                success: first.sr > 0.0,
-                spl: first.spl / 100.0,
-                dts: first.dts,
-                success_any_stop: result.success,
-            };
-            e.rec.finish(&record)?;
-            let _ = self.tx.send(ToPage::End(EpisodeEnd {
-                number: e.number,
-                steps: record.steps,
-                success: record.success,
-                spl: record.spl,
-                dts: record.dts,
-                success_any_stop: record.success_any_stop,
-                record: e.rec.dir.display().to_string(),
-            }));
+                beside: besides[side],
+                outcome: outcome.clone(),
+            })?;
+            let record = robot.rec.dir.display().to_string();
+            let _ = self.tx.send(ToPage::End(EpisodeEnd { side, number: robot.number, outcome, record }));
         }
+        self.calls_left = self.calls_left.saturating_sub(1);
         Ok(())
     }
 
@@ -331,6 +308,57 @@ impl Session {
         }
         Ok(())
     }
+}
+
+/// One step of one robot: recorded, shown on the page as `side`; its outcome when the episode
+/// ended with it.
+fn step_robot(
+    robot: &mut Robot,
+    policy: &mut Policy,
+    side: usize,
+    interventions: Interventions,
+    call: bool,
+    tx: &UnboundedSender<ToPage>,
+) -> anyhow::Result<Option<Outcome>> {
+    let view = robot.sim.view();
+    let r = view.records()[0];
+    let rule = robot.sim.pool.env(0).context("the episode's env")?.rule_kind();
+    let a = policy.act(robot.sim.payload())?;
+    let (w, h) = (robot.sim.shape.width as u32, robot.sim.shape.height as u32);
+    let rgb = image::RgbImage::from_raw(w, h, view.rgb(0).to_vec()).context("frame size")?;
+    // depth: near is bright, 10 m and beyond black
+    let depth = image::GrayImage::from_raw(w, h, view.depth(0).iter().map(|d| 255 - (d >> 8) as u8).collect())
+        .context("frame size")?;
+    let record = StepRecord {
+        step: r.episode_step,
+        robot: r.robot,
+        shown: r.gesture_kind,
+        rule,
+        action: a.action,
+        probs: a.probs,
+        value: a.value,
+    };
+    robot.rec.step(&record)?;
+    let (rgb_png, depth_png) = (png_base64(&rgb)?, png_base64(&depth)?);
+    let _ = tx.send(ToPage::Step(StepView { side, record, rgb_png, depth_png, distance: r.distance }));
+    if interventions == Interventions::Person {
+        robot.sim.pool.set_person_calls(0, Some(call));
+    }
+    robot.sim.step(a.action)?;
+    let r = robot.sim.view().records()[0];
+    if r.terminated == 0 && r.truncated == 0 {
+        return Ok(None);
+    }
+    robot.ended = true;
+    let result = EpisodeResult::from_record(&r, 0, 0, 0);
+    let first = scores([&result], Some(1), DTS_THRESHOLD);
+    Ok(Some(Outcome {
+        steps: result.steps,
+        success: first.sr > 0.0,
+        spl: first.spl / 100.0,
+        dts: first.dts,
+        success_any_stop: result.success,
+    }))
 }
 
 /// A picture as the page shows it: PNG, base64.

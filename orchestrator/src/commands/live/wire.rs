@@ -30,10 +30,14 @@ pub enum Interventions {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ToServer {
-    /// A new episode: `program` is SPLIT:INDEX, `checkpoint` an index into the server's list.
+    /// A new episode: `program` is SPLIT:INDEX, `checkpoint` an index into the server's list;
+    /// `versus`, a second checkpoint run beside it on the same program, in lockstep (its own
+    /// simulator, the same gesture, the same interventions' source).
     Start {
         program: String,
         checkpoint: usize,
+        #[serde(default)]
+        versus: Option<usize>,
         #[serde(default)]
         gesture: GestureSource,
         #[serde(default)]
@@ -66,12 +70,12 @@ pub type MapTransform = [f32; 6];
 pub enum ToPage {
     /// On connecting: what can be chosen.
     Hello { checkpoints: Vec<CheckpointInfo>, splits: Vec<(String, usize)>, session: String },
-    /// An episode began.
+    /// An episode began: one robot a checkpoint, side by side.
     Episode {
-        number: usize,
         program: String,
         label: String,
-        checkpoint: String,
+        /// Side 0, and side 1 when two checkpoints are compared.
+        sides: Vec<Side>,
         /// The room from above (PNG, base64) and where world points land on it.
         map_png: String,
         map_transform: MapTransform,
@@ -80,9 +84,9 @@ pub enum ToPage {
         gesture: GestureSource,
         interventions: Interventions,
     },
-    /// One step: the observation the policy acted on and what it answered.
+    /// One step of one side: the observation its policy acted on and what it answered.
     Step(StepView),
-    /// The episode ended.
+    /// One side's episode ended.
     End(EpisodeEnd),
     /// A webcam frame was read: whether a person was found, and whether they are waving.
     FrameSeen { person: bool, waving: bool, capturing: bool },
@@ -102,27 +106,44 @@ pub struct CheckpointInfo {
     pub size: [u32; 2],
 }
 
+/// One robot of an episode: the checkpoint acting and the number its record has.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct StepView {
+pub struct Side {
+    pub number: usize,
+    pub checkpoint: String,
+}
+
+/// One step as recorded (a line of `steps.jsonl`, `super::record`) and as the page sees it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StepRecord {
     pub step: u32,
-    /// The robot's RGB and depth as it saw them (PNG, base64).
-    pub rgb_png: String,
-    pub depth_png: String,
-    /// x, z (m), yaw (degrees).
+    /// x, z (m), yaw (degrees) where the robot observed.
     pub robot: [f32; 3],
-    /// The gesture shown with this observation, and what the angle rule would show
+    /// The gesture shown with the observation, and what the angle rule would show
     /// (`shm_schema::gesture_kind`: 0 none, 1 referencing, 2 intervention).
     pub shown: u8,
     pub rule: u8,
     pub action: u8,
     pub probs: Vec<f32>,
     pub value: f32,
-    pub distance: f32,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct EpisodeEnd {
-    pub number: usize,
+pub struct StepView {
+    /// Which robot (an index into [`ToPage::Episode`]'s `sides`).
+    pub side: usize,
+    #[serde(flatten)]
+    pub record: StepRecord,
+    /// The robot's RGB and depth as it saw them (PNG, base64).
+    pub rgb_png: String,
+    pub depth_png: String,
+    /// Geodesic distance to the target (m).
+    pub distance: f32,
+}
+
+/// How an episode ended (in its record's `episode.json`, `super::record`, and on the page).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Outcome {
     pub steps: u32,
     /// At the first stop: success, SPL, distance to success (DTS, m).
     pub success: bool,
@@ -130,6 +151,14 @@ pub struct EpisodeEnd {
     pub dts: f64,
     /// Within the step limit, with unlimited stops.
     pub success_any_stop: bool,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeEnd {
+    pub side: usize,
+    pub number: usize,
+    #[serde(flatten)]
+    pub outcome: Outcome,
     /// Where the session's record of this episode is.
     pub record: String,
 }
@@ -144,6 +173,7 @@ mod tests {
             ToServer::Start {
                 program: "val:3".into(),
                 checkpoint: 1,
+                versus: Some(0),
                 gesture: GestureSource::Webcam,
                 interventions: Interventions::Person,
             },
@@ -161,16 +191,25 @@ mod tests {
             ToPage::FrameSeen { person: true, waving: false, capturing: true },
             ToPage::Error { message: "no".into() },
             ToPage::FrameRefused { message: "not a JPEG".into() },
+            ToPage::End(EpisodeEnd {
+                side: 1,
+                number: 4,
+                outcome: Outcome { steps: 17, success: true, spl: 0.75, dts: 0.0, success_any_stop: true },
+                record: "runs/live/session-001/episode-004".into(),
+            }),
             ToPage::Step(StepView {
-                step: 2,
+                side: 1,
+                record: StepRecord {
+                    step: 2,
+                    robot: [1.0, 2.0, 90.0],
+                    shown: 2,
+                    rule: 1,
+                    action: 3,
+                    probs: vec![0.25; 4],
+                    value: 0.5,
+                },
                 rgb_png: "x".into(),
                 depth_png: "y".into(),
-                robot: [1.0, 2.0, 90.0],
-                shown: 2,
-                rule: 1,
-                action: 3,
-                probs: vec![0.25; 4],
-                value: 0.5,
                 distance: 1.2,
             }),
         ];
@@ -188,10 +227,37 @@ mod tests {
             ToServer::Start {
                 program: "val:0".into(),
                 checkpoint: 0,
+                versus: None,
                 gesture: GestureSource::Program,
                 interventions: Interventions::Rule
             }
         );
         assert!(serde_json::from_str::<ToServer>(r#"{"type":"start","programme":"val:0","checkpoint":0}"#).is_err());
+    }
+
+    #[test]
+    fn a_step_reads_as_its_record_with_the_pictures_beside() {
+        let record = StepRecord {
+            step: 4,
+            robot: [0.5, -1.0, 270.0],
+            shown: 1,
+            rule: 0,
+            action: 0,
+            probs: vec![0.5, 0.25, 0.125, 0.125],
+            value: -0.25,
+        };
+        let text = serde_json::to_string(&ToPage::Step(StepView {
+            side: 0,
+            record: record.clone(),
+            rgb_png: "x".into(),
+            depth_png: "y".into(),
+            distance: 2.0,
+        }))
+        .unwrap();
+        // the page reads the step's fields at the top level, as a line of steps.jsonl has them
+        let flat: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(flat["type"], "step");
+        assert_eq!(flat["shown"], 1);
+        assert_eq!(serde_json::from_value::<StepRecord>(flat).unwrap(), record);
     }
 }

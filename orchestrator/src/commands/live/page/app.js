@@ -4,11 +4,15 @@
 
 const ACTIONS = ["MoveAhead", "RotateLeft", "RotateRight", "Stop"];
 const GESTURES = ["none", "referencing", "intervention"];
+// a side's colour: its path on the map, its bars, its panel's edge
+const COLOURS = ["#d62728", "#1f5fbf"];
 const $ = (id) => document.getElementById(id);
 
-// What the page has seen, for people reading the console and for the browser test.
+// What the page has seen, for people reading the console and for the browser test: the
+// episode, and per side (one robot, or two when two checkpoints are compared) its steps, its
+// path and its end; `ended` once every side has.
 const live = (window.live = {
-  session: null, steps: 0, path: [], episode: null, ended: null, episodes: [],
+  session: null, episode: null, sides: [], ended: false, episodes: [],
   framesSent: 0, framesSeen: 0, waving: false, captured: null, errors: [],
 });
 
@@ -32,32 +36,42 @@ const handlers = {
   hello(m) {
     live.session = m.session;
     $("status").textContent = `session ${m.session}`;
-    $("checkpoint").replaceChildren(...m.checkpoints.map((c, i) =>
-      new Option(`${c.name} (${c.method}, ${c.size[0]}×${c.size[1]})`, i)));
+    const names = m.checkpoints.map((c, i) => new Option(`${c.name} (${c.method}, ${c.size[0]}×${c.size[1]})`, i));
+    $("checkpoint").replaceChildren(...names);
+    $("versus").replaceChildren(new Option("nothing", ""), ...names.map((o) => new Option(o.text, o.value)));
     $("split").replaceChildren(...m.splits.map(([name, n]) => new Option(`${name} (${n})`, name)));
     const val = m.splits.findIndex(([name]) => name === "val");
     if (val >= 0) $("split").selectedIndex = val;
   },
   episode(m) {
-    live.episode = m; live.ended = null; live.steps = 0; live.path = [];
-    $("episode-label").textContent = `episode ${m.number}: ${m.label} · ${m.checkpoint}`;
-    $("outcome").textContent = ""; $("outcome").className = "";
+    live.episode = m; live.ended = false;
+    live.sides = m.sides.map(() => ({ steps: 0, path: [], end: null }));
+    $("episode-label").textContent = `${m.label} · ${m.gesture} gesture · ${m.interventions} interventions`;
+    $("sides").replaceChildren(...m.sides.map((s, k) => {
+      const panel = $("side").content.firstElementChild.cloneNode(true);
+      panel.id = `side-${k}`;
+      panel.style.setProperty("--colour", COLOURS[k]);
+      panel.querySelector(".side-label").textContent = `episode ${s.number}: ${s.checkpoint}`;
+      return panel;
+    }));
     const img = new Image();
     img.onload = () => { map.img = img; drawMap(); };
     img.src = "data:image/png;base64," + m.map_png;
     Object.assign(map, { t: m.map_transform, target: m.target, person: m.person });
   },
   step(m) {
-    live.steps += 1;
-    live.path.push(m.robot);
-    $("rgb").src = "data:image/png;base64," + m.rgb_png;
-    $("depth").src = "data:image/png;base64," + m.depth_png;
-    $("step-number").textContent = m.step;
-    $("value").textContent = m.value.toFixed(3);
-    $("distance").textContent = m.distance.toFixed(2);
-    $("shown").textContent = GESTURES[m.shown] ?? m.shown;
-    $("rule").textContent = GESTURES[m.rule] ?? m.rule;
-    $("probs").replaceChildren(...m.probs.map((p, a) => {
+    const side = live.sides[m.side], panel = $(`side-${m.side}`);
+    const put = (cls, text) => (panel.querySelector(cls).textContent = text);
+    side.steps += 1;
+    side.path.push(m.robot);
+    panel.querySelector(".rgb").src = "data:image/png;base64," + m.rgb_png;
+    panel.querySelector(".depth").src = "data:image/png;base64," + m.depth_png;
+    put(".step-number", m.step);
+    put(".value", m.value.toFixed(3));
+    put(".distance", m.distance.toFixed(2));
+    put(".shown", GESTURES[m.shown] ?? m.shown);
+    put(".rule", GESTURES[m.rule] ?? m.rule);
+    panel.querySelector(".probs").replaceChildren(...m.probs.map((p, a) => {
       const row = document.createElement("div");
       row.className = "bar" + (a === m.action ? " chosen" : "");
       row.innerHTML = `<span>${ACTIONS[a]}</span><div style="width:${(p * 160).toFixed(0)}px"></div><small>${(p * 100).toFixed(1)}%</small>`;
@@ -66,18 +80,20 @@ const handlers = {
     drawMap();
   },
   end(m) {
-    live.ended = m;
+    live.sides[m.side].end = m;
+    live.ended = live.sides.every((s) => s.end);
     live.episodes.push(m);
-    const e = live.episode;
-    $("outcome").textContent = m.success
+    const e = live.episode, outcome = $(`side-${m.side}`).querySelector(".outcome");
+    outcome.textContent = m.success
       ? `success at the first stop · SPL ${m.spl.toFixed(2)}`
       : `no success at the first stop · DTS ${m.dts.toFixed(2)} m${m.success_any_stop ? " (found after more stops)" : ""}`;
-    $("outcome").className = m.success ? "success" : "failure";
+    outcome.className = "outcome " + (m.success ? "success" : "failure");
     const row = document.createElement("tr");
-    for (const v of [m.number, e.program, e.checkpoint, e.gesture, m.steps, m.success ? "yes" : "no",
-                     m.spl.toFixed(2), m.dts.toFixed(2), m.record]) {
+    for (const v of [m.number, e.program, "AB"[m.side], e.sides[m.side].checkpoint, e.gesture, m.steps,
+                     m.success ? "yes" : "no", m.spl.toFixed(2), m.dts.toFixed(2), m.record]) {
       const td = document.createElement("td"); td.textContent = v; row.append(td);
     }
+    row.style.color = COLOURS[m.side];
     $("episodes").append(row);
   },
   frame_seen(m) {
@@ -109,20 +125,21 @@ function drawMap() {
   g.drawImage(map.img, 0, 0);
   const [a, b, cc, d, e, f] = map.t;
   const px = ([x, z]) => [a * x + b * z + cc, d * x + e * z + f];
-  if (live.path.length) {
-    g.strokeStyle = "#d62728"; g.lineWidth = 3; g.beginPath();
-    live.path.forEach(([x, z], i) => { const [u, v] = px([x, z]); i ? g.lineTo(u, v) : g.moveTo(u, v); });
+  live.sides.forEach(({ path }, k) => {
+    if (!path.length) return;
+    g.strokeStyle = g.fillStyle = COLOURS[k]; g.lineWidth = 3; g.beginPath();
+    path.forEach(([x, z], i) => { const [u, v] = px([x, z]); i ? g.lineTo(u, v) : g.moveTo(u, v); });
     g.stroke();
-    const [x, z, yaw] = live.path[live.path.length - 1];
+    const [x, z, yaw] = path[path.length - 1];
     const [u, v] = px([x, z]);
     const r = (yaw * Math.PI) / 180;
     // yaw 0 faces +z (up on the map), 90 faces +x
-    g.fillStyle = "#d62728"; g.beginPath();
+    g.beginPath();
     g.moveTo(u + 12 * Math.sin(r), v - 12 * Math.cos(r));
     g.lineTo(u + 7 * Math.cos(r), v + 7 * Math.sin(r));
     g.lineTo(u - 7 * Math.cos(r), v - 7 * Math.sin(r));
     g.fill();
-  }
+  });
 }
 
 // controls
@@ -130,6 +147,7 @@ $("start").onclick = () => send({
   type: "start",
   program: `${$("split").value}:${$("index").value}`,
   checkpoint: Number($("checkpoint").value),
+  versus: $("versus").value === "" ? null : Number($("versus").value),
   gesture: $("gesture").value,
   interventions: $("interventions").value,
 });
