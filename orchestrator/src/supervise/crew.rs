@@ -203,6 +203,9 @@ pub struct Crew {
     stopped_from_outside: bool,
     escalated_term: bool,
     fatal: Option<anyhow::Error>,
+    /// `farm.jsonl`'s length before this crew's learner: a resumed run's file holds the lines of
+    /// the processes before it, which are not this crew's progress.
+    progress_from: u64,
 }
 
 impl Crew {
@@ -217,7 +220,9 @@ impl Crew {
             anyhow::ensure!(p.len() == spec.workers, "{} program lists for {} workers", p.len(), spec.workers);
         }
         let first_generation = spec.host.map_or(0, |h| h.first_generation);
+        let progress_from = std::fs::metadata(spec.run_dir.join("farm.jsonl")).map_or(0, |m| m.len());
         let mut crew = Crew {
+            progress_from,
             workers: (0..spec.workers)
                 .map(|_| WorkerSlot { child: None, generation: first_generation, quick_failures: 0, done: false })
                 .collect(),
@@ -540,7 +545,7 @@ impl Crew {
 
     /// The learner's latest progress record.
     pub fn progress(&self) -> Option<Progress> {
-        read_last_progress(&self.spec.run_dir)
+        read_last_progress_after(&self.spec.run_dir, self.progress_from)
     }
 
     /// Runs [`Crew::tick`] until every child has ended (stopping first if asked), then ends the
@@ -591,6 +596,33 @@ fn append_line(path: &Path, line: &str) {
 
 /// The last complete record of `RUN/farm.jsonl`.
 pub fn read_last_progress(run_dir: &Path) -> Option<Progress> {
-    let text = std::fs::read_to_string(run_dir.join("farm.jsonl")).ok()?;
+    read_last_progress_after(run_dir, 0)
+}
+
+/// The newest progress line of `farm.jsonl` written past its byte `from`.
+fn read_last_progress_after(run_dir: &Path, from: u64) -> Option<Progress> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::File::open(run_dir.join("farm.jsonl")).ok()?;
+    f.seek(SeekFrom::Start(from)).ok()?;
+    let mut text = String::new();
+    f.read_to_string(&mut text).ok()?;
     text.lines().rev().find_map(|l| serde_json::from_str(l).ok())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_resumed_crew_reads_only_its_own_learners_progress() {
+        let dir = tempfile::tempdir().unwrap();
+        let log = dir.path().join("farm.jsonl");
+        std::fs::write(&log, "{\"frames\":3145760}\n").unwrap();
+        let from = std::fs::metadata(&log).unwrap().len();
+        assert!(read_last_progress_after(dir.path(), from).is_none(), "nothing of this learner yet");
+        let mut f = std::fs::OpenOptions::new().append(true).open(&log).unwrap();
+        std::io::Write::write_all(&mut f, b"{\"frames\":4096}\n").unwrap();
+        assert_eq!(read_last_progress_after(dir.path(), from).unwrap().frames, 4096);
+        assert_eq!(read_last_progress(dir.path()).unwrap().frames, 4096);
+    }
 }
