@@ -10,6 +10,7 @@ mod encoder;
 #[path = "farm.rs"]
 mod farm_runs;
 mod live;
+mod live_program;
 mod multihost;
 mod observability;
 mod python_package;

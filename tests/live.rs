@@ -21,10 +21,10 @@ use worker::humanoid::{Humanoid, Side};
 use worker::program::Program;
 use worker::scene::Split;
 
-type Socket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+pub(crate) type Socket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
 /// The server's next message.
-async fn next(ws: &mut Socket) -> Value {
+pub(crate) async fn next(ws: &mut Socket) -> Value {
     loop {
         match ws.next().await.expect("the socket closed").expect("the socket failed") {
             Message::Text(t) => return serde_json::from_str(t.as_str()).unwrap(),
@@ -53,14 +53,14 @@ fn trained_run() -> PathBuf {
 }
 
 /// A running `orchestrator live` on a free loopback port; killed when dropped.
-struct Server {
+pub(crate) struct Server {
     child: Child,
     url: String,
-    port: u16,
+    pub(crate) port: u16,
 }
 
 impl Server {
-    fn start(out: &Path, extra: &[&str]) -> Server {
+    pub(crate) fn start(out: &Path, extra: &[&str]) -> Server {
         let mut child = Command::new(bin("orchestrator"))
             .args(["live", "--checkpoint", &trained_run().display().to_string()])
             .args(["--dataset", &dataset().display().to_string(), "--out", &out.display().to_string()])
@@ -143,7 +143,7 @@ fn browser_ready() -> bool {
 
 /// The fake camera's video: our avatar performing val:1's referencing gesture (`gesture film`),
 /// each frame on a grey 320×240 canvas, as YUV4MPEG2 (I420, which Chromium reads).
-fn filmed_y4m(dir: &Path) -> PathBuf {
+pub(crate) fn filmed_y4m(dir: &Path) -> PathBuf {
     let frames = dir.join("film");
     let o = Command::new(bin("orchestrator"))
         .args(["gesture", "film", "val:1", "--dataset", &dataset().display().to_string()])

@@ -16,9 +16,10 @@ use worker::gesture;
 use worker::humanoid::Humanoid;
 
 use crate::commands::gesture::film;
+use crate::commands::live::gesture::muscles;
 use crate::commands::live::policy::Checkpoint;
-use crate::commands::live::session::{Session, Shared};
-use crate::commands::live::webcam::{Webcam, muscles};
+use crate::commands::live::session::{Program, Session, Shared};
+use crate::commands::live::webcam::Webcam;
 use crate::commands::live::wire::{GestureSource, Interventions, ToPage};
 
 #[derive(Args, Debug)]
@@ -48,14 +49,14 @@ pub fn run(a: BenchLiveArgs) -> anyhow::Result<()> {
     let size = [ck.cfg.env.width, ck.cfg.env.height];
     let dataset = Arc::new(Dataset::open(&a.dataset, Verify::Quick)?);
     std::fs::create_dir_all(&a.out)?;
-    let shared = Arc::new(Shared { dataset, checkpoints: vec![ck], out: a.out.clone() });
+    let shared = Arc::new(Shared::new(dataset, vec![ck], a.out.clone()));
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
     let mut s = Session::new(shared, "bench", tx);
 
     // the live loop: whole episodes, stepped as fast as they go
     let (mut steps, mut busy) = (0u64, Duration::ZERO);
     for i in 0..a.programs {
-        s.start(&format!("val:{i}"), 0, None, GestureSource::Program, Interventions::Rule)?;
+        s.start(&Program::Dataset(format!("val:{i}")), 0, None, GestureSource::Program, Interventions::Rule)?;
         let t = Instant::now();
         let mut ended = false;
         while !ended {

@@ -111,6 +111,19 @@ pub fn run(cmd: GestureCmd) -> anyhow::Result<()> {
 /// `angle` degrees round from their front, 2.4 m away at hip height: `out/000.png` … `099.png`.
 pub fn film(human: &Humanoid, motion: &Motion, angle: f32, size: u32, out: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    film_frames(human, motion, angle, size, |t, img| {
+        img.save(out.join(format!("{t:03}.png"))).with_context(|| format!("writing {}", out.display()))
+    })
+}
+
+/// The frames of [`film`], each handed to `each` with its number as it is drawn.
+pub fn film_frames(
+    human: &Humanoid,
+    motion: &Motion,
+    angle: f32,
+    size: u32,
+    mut each: impl FnMut(usize, RgbImage) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     let cfg = RenderConfig { width: size, height: size, fov_deg: 60.0, max_views_per_submit: 1 };
     let mut r = Renderer::new(&cfg)?;
     let floor = Part::new(Shape::Box, Point3::new(0.0, -0.01, 0.0), Vector3::new(6.0, 0.01, 6.0), [0.45, 0.45, 0.42]);
@@ -123,8 +136,7 @@ pub fn film(human: &Humanoid, motion: &Motion, angle: f32, size: u32, out: &Path
         let parts = human.parts(&human.pose(motion.frame(t), Point3::origin(), 0.0));
         let views = [View { scene, camera, dynamic: &parts }];
         r.render(&views, &mut [ViewOut { rgb: &mut rgb, depth: &mut depth, ids: None }])?;
-        let img = RgbImage::from_raw(size, size, rgb.clone()).expect("frame size");
-        img.save(out.join(format!("{t:03}.png")))?;
+        each(t, RgbImage::from_raw(size, size, rgb.clone()).expect("frame size"))?;
     }
     Ok(())
 }

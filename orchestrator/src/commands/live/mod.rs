@@ -1,18 +1,27 @@
 //! `orchestrator live`: a person in the scene with a trained robot, in the browser. A local web
 //! server runs the simulator for each open tab (one session a tab) with the checkpoints it was
 //! given; the page shows what the robot sees, the map, what the policy thinks at each step and
-//! the outcome, takes the person's gesture from the program's recording or their webcam, and
-//! lets a wave call for the intervention gesture. Every episode is recorded as GOND's files.
+//! the outcome; it runs a dataset program or one the person places, takes the person's gesture
+//! from the program's recording, their webcam or a file they upload, and lets a wave call for
+//! the intervention gesture. Every episode is recorded as GOND's files.
 //!
 //! - [`wire`]: the messages, one enum a direction;
 //! - [`policy`]: a checkpoint acting through a `learner act` child;
 //! - [`record`]: the episode's files, its simulator, and their replay;
-//! - [`webcam`]: frames → landmarks → a wave, or a gesture in the 95 muscles;
+//! - [`webcam`]: frames → landmarks → a wave, or a gesture captured;
+//! - [`gesture`]: the person's own gesture, from the webcam, a video or a motion file uploaded;
+//! - [`room`]: a program the person places: room, target, where person and robot stand;
+//! - [`avatar`]: the person performing the gesture the robots perceive, filmed for the page;
+//! - [`picture`]: pictures as the page shows them;
 //! - [`session`]: one tab's simulator, policies, webcam and record;
 //! - [`server`]: the page's files, the socket, the sessions open.
 
+pub mod avatar;
+pub mod gesture;
+pub mod picture;
 pub mod policy;
 pub mod record;
+pub mod room;
 pub mod server;
 pub mod session;
 pub mod webcam;
@@ -93,7 +102,7 @@ pub fn run(a: LiveArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     // A secret, not a simulation draw: from the operating system, not the run's seed.
     let token = beyond.then(|| format!("{:032x}", rand::random::<u128>()));
-    let shared = Arc::new(session::Shared { dataset: Arc::new(dataset), checkpoints, out: a.out.clone() });
+    let shared = Arc::new(session::Shared::new(Arc::new(dataset), checkpoints, a.out.clone()));
     let app = Arc::new(server::App::new(shared, token.clone()));
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     rt.block_on(async move {

@@ -1,19 +1,23 @@
 //! The HTTP side of `orchestrator live`: the page's three files (built into the binary), the
-//! WebSocket each tab opens, and how many sessions are open. Each socket gets a session on a
-//! thread of its own ([`super::session`]); the socket task only carries messages both ways.
+//! WebSocket each tab opens, a tab's uploads, and how many sessions are open. Each socket gets a
+//! session on a thread of its own ([`super::session`]); the socket task only carries messages
+//! both ways, and an upload reaches the session by its name.
 
-use std::sync::Arc;
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use axum::Router;
+use axum::body::Bytes;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
-use axum::extract::{Query, State};
+use axum::extract::{DefaultBodyLimit, Query, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::get;
+use axum::routing::{get, post};
 use serde::Deserialize;
 
+use super::gesture::MAX_UPLOAD_BYTES;
 use super::session::{self, Input, Shared};
 use super::wire::{CheckpointInfo, ToPage, ToServer};
 
@@ -29,11 +33,19 @@ pub struct App {
     /// Sessions whose simulator is still running.
     pub open: AtomicUsize,
     started: AtomicUsize,
+    /// Each open session's input, by name: where its tab's uploads go.
+    inputs: Mutex<HashMap<String, std::sync::mpsc::Sender<Input>>>,
 }
 
 impl App {
     pub fn new(shared: Arc<Shared>, token: Option<String>) -> App {
-        App { shared, token, open: AtomicUsize::new(0), started: AtomicUsize::new(0) }
+        App {
+            shared,
+            token,
+            open: AtomicUsize::new(0),
+            started: AtomicUsize::new(0),
+            inputs: Mutex::new(HashMap::new()),
+        }
     }
 }
 
@@ -49,6 +61,7 @@ pub fn router(app: Arc<App>) -> Router {
         .route("/style.css", get(|| async { ([(header::CONTENT_TYPE, "text/css")], STYLE) }))
         .route("/sessions", get(sessions))
         .route("/ws", get(socket))
+        .route("/upload", post(upload).layer(DefaultBodyLimit::max(MAX_UPLOAD_BYTES)))
         .with_state(app)
 }
 
@@ -73,6 +86,31 @@ async fn sessions(State(app): State<Arc<App>>, Query(q): Query<Access>) -> Respo
         return refused();
     }
     format!("{{\"open\":{}}}", app.open.load(Ordering::SeqCst)).into_response()
+}
+
+#[derive(Deserialize)]
+struct UploadTo {
+    token: Option<String>,
+    session: String,
+    name: String,
+}
+
+/// A file for a session's person's gesture (`POST /upload?session=S&name=N`, the file as the
+/// body): accepted here, read by the session, answered on its socket.
+async fn upload(State(app): State<Arc<App>>, Query(q): Query<UploadTo>, body: Bytes) -> Response {
+    if !allowed(&app, &Access { token: q.token }) {
+        return refused();
+    }
+    let input = app.inputs.lock().expect("not poisoned").get(&q.session).cloned();
+    let Some(input) = input else {
+        return (StatusCode::NOT_FOUND, format!("no session {} is open\n", q.session)).into_response();
+    };
+    match input.send(Input::Upload { name: q.name, bytes: body.to_vec() }) {
+        Ok(()) => {
+            (StatusCode::ACCEPTED, "read by the session: its answer comes on the page's socket\n").into_response()
+        }
+        Err(_) => (StatusCode::NOT_FOUND, format!("session {} has closed\n", q.session)).into_response(),
+    }
 }
 
 async fn socket(ws: WebSocketUpgrade, State(app): State<Arc<App>>, Query(q): Query<Access>) -> Response {
@@ -108,12 +146,14 @@ async fn carry(mut socket: WebSocket, app: Arc<App>) {
             })
             .collect(),
         splits: shared.dataset.manifest.splits.iter().map(|(name, e)| (name.clone(), e.programs as usize)).collect(),
+        rooms: shared.rooms.clone(),
         session: id.clone(),
     };
     let (to_page, mut from_session) = tokio::sync::mpsc::unbounded_channel();
     let (to_session, from_page) = std::sync::mpsc::channel();
     app.open.fetch_add(1, Ordering::SeqCst);
-    let (s, a) = (app.shared.clone(), app.clone());
+    app.inputs.lock().expect("not poisoned").insert(id.clone(), to_session.clone());
+    let (s, a, name) = (app.shared.clone(), app.clone(), id.clone());
     let spawned = std::thread::Builder::new().name(id.clone()).spawn(move || {
         session::run(s, id, from_page, to_page);
         // the session and all it started are gone
@@ -121,9 +161,22 @@ async fn carry(mut socket: WebSocket, app: Arc<App>) {
     });
     if spawned.is_err() {
         app.open.fetch_sub(1, Ordering::SeqCst);
+        app.inputs.lock().expect("not poisoned").remove(&name);
         return;
     }
-    if send(&mut socket, &hello).await.is_err() {
+    carry_messages(&mut socket, &hello, &to_session, &mut from_session).await;
+    // the tab is gone: its session ends once no upload holds its input either
+    app.inputs.lock().expect("not poisoned").remove(&name);
+}
+
+/// The socket's part of [`carry`]: until the tab or the session closes.
+async fn carry_messages(
+    socket: &mut WebSocket,
+    hello: &ToPage,
+    to_session: &std::sync::mpsc::Sender<Input>,
+    from_session: &mut tokio::sync::mpsc::UnboundedReceiver<ToPage>,
+) {
+    if send(socket, hello).await.is_err() {
         return;
     }
     // one webcam frame at a time: the next waits for the last one's answer
@@ -136,7 +189,7 @@ async fn carry(mut socket: WebSocket, app: Arc<App>) {
                         Ok(m) => Input::Message(m),
                         Err(e) => {
                             let message = format!("a message the server does not know ({e})");
-                            if send(&mut socket, &ToPage::Error { message }).await.is_err() {
+                            if send(socket, &ToPage::Error { message }).await.is_err() {
                                 return;
                             }
                             continue;
@@ -145,7 +198,7 @@ async fn carry(mut socket: WebSocket, app: Arc<App>) {
                     Some(Ok(Message::Binary(_))) if frame_in_flight => {
                         let message = "a webcam frame was refused: it came before the last one was answered \
                                        (send one at a time)".to_string();
-                        if send(&mut socket, &ToPage::FrameRefused { message }).await.is_err() {
+                        if send(socket, &ToPage::FrameRefused { message }).await.is_err() {
                             return;
                         }
                         continue;
@@ -165,7 +218,7 @@ async fn carry(mut socket: WebSocket, app: Arc<App>) {
             out = from_session.recv() => match out {
                 Some(m) => {
                     frame_in_flight &= !matches!(m, ToPage::FrameSeen { .. } | ToPage::FrameRefused { .. });
-                    if send(&mut socket, &m).await.is_err() {
+                    if send(socket, &m).await.is_err() {
                         return;
                     }
                 }

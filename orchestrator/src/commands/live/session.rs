@@ -10,20 +10,23 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use base64::Engine;
 use tokio::sync::mpsc::UnboundedSender;
 
 use farm::metrics::{EpisodeResult, scores};
 use worker::dataset::{Dataset, write_subset};
-use worker::gesture::capture::LandmarkFrame;
+use worker::gesture::{INTERVENTION_NAMES, Motion, intervention};
 use worker::humanoid::Humanoid;
 
+use super::gesture::{PersonGesture, arm_name, muscles, read_upload};
+use super::picture::png_base64;
 use super::policy::{Checkpoint, Policy};
 use super::record::{EpisodeRecord, Recorder, Sim, episode_config};
-use super::webcam::{Webcam, muscles, refusal};
+use super::webcam::{Webcam, refusal};
 use super::wire::{
-    EpisodeEnd, GestureSource, Interventions, MAX_SPEED, Outcome, Side, StepRecord, StepView, ToPage, ToServer,
+    EpisodeEnd, GestureSource, Interventions, MAX_SPEED, Outcome, Placement, Side, StepRecord, StepView, ToPage,
+    ToServer,
 };
+use super::{avatar, room};
 use crate::commands::program::{dataset_program, parse_ref};
 use crate::report::map::TopDownMap;
 
@@ -38,6 +41,15 @@ pub struct Shared {
     pub checkpoints: Vec<Checkpoint>,
     /// Where sessions are recorded.
     pub out: PathBuf,
+    /// Each split's rooms, where the person may place a program.
+    pub rooms: Vec<(String, Vec<String>)>,
+}
+
+impl Shared {
+    pub fn new(dataset: Arc<Dataset>, checkpoints: Vec<Checkpoint>, out: PathBuf) -> Shared {
+        let rooms = room::rooms(&dataset);
+        Shared { dataset, checkpoints, out, rooms }
+    }
 }
 
 /// What reaches a session from its tab.
@@ -45,6 +57,17 @@ pub enum Input {
     Message(ToServer),
     /// A webcam frame (a JPEG, unless the page is wrong) and when it arrived.
     Frame(Vec<u8>, Instant),
+    /// A file uploaded from the page (`super::server`'s `/upload`): a video, or a motion file.
+    Upload {
+        name: String,
+        bytes: Vec<u8>,
+    },
+}
+
+/// What an episode runs on: a dataset program (SPLIT:INDEX), or one the person placed.
+pub enum Program {
+    Dataset(String),
+    Placed(Placement),
 }
 
 /// One robot of an episode: a checkpoint acting in a simulator of its own, recorded as an
@@ -84,8 +107,9 @@ pub struct Session {
     episodes: usize,
     running: Option<Duration>,
     webcam: Option<Webcam>,
-    /// The last gesture captured from the webcam, as landmarks: fitted to each program's person.
-    captured: Option<Vec<LandmarkFrame>>,
+    /// The last gesture captured from the webcam, and the last uploaded.
+    captured: Option<PersonGesture>,
+    uploaded: Option<PersonGesture>,
     calls_left: u32,
 }
 
@@ -123,6 +147,7 @@ pub fn run(shared: Arc<Shared>, id: String, rx: Receiver<Input>, tx: UnboundedSe
                 }
                 Ok(())
             }
+            Some(Input::Upload { name, bytes }) => s.upload(&name, &bytes),
         };
         if let Err(e) = done {
             s.send(ToPage::Error { message: format!("{e:#}") });
@@ -144,6 +169,7 @@ impl Session {
             running: None,
             webcam: None,
             captured: None,
+            uploaded: None,
             calls_left: 0,
         }
     }
@@ -155,9 +181,19 @@ impl Session {
 
     fn handle(&mut self, m: ToServer) -> anyhow::Result<()> {
         match m {
-            ToServer::Start { program, checkpoint, versus, gesture, interventions } => {
+            ToServer::Start { program, placed, checkpoint, versus, gesture, interventions } => {
                 self.running = None;
+                let program = match (program, placed) {
+                    (Some(p), None) => Program::Dataset(p),
+                    (None, Some(p)) => Program::Placed(p),
+                    _ => anyhow::bail!("start: name a dataset program or place one, not both"),
+                };
                 self.start(&program, checkpoint, versus, gesture, interventions)
+            }
+            ToServer::Room { split, room } => {
+                let view = room::view(&self.shared.dataset, &split, &room)?;
+                self.send(ToPage::Room(view));
+                Ok(())
             }
             ToServer::Run { .. } => Ok(()),
             ToServer::Pause => {
@@ -181,10 +217,10 @@ impl Session {
         }
     }
 
-    /// Starts episode `program` (SPLIT:INDEX) with checkpoint `k`, and `versus` beside it.
+    /// Starts `program` with checkpoint `k`, and `versus` beside it.
     pub fn start(
         &mut self,
-        program: &str,
+        program: &Program,
         k: usize,
         versus: Option<usize>,
         gesture: GestureSource,
@@ -195,24 +231,37 @@ impl Session {
             let field = ["checkpoint", "versus"][side];
             anyhow::ensure!(c < self.shared.checkpoints.len(), "{field} {c}: there is no such checkpoint");
         }
-        let (split, i) =
-            parse_ref(program).with_context(|| format!("program `{program}` is not SPLIT:INDEX (e.g. val:17)"))?;
         let ds = &self.shared.dataset;
-        let (p, own) = dataset_program(ds, split, i).with_context(|| format!("program {program}"))?;
-        let motion = match gesture {
-            GestureSource::Program => own.as_flat().to_vec(),
-            GestureSource::Webcam => {
-                let frames = self.captured.as_ref().context("no gesture captured from the webcam yet")?;
-                muscles(Humanoid::seeded(p.seed).skeleton(), frames)?.motion.as_flat().to_vec()
+        let (name, split, p, own) = match program {
+            Program::Dataset(r) => {
+                let (split, i) =
+                    parse_ref(r).with_context(|| format!("program `{r}` is not SPLIT:INDEX (e.g. val:17)"))?;
+                let (p, own) = dataset_program(ds, split, i).with_context(|| format!("program {r}"))?;
+                (r.clone(), split, p, own)
+            }
+            Program::Placed(placed) => {
+                let (split, p, own) = room::program(ds, placed)?;
+                (format!("placed in {}", placed.room), split, p, own)
             }
         };
+        let human = Humanoid::seeded(p.seed);
+        let person = |g: &Option<PersonGesture>, what: &str| -> anyhow::Result<Motion> {
+            let g = g.as_ref().with_context(|| format!("no gesture {what} yet"))?;
+            g.motion(human.skeleton()).with_context(|| format!("the gesture {what}"))
+        };
+        let motion = match gesture {
+            GestureSource::Program => own,
+            GestureSource::Webcam => person(&self.captured, "captured from the webcam")?,
+            GestureSource::Upload => person(&self.uploaded, "uploaded")?,
+        };
         let mut robots = Vec::new();
+        let mut sides = Vec::new();
         for (side, &c) in checkpoints.iter().enumerate() {
             let ck = &self.shared.checkpoints[c];
             let number = self.episodes + 1 + side;
             let dir = self.dir.join(format!("episode-{number:03}"));
             let data = dir.join("dataset");
-            write_subset(&data, ds, split, &[(p.clone(), motion.clone())])
+            write_subset(&data, ds, split, &[(p.clone(), motion.as_flat().to_vec())])
                 .with_context(|| format!("writing {}", data.display()))?;
             let cfg = episode_config(&ck.cfg, &data, split);
             let rec = Recorder::new(&dir, &cfg)?;
@@ -220,6 +269,10 @@ impl Session {
                 self.policies[side][c] = Some(Policy::start(ck, &ck.config)?);
             }
             let sim = Sim::start(&cfg, interventions == Interventions::Person)?;
+            // each run's seed draws the intervention gesture its person shows
+            let iv = sim.pool.env(0).context("the episode's env")?.intervention_index() as usize;
+            let film = avatar::film(&human, &intervention(iv), INTERVENTION_NAMES[iv])?;
+            sides.push(Side { number, checkpoint: ck.name.clone(), intervention: film });
             robots.push(Robot { number, checkpoint: c, sim, rec, ended: false });
         }
         self.episodes += robots.len();
@@ -230,20 +283,18 @@ impl Session {
         let others: Vec<usize> = scene.instances(p.target).filter(|&o| o != p.target_object).collect();
         map.person([p.human_pos[0], p.human_pos[2]], p.human_yaw).target(p.target_object).other_instances(&others);
         self.send(ToPage::Episode {
-            program: program.to_string(),
-            label: format!("{} {program} → {}", p.scene, p.target.name()),
-            sides: robots
-                .iter()
-                .map(|r| Side { number: r.number, checkpoint: self.shared.checkpoints[r.checkpoint].name.clone() })
-                .collect(),
+            program: name.clone(),
+            label: format!("{} {name} → {}", p.scene, p.target.name()),
+            sides,
             map_png: png_base64(&map.to_rgb_image())?,
             map_transform: map.transform(),
             target: [p.target_pos[0], p.target_pos[2]],
             person: [p.human_pos[0], p.human_pos[2]],
             gesture,
             interventions,
+            referencing: avatar::film(&human, &motion, "referencing")?,
         });
-        self.episode = Some(Episode { program: program.into(), gesture, interventions, robots });
+        self.episode = Some(Episode { program: name, gesture, interventions, robots });
         Ok(())
     }
 
@@ -296,16 +347,23 @@ impl Session {
         let _ = self.tx.send(ToPage::FrameSeen { person: f.pose.is_some(), waving, capturing });
         if let Some(frames) = cam.captured() {
             // fitted to a default person here to say what was found; to each program's at its start
-            let c = muscles(Humanoid::seeded(0).skeleton(), &frames)?;
-            let arm = if c.side == worker::humanoid::Side::Left { "left" } else { "right" };
+            let c = muscles(Humanoid::seeded(0).skeleton(), &frames).context("the webcam")?;
             let _ = self.tx.send(ToPage::Captured {
-                arm: arm.into(),
+                arm: arm_name(c.side).into(),
                 seconds: [c.times[c.span.0], c.times[c.span.1]],
                 frames: c.frames.len(),
                 person_frames: c.person_frames,
             });
-            self.captured = Some(frames);
+            self.captured = Some(PersonGesture::Landmarks(frames));
         }
+        Ok(())
+    }
+
+    /// An uploaded file: kept in the session's folder, read into the person's gesture.
+    pub fn upload(&mut self, name: &str, bytes: &[u8]) -> anyhow::Result<()> {
+        let (gesture, told) = read_upload(&self.dir.join("uploads"), name, bytes)?;
+        self.uploaded = Some(gesture);
+        self.send(told);
         Ok(())
     }
 }
@@ -359,14 +417,4 @@ fn step_robot(
         dts: first.dts,
         success_any_stop: result.success,
     }))
-}
-
-/// A picture as the page shows it: PNG, base64.
-pub fn png_base64<P: image::PixelWithColorType>(img: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> anyhow::Result<String>
-where
-    [P::Subpixel]: image::EncodableLayout,
-{
-    let mut png = Vec::new();
-    img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)?;
-    Ok(base64::engine::general_purpose::STANDARD.encode(png))
 }

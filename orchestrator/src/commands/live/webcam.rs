@@ -1,7 +1,7 @@
 //! The person in front of their webcam: each JPEG frame the page sends goes through the landmark
 //! model (`gesture/landmarks.py` in its stream mode, the same script `gesture capture` runs),
 //! and from the landmarks come a wave (the call for an intervention) and, on request, a gesture
-//! captured into the 95 muscles by `worker::gesture::capture`, as `gesture capture` does.
+//! captured into the 95 muscles (`super::gesture`), as `gesture capture` does.
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::PathBuf;
@@ -11,8 +11,7 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Deserialize;
 
-use worker::gesture::capture::{Capture, CaptureOptions, LandmarkFrame, capture};
-use worker::humanoid::Skeleton;
+use worker::gesture::capture::LandmarkFrame;
 
 /// A frame larger than this is refused (a 640×480 JPEG at quality 90 is ≈ 80 KiB).
 pub const MAX_FRAME_BYTES: usize = 512 * 1024;
@@ -117,12 +116,6 @@ impl Drop for Webcam {
         let _ = self.child.wait();
         let _ = std::fs::remove_file(&self.script);
     }
-}
-
-/// A person's gesture in the 95 muscles of `skeleton`, from a capture's frames (as `gesture
-/// capture` reads a video; a hand the small webcam frames lose is kept relaxed).
-pub fn muscles(skeleton: &Skeleton, frames: &[LandmarkFrame]) -> anyhow::Result<Capture> {
-    capture(skeleton, frames, CaptureOptions { hands_optional: true }).map_err(|e| anyhow::anyhow!("the webcam: {e}"))
 }
 
 /// MediaPipe's pose landmarks of the shoulders and wrists (left, right).

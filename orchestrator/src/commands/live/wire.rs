@@ -13,6 +13,8 @@ pub enum GestureSource {
     Program,
     /// The gesture last captured from the webcam ([`ToServer::CaptureGesture`]).
     Webcam,
+    /// The gesture of the file last uploaded (a video, or a motion file; [`ToPage::Uploaded`]).
+    Upload,
 }
 
 /// Who decides when the intervention gesture is shown.
@@ -30,11 +32,15 @@ pub enum Interventions {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ToServer {
-    /// A new episode: `program` is SPLIT:INDEX, `checkpoint` an index into the server's list;
-    /// `versus`, a second checkpoint run beside it on the same program, in lockstep (its own
-    /// simulator, the same gesture, the same interventions' source).
+    /// A new episode on a dataset program (`program`, SPLIT:INDEX) or one the person placed
+    /// (`placed`); `checkpoint` is an index into the server's list; `versus`, a second
+    /// checkpoint run beside it on the same program, in lockstep (its own simulator, the same
+    /// gesture, the same interventions' source).
     Start {
-        program: String,
+        #[serde(default)]
+        program: Option<String>,
+        #[serde(default)]
+        placed: Option<Placement>,
         checkpoint: usize,
         #[serde(default)]
         versus: Option<usize>,
@@ -56,6 +62,25 @@ pub enum ToServer {
     CaptureGesture {
         seconds: f32,
     },
+    /// A room of a split to place a program in: answered by [`ToPage::Room`].
+    Room {
+        split: String,
+        room: String,
+    },
+}
+
+/// A program the person places: a room of a split, a target in it (an object index, one of
+/// [`RoomView`]'s), where the person stands (x, z; they face the target) and where the robot
+/// starts (x, z, yaw in degrees). The person's referencing gesture is synthesised toward the
+/// target as the dataset's are.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Placement {
+    pub split: String,
+    pub room: String,
+    pub target: usize,
+    pub person: [f32; 2],
+    pub robot: [f32; 3],
 }
 
 /// Steps a second a session runs at most.
@@ -69,7 +94,15 @@ pub type MapTransform = [f32; 6];
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum ToPage {
     /// On connecting: what can be chosen.
-    Hello { checkpoints: Vec<CheckpointInfo>, splits: Vec<(String, usize)>, session: String },
+    /// `rooms`: each split's rooms, where a program may be placed.
+    Hello {
+        checkpoints: Vec<CheckpointInfo>,
+        splits: Vec<(String, usize)>,
+        rooms: Vec<(String, Vec<String>)>,
+        session: String,
+    },
+    /// A room to place a program in.
+    Room(RoomView),
     /// An episode began: one robot a checkpoint, side by side.
     Episode {
         program: String,
@@ -83,6 +116,8 @@ pub enum ToPage {
         person: [f32; 2],
         gesture: GestureSource,
         interventions: Interventions,
+        /// The person performing the referencing gesture the robots perceive.
+        referencing: Film,
     },
     /// One step of one side: the observation its policy acted on and what it answered.
     Step(StepView),
@@ -92,6 +127,9 @@ pub enum ToPage {
     FrameSeen { person: bool, waving: bool, capturing: bool },
     /// A gesture was captured from the webcam; later episodes may use it.
     Captured { arm: String, seconds: [f32; 2], frames: usize, person_frames: usize },
+    /// An uploaded file was read into a gesture (`kind`: video or motion); later episodes may
+    /// use it. A video says which arm gestured and in how many of its frames a person was seen.
+    Uploaded { name: String, kind: String, arm: Option<String>, frames: usize, person_frames: usize },
     /// A webcam frame was not read: not a JPEG, too large, sent before the last was answered,
     /// or not an image; the session goes on. Every frame gets this or [`ToPage::FrameSeen`].
     FrameRefused { message: String },
@@ -106,11 +144,43 @@ pub struct CheckpointInfo {
     pub size: [u32; 2],
 }
 
-/// One robot of an episode: the checkpoint acting and the number its record has.
+/// One robot of an episode: the checkpoint acting, the number its record has, and the
+/// intervention gesture its person shows it (each run's seed draws its own).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Side {
     pub number: usize,
     pub checkpoint: String,
+    pub intervention: Film,
+}
+
+/// A gesture performed by the program's person, filmed: its frames tiled into one JPEG (base64)
+/// of `columns` tiles a row, each `tile` pixels square, 30 a second.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Film {
+    pub name: String,
+    pub sheet_jpeg: String,
+    pub tile: u32,
+    pub columns: u32,
+    pub frames: u32,
+}
+
+/// A room from above, where a program may be placed: its reachable targets.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RoomView {
+    pub split: String,
+    pub room: String,
+    pub map_png: String,
+    pub map_transform: MapTransform,
+    pub targets: Vec<TargetView>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TargetView {
+    /// The object's index in the room.
+    pub object: usize,
+    pub name: String,
+    /// x, z (m).
+    pub at: [f32; 2],
 }
 
 /// One step as recorded (a line of `steps.jsonl`, `super::record`) and as the page sees it.
@@ -171,7 +241,8 @@ mod tests {
     fn messages_survive_a_round_trip() {
         let to_server = [
             ToServer::Start {
-                program: "val:3".into(),
+                program: Some("val:3".into()),
+                placed: None,
                 checkpoint: 1,
                 versus: Some(0),
                 gesture: GestureSource::Webcam,
@@ -182,6 +253,21 @@ mod tests {
             ToServer::Step,
             ToServer::Intervene,
             ToServer::CaptureGesture { seconds: 4.0 },
+            ToServer::Room { split: "val".into(), room: "FloorPlan21".into() },
+            ToServer::Start {
+                program: None,
+                placed: Some(Placement {
+                    split: "val".into(),
+                    room: "FloorPlan21".into(),
+                    target: 7,
+                    person: [1.0, -0.5],
+                    robot: [0.0, 1.0, 90.0],
+                }),
+                checkpoint: 0,
+                versus: None,
+                gesture: GestureSource::Upload,
+                interventions: Interventions::Rule,
+            },
         ];
         for m in to_server {
             let text = serde_json::to_string(&m).unwrap();
@@ -191,6 +277,13 @@ mod tests {
             ToPage::FrameSeen { person: true, waving: false, capturing: true },
             ToPage::Error { message: "no".into() },
             ToPage::FrameRefused { message: "not a JPEG".into() },
+            ToPage::Uploaded {
+                name: "me.mp4".into(),
+                kind: "video".into(),
+                arm: Some("left".into()),
+                frames: 90,
+                person_frames: 88,
+            },
             ToPage::End(EpisodeEnd {
                 side: 1,
                 number: 4,
@@ -225,7 +318,8 @@ mod tests {
         assert_eq!(
             m,
             ToServer::Start {
-                program: "val:0".into(),
+                program: Some("val:0".into()),
+                placed: None,
                 checkpoint: 0,
                 versus: None,
                 gesture: GestureSource::Program,

@@ -13,7 +13,8 @@ const $ = (id) => document.getElementById(id);
 // path and its end; `ended` once every side has.
 const live = (window.live = {
   session: null, episode: null, sides: [], ended: false, episodes: [],
-  framesSent: 0, framesSeen: 0, waving: false, captured: null, errors: [],
+  framesSent: 0, framesSeen: 0, waving: false, captured: null, uploaded: null, errors: [],
+  room: null, placed: { person: null, robot: null },
 });
 
 const token = new URLSearchParams(location.search).get("token");
@@ -30,7 +31,9 @@ ws.onmessage = (ev) => {
   if (on) on(m);
 };
 
-const map = { img: null, t: null, target: null, person: null };
+// what the map shows: an episode, or a room where a program is being placed
+const map = { img: null, t: null, target: null, person: null, placing: false };
+let rooms = {};
 
 const handlers = {
   hello(m) {
@@ -42,6 +45,14 @@ const handlers = {
     $("split").replaceChildren(...m.splits.map(([name, n]) => new Option(`${name} (${n})`, name)));
     const val = m.splits.findIndex(([name]) => name === "val");
     if (val >= 0) $("split").selectedIndex = val;
+    rooms = Object.fromEntries(m.rooms);
+    showRooms();
+  },
+  room(m) {
+    live.room = m;
+    live.placed = { person: null, robot: null };
+    $("target").replaceChildren(...m.targets.map((t) => new Option(`${t.name} (object ${t.object})`, t.object)));
+    showMap(m.map_png, m.map_transform, true);
   },
   episode(m) {
     live.episode = m; live.ended = false;
@@ -54,10 +65,9 @@ const handlers = {
       panel.querySelector(".side-label").textContent = `episode ${s.number}: ${s.checkpoint}`;
       return panel;
     }));
-    const img = new Image();
-    img.onload = () => { map.img = img; drawMap(); };
-    img.src = "data:image/png;base64," + m.map_png;
-    Object.assign(map, { t: m.map_transform, target: m.target, person: m.person });
+    avatar.sheets = [loadSheet(m.referencing), ...m.sides.map((s) => loadSheet(s.intervention))];
+    Object.assign(map, { target: m.target, person: m.person });
+    showMap(m.map_png, m.map_transform, false);
   },
   step(m) {
     const side = live.sides[m.side], panel = $(`side-${m.side}`);
@@ -70,6 +80,7 @@ const handlers = {
     put(".value", m.value.toFixed(3));
     put(".distance", m.distance.toFixed(2));
     put(".shown", GESTURES[m.shown] ?? m.shown);
+    side.shown = m.shown;
     put(".rule", GESTURES[m.rule] ?? m.rule);
     panel.querySelector(".probs").replaceChildren(...m.probs.map((p, a) => {
       const row = document.createElement("div");
@@ -104,6 +115,12 @@ const handlers = {
       (m.waving ? " · waving: intervention!" : "") + (m.capturing ? " · capturing…" : "");
     camera.inFlight = false;
   },
+  uploaded(m) {
+    live.uploaded = m;
+    $("upload-status").textContent = m.kind === "video"
+      ? `${m.name}: a ${m.arm} arm gesture (a person in ${m.person_frames} of ${m.frames} frames); choose "my uploaded file" and start`
+      : `${m.name}: a motion file; choose "my uploaded file" and start`;
+  },
   captured(m) {
     live.captured = m;
     $("camera-status").textContent = `captured a ${m.arm} arm gesture (${m.seconds[0].toFixed(1)}–${m.seconds[1].toFixed(1)} s); choose "my webcam capture" and start`;
@@ -118,13 +135,28 @@ const handlers = {
   },
 };
 
+function showMap(png, transform, placing) {
+  map.img = null; map.t = transform; map.placing = placing;
+  $("map").classList.toggle("placing", placing);
+  const img = new Image();
+  img.onload = () => { map.img = img; drawMap(); };
+  img.src = "data:image/png;base64," + png;
+}
+
+// a world point (x, z) on the map picture and back: column = a·x + b·z + c, row = d·x + e·z + f
+const toPixel = ([x, z]) => { const [a, b, c, d, e, f] = map.t; return [a * x + b * z + c, d * x + e * z + f]; };
+function toWorld(u, v) {
+  const [a, b, c, d, e, f] = map.t, det = a * e - b * d;
+  return [(e * (u - c) - b * (v - f)) / det, (a * (v - f) - d * (u - c)) / det];
+}
+
 function drawMap() {
   const c = $("map"), g = c.getContext("2d");
   if (!map.img) return;
   if (c.width !== map.img.width) { c.width = map.img.width; c.height = map.img.height; }
   g.drawImage(map.img, 0, 0);
-  const [a, b, cc, d, e, f] = map.t;
-  const px = ([x, z]) => [a * x + b * z + cc, d * x + e * z + f];
+  const px = toPixel;
+  if (map.placing) return drawPlacing(g);
   live.sides.forEach(({ path }, k) => {
     if (!path.length) return;
     g.strokeStyle = g.fillStyle = COLOURS[k]; g.lineWidth = 3; g.beginPath();
@@ -142,15 +174,96 @@ function drawMap() {
   });
 }
 
+// placing a program: the room's targets (the chosen one ringed), the person and the robot
+function drawPlacing(g) {
+  const chosen = Number($("target").value);
+  g.font = "12px system-ui"; g.lineWidth = 2;
+  for (const t of live.room?.targets ?? []) {
+    const [u, v] = toPixel(t.at);
+    g.strokeStyle = t.object === chosen ? "#17803a" : "#888";
+    g.beginPath(); g.arc(u, v, t.object === chosen ? 11 : 6, 0, 2 * Math.PI); g.stroke();
+  }
+  const { person, robot } = live.placed;
+  if (person) {
+    const [u, v] = toPixel(person);
+    g.fillStyle = "#7a3db8"; g.beginPath(); g.arc(u, v, 7, 0, 2 * Math.PI); g.fill();
+    g.fillText("person", u + 9, v - 6);
+  }
+  if (robot) {
+    const [u, v] = toPixel(robot), r = (Number($("robot-yaw").value) * Math.PI) / 180;
+    g.fillStyle = "#333"; g.beginPath();
+    g.moveTo(u + 12 * Math.sin(r), v - 12 * Math.cos(r));
+    g.lineTo(u + 7 * Math.cos(r), v + 7 * Math.sin(r));
+    g.lineTo(u - 7 * Math.cos(r), v - 7 * Math.sin(r));
+    g.fill(); g.fillText("robot", u + 9, v - 6);
+  }
+}
+
+function showRooms() {
+  const names = rooms[$("split").value] ?? [];
+  $("room").replaceChildren(...names.map((r) => new Option(r, r)));
+  if (placing()) askRoom();
+}
+const placing = () => $("program-kind").value === "placed";
+const askRoom = () => $("room").value && send({ type: "room", split: $("split").value, room: $("room").value });
+$("program-kind").onchange = () => { document.body.classList.toggle("placed", placing()); if (placing()) askRoom(); };
+$("split").onchange = showRooms;
+$("room").onchange = askRoom;
+$("target").onchange = drawMap;
+$("robot-yaw").oninput = drawMap;
+$("map").onclick = (ev) => {
+  if (!map.placing || !map.img) return;
+  const c = $("map"), box = c.getBoundingClientRect();
+  const u = ((ev.clientX - box.left) * c.width) / box.width, v = ((ev.clientY - box.top) * c.height) / box.height;
+  live.placed[$("placing").value] = toWorld(u, v);
+  // the robot next, once the person stands
+  if ($("placing").value === "person" && !live.placed.robot) $("placing").value = "robot";
+  drawMap();
+};
+
+// the gesture each robot perceives, performed by the program's person: the referencing film,
+// or that side's intervention film, at 30 frames a second; nothing shown: the first frame, faded
+const avatar = { sheets: [], frame: 0 };
+function loadSheet(film) {
+  const img = new Image();
+  img.src = "data:image/jpeg;base64," + film.sheet_jpeg;
+  return { film, img };
+}
+setInterval(() => {
+  avatar.frame = (avatar.frame + 1) % 100;
+  live.sides.forEach((side, k) => {
+    const canvas = document.querySelector(`#side-${k} .avatar`);
+    const sheet = side.shown === 2 ? avatar.sheets[1 + k] : avatar.sheets[0];
+    if (!canvas || !sheet || !sheet.img.complete) return;
+    const { tile, columns, frames } = sheet.film, t = side.shown ? avatar.frame % frames : 0;
+    canvas.classList.toggle("none", !side.shown);
+    canvas.title = side.shown ? sheet.film.name : "no gesture shown";
+    canvas.getContext("2d").drawImage(sheet.img, (t % columns) * tile, Math.floor(t / columns) * tile, tile, tile, 0, 0, 120, 120);
+  });
+}, 1000 / 30);
+
 // controls
-$("start").onclick = () => send({
-  type: "start",
-  program: `${$("split").value}:${$("index").value}`,
-  checkpoint: Number($("checkpoint").value),
-  versus: $("versus").value === "" ? null : Number($("versus").value),
-  gesture: $("gesture").value,
-  interventions: $("interventions").value,
-});
+$("start").onclick = () => {
+  const where = {};
+  if (placing()) {
+    const { person, robot } = live.placed;
+    if (!person || !robot) return handlers.error({ message: "place the person and the robot on the map first" });
+    where.placed = {
+      split: $("split").value, room: $("room").value, target: Number($("target").value),
+      person, robot: [...robot, Number($("robot-yaw").value)],
+    };
+  } else {
+    where.program = `${$("split").value}:${$("index").value}`;
+  }
+  send({
+    type: "start",
+    ...where,
+    checkpoint: Number($("checkpoint").value),
+    versus: $("versus").value === "" ? null : Number($("versus").value),
+    gesture: $("gesture").value,
+    interventions: $("interventions").value,
+  });
+};
 const speed = () => Number($("speed").value);
 $("speed").oninput = () => { $("speed-value").textContent = speed(); if (running) send({ type: "run", speed: speed() }); };
 let running = false;
@@ -159,6 +272,17 @@ $("pause").onclick = () => { running = false; send({ type: "pause" }); };
 $("step").onclick = () => { running = false; send({ type: "step" }); };
 $("intervene").onclick = () => send({ type: "intervene" });
 $("capture").onclick = () => send({ type: "capture_gesture", seconds: 4 });
+// an upload goes by HTTP to this tab's session; the session answers on the socket
+$("upload").onclick = async () => {
+  const file = $("upload-file").files[0];
+  if (!file) return handlers.error({ message: "choose a video or a motion file first" });
+  const name = file.name.replace(/[^A-Za-z0-9._-]/g, "_").replace(/^\.+/, "");
+  const query = new URLSearchParams({ session: live.session, name });
+  if (token) query.set("token", token);
+  $("upload-status").textContent = `reading ${name}…`;
+  const r = await fetch(`/upload?${query}`, { method: "POST", body: file });
+  if (!r.ok) handlers.error({ message: `the upload: ${(await r.text()).trim()}` });
+};
 document.addEventListener("keydown", (e) => {
   if (e.target.tagName === "INPUT" || e.target.tagName === "SELECT") return;
   if (e.key === "i" || e.key === "I") send({ type: "intervene" });

@@ -1,0 +1,160 @@
+//! `orchestrator live` at the socket, for what a person brings of their own: a program they place
+//! (a room, a target, where the person and the robot stand) and a gesture they upload (a motion
+//! file, or a video of themselves); and the person performing the perceived gestures, filmed.
+
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use base64::Engine;
+use futures_util::SinkExt;
+use gesthor_tests::{bin, capture_ready, dataset};
+use serde_json::{Value, json};
+use tokio_tungstenite::tungstenite::Message;
+use worker::dataset::{Dataset, Verify};
+use worker::gesture::Motion;
+use worker::scene::Split;
+
+use crate::live::{Server, filmed_y4m, next};
+
+/// A POST on loopback: the status code and the body.
+fn http_post(port: u16, path: &str, body: &[u8]) -> (u16, String) {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    write!(s, "POST {path} HTTP/1.0\r\nHost: localhost\r\nContent-Length: {}\r\n\r\n", body.len()).unwrap();
+    s.write_all(body).unwrap();
+    let mut text = String::new();
+    s.read_to_string(&mut text).unwrap();
+    let status = text.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
+    (status, text.split_once("\r\n\r\n").map(|(_, b)| b.to_string()).unwrap_or_default())
+}
+
+async fn send(ws: &mut crate::live::Socket, m: Value) {
+    ws.send(Message::Text(m.to_string().into())).await.unwrap();
+}
+
+/// Runs an episode to its end; its record's folder.
+async fn run_to_end(ws: &mut crate::live::Socket) -> PathBuf {
+    send(ws, json!({"type": "run", "speed": 60})).await;
+    loop {
+        let m = next(ws).await;
+        match m["type"].as_str() {
+            Some("step") => continue,
+            Some("end") => return PathBuf::from(m["record"].as_str().unwrap()),
+            _ => panic!("{m}"),
+        }
+    }
+}
+
+fn replays(record: &Path) {
+    let o = Command::new(bin("orchestrator")).args(["live", "replay", &record.display().to_string()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("the same path"));
+}
+
+/// The one program of an episode's record, and its gesture.
+fn recorded(record: &Path) -> (worker::program::Program, Motion) {
+    let ds = Dataset::open(&record.join("dataset"), Verify::Quick).unwrap();
+    let file = ds.require(Split::Val).unwrap();
+    let p = worker::program::Program::from_record(0, &file.record(0)).unwrap();
+    (p, Motion::from_flat(&file.motion(0)).unwrap())
+}
+
+/// A film's sheet: a JPEG's width and height (its baseline frame header, SOF0).
+fn sheet_size(film: &Value) -> (u32, u32) {
+    let jpeg = base64::engine::general_purpose::STANDARD.decode(film["sheet_jpeg"].as_str().unwrap()).unwrap();
+    assert!(jpeg.starts_with(&[0xFF, 0xD8]), "not a JPEG");
+    let sof = jpeg.windows(2).position(|w| w == [0xFF, 0xC0]).expect("a baseline JPEG");
+    let be = |i: usize| u32::from(jpeg[sof + i]) << 8 | u32::from(jpeg[sof + i + 1]);
+    (be(7), be(5))
+}
+
+#[test]
+fn a_person_places_a_program_and_uploads_their_gesture() {
+    let _g = gesthor_tests::serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let server = Server::start(&tmp.path().join("live"), &["--listen", "127.0.0.1:0"]);
+    // val:1's room, target and places, as the person would click them
+    let ds = Dataset::open(&dataset(), Verify::Quick).unwrap();
+    let base = ds.program(Split::Val, 1).unwrap();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let (placed_record, upload_record) = rt.block_on(async {
+        let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{}/ws", server.port)).await.unwrap();
+        let hello = next(&mut ws).await;
+        let session = hello["session"].as_str().unwrap().to_string();
+        let val_rooms = hello["rooms"].as_array().unwrap().iter().find(|r| r[0] == "val").unwrap()[1].clone();
+        assert!(val_rooms.as_array().unwrap().contains(&json!(base.scene)), "{val_rooms}");
+
+        // the room from above, with its targets
+        send(&mut ws, json!({"type": "room", "split": "val", "room": base.scene})).await;
+        let room = next(&mut ws).await;
+        assert_eq!(room["type"], "room", "{room}");
+        let targets = room["targets"].as_array().unwrap();
+        assert!(targets.iter().any(|t| t["object"] == base.target_object), "{room}");
+
+        // placed where val:1's person and robot stand; the person faces the target
+        let placed = |robot: [f32; 3]| {
+            json!({"type": "start", "checkpoint": 0, "placed": {
+                "split": "val", "room": base.scene, "target": base.target_object,
+                "person": [base.human_pos[0], base.human_pos[2]], "robot": robot}})
+        };
+        send(&mut ws, placed([40.0, 40.0, 0.0])).await;
+        let e = next(&mut ws).await;
+        assert!(e["type"] == "error" && e["message"].as_str().unwrap().contains("outside the room"), "{e}");
+        send(&mut ws, placed([base.robot_pos[0], base.robot_pos[2], base.robot_yaw])).await;
+        let episode = next(&mut ws).await;
+        assert_eq!(episode["type"], "episode", "{episode}");
+        assert!(episode["label"].as_str().unwrap().contains(&base.scene), "{}", episode["label"]);
+        // the person performing the referencing gesture and this robot's intervention gesture
+        assert_eq!(sheet_size(&episode["referencing"]), (1200, 1200));
+        assert_eq!(sheet_size(&episode["sides"][0]["intervention"]), (1200, 1200));
+        let placed_record = run_to_end(&mut ws).await;
+
+        // a motion file: the session holds it, and an episode performs it as recorded
+        let wave = worker::gesture::intervention(1);
+        let csv = tmp.path().join("wave.csv");
+        worker::gesture::motion::write_csv(&csv, &wave).unwrap();
+        let upload = |name: &str| format!("/upload?session={session}&name={name}");
+        let (status, body) = http_post(server.port, &upload("wave.csv"), &std::fs::read(&csv).unwrap());
+        assert_eq!(status, 202, "{body}");
+        let told = next(&mut ws).await;
+        assert_eq!((told["type"].as_str(), told["kind"].as_str()), (Some("uploaded"), Some("motion")), "{told}");
+        send(&mut ws, json!({"type": "start", "program": "val:1", "checkpoint": 0, "gesture": "upload"})).await;
+        assert_eq!(next(&mut ws).await["type"], "episode");
+        let upload_record = run_to_end(&mut ws).await;
+
+        // a file that is not a motion gets one error naming it; a session that is not open, a 404
+        let (status, _) = http_post(server.port, &upload("notes.csv"), b"not a motion");
+        assert_eq!(status, 202);
+        let e = next(&mut ws).await;
+        assert!(e["type"] == "error" && e["message"].as_str().unwrap().contains("notes.csv"), "{e}");
+        assert_eq!(http_post(server.port, "/upload?session=session-999&name=x.csv", b"1").0, 404);
+
+        // a video of the person gesturing (our avatar, filmed), read as `gesture capture` reads one
+        if capture_ready() {
+            let y4m = filmed_y4m(tmp.path());
+            let (status, body) = http_post(server.port, &upload("me.y4m"), &std::fs::read(&y4m).unwrap());
+            assert_eq!(status, 202, "{body}");
+            let told = next(&mut ws).await;
+            assert_eq!((told["type"].as_str(), told["kind"].as_str()), (Some("uploaded"), Some("video")), "{told}");
+            assert!(told["person_frames"].as_u64().unwrap() * 2 >= told["frames"].as_u64().unwrap(), "{told}");
+        }
+        ws.close(None).await.unwrap();
+        (placed_record, upload_record)
+    });
+
+    // the placed program is recorded as placed, and replays
+    let (p, _) = recorded(&placed_record);
+    assert_eq!((p.scene.as_str(), p.target_object), (base.scene.as_str(), base.target_object));
+    assert_eq!(p.human_pos, base.human_pos);
+    let moved = ((p.robot_pos[0] - base.robot_pos[0]).powi(2) + (p.robot_pos[2] - base.robot_pos[2]).powi(2)).sqrt();
+    assert!(moved < 0.2 && p.robot_yaw == base.robot_yaw, "{:?} {} for {:?}", p.robot_pos, p.robot_yaw, base.robot_pos);
+    replays(&placed_record);
+    // the uploaded motion is the episode's gesture (to the dataset's half floats), and replays
+    let (_, m) = recorded(&upload_record);
+    let wave = worker::gesture::intervention(1);
+    let worst = m.as_flat().iter().zip(wave.as_flat()).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-2, "{worst}");
+    replays(&upload_record);
+    assert!(tmp.path().join("live").read_dir().unwrap().flatten().any(|s| s.path().join("uploads/wave.csv").is_file()));
+}
