@@ -53,10 +53,13 @@ pub fn run(a: BenchLiveArgs) -> anyhow::Result<()> {
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
     let mut s = Session::new(shared, "bench", tx);
 
-    // the live loop: whole episodes, stepped as fast as they go
-    let (mut steps, mut busy) = (0u64, Duration::ZERO);
+    // the live loop: whole episodes, stepped as fast as they go; each start (the program's
+    // dataset and record written, the simulator reset, the person's gestures filmed) timed apart
+    let (mut steps, mut busy, mut starts) = (0u64, Duration::ZERO, Vec::new());
     for i in 0..a.programs {
+        let t = Instant::now();
         s.start(&Program::Dataset(format!("val:{i}")), 0, None, GestureSource::Program, Interventions::Rule)?;
+        starts.push(t.elapsed().as_secs_f64() * 1e3);
         let t = Instant::now();
         let mut ended = false;
         while !ended {
@@ -71,8 +74,10 @@ pub fn run(a: BenchLiveArgs) -> anyhow::Result<()> {
         busy += t.elapsed();
     }
     let steps_per_s = steps as f64 / busy.as_secs_f64();
+    let start_ms = percentile(&mut starts, 0.5);
     println!(
-        "live loop: {steps} steps of {} episodes at {}×{} in {:.2} s: {steps_per_s:.1} steps/s",
+        "live loop: {steps} steps of {} episodes at {}×{} in {:.2} s: {steps_per_s:.1} steps/s; \
+         an episode's start {start_ms:.0} ms (median)",
         a.programs,
         size[0],
         size[1],
@@ -80,7 +85,7 @@ pub fn run(a: BenchLiveArgs) -> anyhow::Result<()> {
     );
     let mut report = serde_json::json!({
         "checkpoint": a.checkpoint, "size": size, "episodes": a.programs, "steps": steps,
-        "seconds": busy.as_secs_f64(), "steps_per_s": steps_per_s,
+        "seconds": busy.as_secs_f64(), "steps_per_s": steps_per_s, "start_ms_median": start_ms,
     });
 
     if !a.no_webcam {

@@ -111,16 +111,18 @@ pub fn run(cmd: GestureCmd) -> anyhow::Result<()> {
 /// `angle` degrees round from their front, 2.4 m away at hip height: `out/000.png` … `099.png`.
 pub fn film(human: &Humanoid, motion: &Motion, angle: f32, size: u32, out: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    film_frames(human, motion, angle, size, |t, img| {
+    film_frames(human, motion, angle, 2.4, size, |t, img| {
         img.save(out.join(format!("{t:03}.png"))).with_context(|| format!("writing {}", out.display()))
     })
 }
 
-/// The frames of [`film`], each handed to `each` with its number as it is drawn.
+/// The frames of [`film`] from `distance` metres away, each handed to `each` with its number as
+/// it is drawn.
 pub fn film_frames(
     human: &Humanoid,
     motion: &Motion,
     angle: f32,
+    distance: f32,
     size: u32,
     mut each: impl FnMut(usize, RgbImage) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
@@ -128,7 +130,7 @@ pub fn film_frames(
     let mut r = Renderer::new(&cfg)?;
     let floor = Part::new(Shape::Box, Point3::new(0.0, -0.01, 0.0), Vector3::new(6.0, 0.01, 6.0), [0.45, 0.45, 0.42]);
     let scene = r.upload_scene(&[floor]);
-    let at = heading(angle) * 2.4;
+    let at = heading(angle) * distance;
     let camera = Camera { position: Point3::new(at.x, 0.95, at.y), yaw_deg: yaw_of(-at), pitch_deg: 0.0 };
     let px = (size * size) as usize;
     let (mut rgb, mut depth) = (vec![0u8; px * 3], vec![0u16; px]);

@@ -1,6 +1,6 @@
 //! The program's person performing a gesture the robots perceive, filmed for the page: the 100
-//! frames (`gesture film`'s camera, 25° round from their front) tiled into one JPEG, which the
-//! page plays at 30 frames a second while the gesture is shown.
+//! frames (`gesture film`'s camera, 25° round from their front, nearer so that they fill the
+//! frame) tiled into one JPEG, which the page plays at 30 frames a second while it is shown.
 
 use image::{GenericImage, RgbImage};
 
@@ -13,8 +13,9 @@ use super::wire::Film;
 /// Pixels of a tile's side.
 const TILE: u32 = 120;
 const COLUMNS: u32 = 10;
-/// Where the camera stands, degrees round from the person's front.
+/// Where the camera stands: degrees round from the person's front, metres away.
 const ANGLE: f32 = 25.0;
+const DISTANCE: f32 = 1.8;
 
 /// `human` performing `motion`, filmed.
 pub fn film(human: &Humanoid, motion: &Motion, name: &str) -> anyhow::Result<Film> {
@@ -31,7 +32,7 @@ pub fn film(human: &Humanoid, motion: &Motion, name: &str) -> anyhow::Result<Fil
 fn sheet(human: &Humanoid, motion: &Motion) -> anyhow::Result<RgbImage> {
     let rows = (FRAMES as u32).div_ceil(COLUMNS);
     let mut sheet = RgbImage::new(TILE * COLUMNS, TILE * rows);
-    crate::commands::gesture::film_frames(human, motion, ANGLE, TILE, |t, img| {
+    crate::commands::gesture::film_frames(human, motion, ANGLE, DISTANCE, TILE, |t, img| {
         let t = t as u32;
         sheet.copy_from(&img, (t % COLUMNS) * TILE, (t / COLUMNS) * TILE)?;
         Ok(())
