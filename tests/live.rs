@@ -1,8 +1,8 @@
 //! `orchestrator live` as a person meets it: in a real browser (Debian's Chromium over
 //! chromedriver, driven by fantoccini) whose fake camera plays our own avatar performing a GOND
-//! referencing gesture (filmed by `gesture film`), two checkpoints side by side; and at the
-//! socket: bad frames, a bad program, a closed tab; the listening rules (HTTPS with a pinned
-//! certificate), a bad checkpoint.
+//! referencing gesture (filmed by `gesture film`), two checkpoints side by side, a filmed wave
+//! that calls the intervention gesture; and at the socket: bad frames, a bad program, a closed
+//! tab; the listening rules (HTTPS with a pinned certificate), a bad checkpoint.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -458,6 +458,9 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
             assert_eq!(lengths[k], ends[k]["steps"], "side {k}: one step shown per action taken");
         }
         assert_eq!(page(&c, "document.querySelectorAll('#episodes tr').length").await, json!(3));
+        // the camera was on all along: a pointing arm holds still, it does not wave
+        let seen = page(&c, "[window.live.framesSeen, window.live.wavingFrames]").await;
+        assert_eq!(seen[1], json!(0), "[frames read, read as a wave]: {seen}");
         c.close().await.unwrap();
         let record = |e: &Value| PathBuf::from(e["record"].as_str().unwrap());
         (record(&end), [record(&ends[0]), record(&ends[1])])
@@ -489,6 +492,70 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
     }
     // the closed tab freed its session
     eventually("the closed tab's session kept running", || server.open_sessions() == 0);
+}
+
+/// The intervention gesture filmed for the wave test: its right hand, 27 cm above the shoulder,
+/// swings sideways over 25 cm. Of the 20, K = 0–5 and 17 read as a wave (the landmark model on
+/// the film at 10 and 30 frames a second: in 37–68% of 1.5 s windows; K = 1 in the most), the
+/// others raise no hand above the shoulder or swing it by 5 cm at most, and the referencing
+/// film in no window.
+const WAVE: usize = 1;
+
+#[test]
+fn a_filmed_wave_at_the_webcam_calls_the_intervention_gesture_in_a_real_browser() {
+    if !browser_ready() || !capture_ready() {
+        return;
+    }
+    let _g = gesthor_tests::serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cam = filmed_y4m(tmp.path(), Some(WAVE));
+    let server = Server::start(&tmp.path().join("live"), &["--listen", "127.0.0.1:0"]);
+    let driver = Driver::start();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let record = rt.block_on(async {
+        let c = chromium(&driver, &cam, &tmp.path().join("profile")).await;
+        c.goto(&server.url).await.unwrap();
+        wait_page(&c, "the page never got its session", "window.live && window.live.session").await;
+        // an episode whose interventions are the person's: before the camera, the robot is
+        // shown the program's referencing gesture
+        let shown = "document.querySelector('#side-0 .shown').textContent";
+        page(&c, "(document.getElementById('gesture').value = 'program', document.getElementById('interventions').value = 'person', document.getElementById('index').value = '1')").await;
+        click(&c, "start").await;
+        wait_page(&c, "the episode did not start", "window.live.episode").await;
+        click(&c, "step").await;
+        wait_page(&c, "no first step", "window.live.sides[0].steps == 1").await;
+        assert_eq!(page(&c, shown).await, json!("referencing"));
+
+        // the camera on: the filmed wave is read as one, and no key is pressed
+        let t = Instant::now();
+        click(&c, "camera").await;
+        wait_page(&c, "the filmed wave was never read as a wave", "window.live.wavingFrames >= 1").await;
+        let seen = page(&c, "window.live.framesSeen").await.as_f64().unwrap();
+        eprintln!("a wave read after {seen} webcam frames in {:.1} s", t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        // the call reaches the robot at the next observation, as the key's does
+        click(&c, "step").await;
+        click(&c, "step").await;
+        wait_page(&c, "no third step", "window.live.sides[0].steps == 3").await;
+        assert_eq!(page(&c, shown).await, json!("intervention"));
+        page(&c, "(document.getElementById('speed').value = '30', true)").await;
+        click(&c, "run").await;
+        wait_page(&c, "the episode never ended", "window.live.ended").await;
+        let read = page(&c, "window.live.framesSeen").await.as_f64().unwrap() - seen;
+        eprintln!("then {read} frames read in {:.1} s of the episode", t.elapsed().as_secs_f64());
+        let errors = page(&c, "window.live.errors").await;
+        assert_eq!(errors, json!([]), "the page's errors");
+        let end = page(&c, "window.live.sides[0].end").await;
+        c.close().await.unwrap();
+        PathBuf::from(end["record"].as_str().unwrap())
+    });
+    // the record has the call, from the third step on, and replays to the same path
+    let steps = std::fs::read_to_string(record.join("steps.jsonl")).unwrap();
+    let shown: Vec<bool> = steps.lines().map(|l| l.contains("\"shown\":2")).collect();
+    assert_eq!(shown[..3], [false, false, true], "{steps}");
+    let o = Command::new(bin("orchestrator")).args(["live", "replay", &record.display().to_string()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("the same path"));
 }
 
 #[test]
