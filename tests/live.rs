@@ -1,18 +1,24 @@
 //! `orchestrator live` as a person meets it: in a real browser (Debian's Chromium over
 //! chromedriver, driven by fantoccini) whose fake camera plays our own avatar performing a GOND
-//! referencing gesture (filmed by `gesture film`), two checkpoints side by side, and at the
-//! socket: bad frames, a bad program, a closed tab, the listening rules, a bad checkpoint.
+//! referencing gesture (filmed by `gesture film`), two checkpoints side by side, a filmed wave
+//! that calls the intervention gesture; and at the socket: bad frames, a bad program, a closed
+//! tab; the listening rules (HTTPS with a pinned certificate), a bad checkpoint.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
 use gesthor_tests::{bin, capture_ready, dataset};
+use rustls::client::danger::{HandshakeSignatureValid, ServerCertVerified, ServerCertVerifier};
+use rustls::crypto::{CryptoProvider, verify_tls12_signature, verify_tls13_signature};
+use rustls::pki_types::{CertificateDer, ServerName, UnixTime};
+use rustls::{DigitallySignedStruct, SignatureScheme};
 use serde_json::{Value, json};
+use sha2::{Digest, Sha256};
 use tokio_tungstenite::tungstenite::Message;
 use worker::dataset::{Dataset, Verify};
 use worker::gesture::Motion;
@@ -52,11 +58,13 @@ fn trained_run() -> PathBuf {
     .clone()
 }
 
-/// A running `orchestrator live` on a free loopback port; killed when dropped.
+/// A running `orchestrator live` on a free port; killed when dropped.
 pub(crate) struct Server {
     child: Child,
-    url: String,
+    pub(crate) url: String,
     pub(crate) port: u16,
+    /// The certificate's SHA-256 as printed, when it serves HTTPS.
+    fingerprint: Option<String>,
 }
 
 impl Server {
@@ -69,11 +77,20 @@ impl Server {
             .stderr(Stdio::inherit())
             .spawn()
             .unwrap();
+        let mut said = BufReader::new(child.stdout.take().unwrap());
         let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-        let url = line.split_whitespace().find(|w| w.starts_with("http://")).unwrap_or_else(|| panic!("{line}"));
-        let port = url.trim_start_matches("http://").split(['/', ':']).nth(1).unwrap().parse().unwrap();
-        Server { child, url: url.to_string(), port }
+        said.read_line(&mut line).unwrap();
+        let url = line.split_whitespace().find(|w| w.contains("://")).unwrap_or_else(|| panic!("{line}"));
+        let (scheme, rest) = url.split_once("://").unwrap();
+        let port = rest.split(['/', ':']).nth(1).unwrap().parse().unwrap();
+        // over HTTPS, a second line: the certificate's fingerprint
+        let fingerprint = (scheme == "https").then(|| {
+            let mut line = String::new();
+            said.read_line(&mut line).unwrap();
+            assert!(line.contains("SHA-256 fingerprint"), "{line}");
+            line.split_whitespace().last().unwrap().to_string()
+        });
+        Server { child, url: url.to_string(), port, fingerprint }
     }
 
     /// How many sessions have a simulator running.
@@ -112,11 +129,100 @@ fn children(pid: u32) -> Vec<String> {
 
 /// The body of a GET on loopback.
 fn http_get(port: u16, path: &str) -> String {
+    let text = http_response(port, path);
+    text.split_once("\r\n\r\n").map(|(_, b)| b.to_string()).unwrap_or(text)
+}
+
+/// What a GET in plain HTTP on loopback is answered with (whatever came before an error).
+fn http_response(port: u16, path: &str) -> String {
     let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
     write!(s, "GET {path} HTTP/1.0\r\nHost: localhost\r\n\r\n").unwrap();
-    let mut text = String::new();
-    s.read_to_string(&mut text).unwrap();
-    text.split_once("\r\n\r\n").map(|(_, b)| b.to_string()).unwrap_or(text)
+    let mut bytes = Vec::new();
+    let _ = s.read_to_end(&mut bytes);
+    String::from_utf8_lossy(&bytes).into_owned()
+}
+
+/// The status code of an HTTP response.
+fn status(response: &str) -> &str {
+    response.split_whitespace().nth(1).unwrap_or_default()
+}
+
+/// A TLS client's check of the server's certificate: only the one whose SHA-256 is the
+/// fingerprint printed is accepted (as a person comparing the browser's warning would).
+#[derive(Debug)]
+struct Pinned {
+    fingerprint: String,
+    provider: Arc<CryptoProvider>,
+}
+
+impl ServerCertVerifier for Pinned {
+    fn verify_server_cert(
+        &self,
+        end_entity: &CertificateDer<'_>,
+        _: &[CertificateDer<'_>],
+        _: &ServerName<'_>,
+        _: &[u8],
+        _: UnixTime,
+    ) -> Result<ServerCertVerified, rustls::Error> {
+        if sha256_colons(end_entity) == self.fingerprint {
+            Ok(ServerCertVerified::assertion())
+        } else {
+            Err(rustls::Error::General("not the certificate whose fingerprint was printed".into()))
+        }
+    }
+
+    fn verify_tls12_signature(
+        &self,
+        message: &[u8],
+        cert: &CertificateDer<'_>,
+        dss: &DigitallySignedStruct,
+    ) -> Result<HandshakeSignatureValid, rustls::Error> {
+        verify_tls12_signature(message, cert, dss, &self.provider.signature_verification_algorithms)
+    }
+
+    fn verify_tls13_signature(
+        &self,
+        message: &[u8],
+        cert: &CertificateDer<'_>,
+        dss: &DigitallySignedStruct,
+    ) -> Result<HandshakeSignatureValid, rustls::Error> {
+        verify_tls13_signature(message, cert, dss, &self.provider.signature_verification_algorithms)
+    }
+
+    fn supported_verify_schemes(&self) -> Vec<SignatureScheme> {
+        self.provider.signature_verification_algorithms.supported_schemes()
+    }
+}
+
+/// SHA-256 as browsers show it: `AB:CD:…`.
+fn sha256_colons(der: &[u8]) -> String {
+    Sha256::digest(der).iter().map(|b| format!("{b:02X}")).collect::<Vec<_>>().join(":")
+}
+
+/// What a GET over HTTPS on loopback is answered with (status line and all), through a client
+/// that trusts only the certificate of `fingerprint`; an error when the handshake fails.
+async fn https_get(port: u16, fingerprint: &str, path: &str) -> std::io::Result<String> {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let pinned = Pinned { fingerprint: fingerprint.to_string(), provider: provider.clone() };
+    let config = rustls::ClientConfig::builder_with_provider(provider)
+        .with_safe_default_protocol_versions()
+        .unwrap()
+        .dangerous()
+        .with_custom_certificate_verifier(Arc::new(pinned))
+        .with_no_client_auth();
+    let tcp = tokio::net::TcpStream::connect(("127.0.0.1", port)).await?;
+    let name = ServerName::try_from("localhost").unwrap();
+    let mut tls = tokio_rustls::TlsConnector::from(Arc::new(config)).connect(name, tcp).await?;
+    tls.write_all(format!("GET {path} HTTP/1.0\r\nHost: localhost\r\n\r\n").as_bytes()).await?;
+    let mut bytes = Vec::new();
+    // a server that closes without TLS's goodbye has still said all it had to
+    if let Err(e) = tls.read_to_end(&mut bytes).await {
+        if e.kind() != std::io::ErrorKind::UnexpectedEof || bytes.is_empty() {
+            return Err(e);
+        }
+    }
+    Ok(String::from_utf8_lossy(&bytes).into_owned())
 }
 
 /// Waits for `what` to hold, failing with `why` if it never does (a guard against a hang, not
@@ -130,7 +236,7 @@ fn eventually(why: &str, mut what: impl FnMut() -> bool) {
 }
 
 /// Whether Chromium and chromedriver are here; where setup.sh installed them, they must be.
-fn browser_ready() -> bool {
+pub(crate) fn browser_ready() -> bool {
     let found = ["/usr/bin/chromium", "/usr/bin/chromedriver"].iter().all(|p| Path::new(p).is_file());
     if !found && std::env::var("GESTHOR_BROWSER_REQUIRED").is_ok_and(|v| v == "1") {
         panic!("chromium or chromedriver is missing, but scripts/setup.sh installed them");
@@ -142,12 +248,15 @@ fn browser_ready() -> bool {
 }
 
 /// The fake camera's video: our avatar performing val:1's referencing gesture (`gesture film`),
-/// each frame on a grey 320×240 canvas, as YUV4MPEG2 (I420, which Chromium reads).
-pub(crate) fn filmed_y4m(dir: &Path) -> PathBuf {
+/// or intervention gesture `intervention`, each frame on a grey 320×240 canvas, as YUV4MPEG2
+/// (I420, which Chromium reads). Chromium plays it at 30 frames a second, over and over.
+pub(crate) fn filmed_y4m(dir: &Path, intervention: Option<usize>) -> PathBuf {
     let frames = dir.join("film");
+    let k = intervention.map(|k| vec!["--intervention".to_string(), k.to_string()]).unwrap_or_default();
     let o = Command::new(bin("orchestrator"))
         .args(["gesture", "film", "val:1", "--dataset", &dataset().display().to_string()])
         .args(["--size", "240", "--out", &frames.display().to_string()])
+        .args(k)
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -204,10 +313,10 @@ fn held_arm(dir: &Path, i: usize) -> (Side, [f32; 3]) {
 }
 
 /// chromedriver on a free port; killed when dropped.
-struct Driver(Child, u16);
+pub(crate) struct Driver(Child, u16);
 
 impl Driver {
-    fn start() -> Driver {
+    pub(crate) fn start() -> Driver {
         let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
         let child = Command::new("/usr/bin/chromedriver")
             .arg(format!("--port={port}"))
@@ -227,12 +336,37 @@ impl Drop for Driver {
     }
 }
 
+/// Headless Chromium through `driver`, its fake camera playing `cam`, in a profile of its own.
+pub(crate) async fn chromium(driver: &Driver, cam: &Path, profile: &Path) -> fantoccini::Client {
+    let args = [
+        "--headless=new",
+        "--no-sandbox",
+        "--use-fake-ui-for-media-stream",
+        "--use-fake-device-for-media-stream",
+        &format!("--use-file-for-fake-video-capture={}", cam.display()),
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--window-size=1400,1050",
+        &format!("--user-data-dir={}", profile.display()),
+    ];
+    let mut caps = serde_json::Map::new();
+    caps.insert("goog:chromeOptions".into(), json!({"binary": "/usr/bin/chromium", "args": args}));
+    fantoccini::ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+        .capabilities(caps)
+        .connect(&format!("http://127.0.0.1:{}", driver.1))
+        .await
+        .expect("chromedriver starts Chromium")
+}
+
 /// Evaluates `js` (an expression) in the page.
-async fn page(c: &fantoccini::Client, js: &str) -> Value {
+pub(crate) async fn page(c: &fantoccini::Client, js: &str) -> Value {
     c.execute(&format!("return {js};"), vec![]).await.unwrap()
 }
 
-async fn wait_page(c: &fantoccini::Client, why: &str, js: &str) -> Value {
+pub(crate) async fn wait_page(c: &fantoccini::Client, why: &str, js: &str) -> Value {
     let t = Instant::now();
     loop {
         let v = page(c, js).await;
@@ -245,7 +379,7 @@ async fn wait_page(c: &fantoccini::Client, why: &str, js: &str) -> Value {
     }
 }
 
-async fn click(c: &fantoccini::Client, id: &str) {
+pub(crate) async fn click(c: &fantoccini::Client, id: &str) {
     c.find(fantoccini::Locator::Id(id)).await.unwrap().click().await.unwrap();
 }
 
@@ -256,34 +390,14 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
     }
     let _g = gesthor_tests::serial();
     let tmp = tempfile::tempdir().unwrap();
-    let cam = filmed_y4m(tmp.path());
+    let cam = filmed_y4m(tmp.path(), None);
     let out = tmp.path().join("live");
     let server = Server::start(&out, &["--listen", "127.0.0.1:0"]);
     let driver = Driver::start();
     let profile = tmp.path().join("profile");
     let rt = tokio::runtime::Runtime::new().unwrap();
     let (record, person_record) = rt.block_on(async {
-        let args = [
-            "--headless=new",
-            "--no-sandbox",
-            "--use-fake-ui-for-media-stream",
-            "--use-fake-device-for-media-stream",
-            &format!("--use-file-for-fake-video-capture={}", cam.display()),
-            "--disable-gpu",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--no-first-run",
-            "--window-size=1400,1050",
-            &format!("--user-data-dir={}", profile.display()),
-        ];
-        let mut caps = serde_json::Map::new();
-        caps.insert("goog:chromeOptions".into(), json!({"binary": "/usr/bin/chromium", "args": args}));
-        let c = fantoccini::ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
-            .capabilities(caps)
-            .connect(&format!("http://127.0.0.1:{}", driver.1))
-            .await
-            .expect("chromedriver starts Chromium");
+        let c = chromium(&driver, &cam, &profile).await;
         c.goto(&server.url).await.unwrap();
         wait_page(&c, "the page never got its session", "window.live && window.live.session").await;
 
@@ -344,6 +458,9 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
             assert_eq!(lengths[k], ends[k]["steps"], "side {k}: one step shown per action taken");
         }
         assert_eq!(page(&c, "document.querySelectorAll('#episodes tr').length").await, json!(3));
+        // the camera was on all along: a pointing arm holds still, it does not wave
+        let seen = page(&c, "[window.live.framesSeen, window.live.wavingFrames]").await;
+        assert_eq!(seen[1], json!(0), "[frames read, read as a wave]: {seen}");
         c.close().await.unwrap();
         let record = |e: &Value| PathBuf::from(e["record"].as_str().unwrap());
         (record(&end), [record(&ends[0]), record(&ends[1])])
@@ -375,6 +492,72 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
     }
     // the closed tab freed its session
     eventually("the closed tab's session kept running", || server.open_sessions() == 0);
+}
+
+/// The intervention gesture filmed for the wave test: its right hand, 27 cm above the shoulder,
+/// swings sideways over 25 cm. Of the 20, K = 0–5 and 17 read as a wave (the landmark model on
+/// the film at 10 and 30 frames a second: in 37–68% of 1.5 s windows; K = 1 in the most), the
+/// others raise no hand above the shoulder or swing it by 5 cm at most, and the referencing
+/// film in no window. The page reads ≈ 5 frames a second here (one in flight, the landmark
+/// model on a busy two-core machine); a wave needs 4 frames with the hand raised within its
+/// 1.5 s, so it is read down to ≈ 3 a second.
+const WAVE: usize = 1;
+
+#[test]
+fn a_filmed_wave_at_the_webcam_calls_the_intervention_gesture_in_a_real_browser() {
+    if !browser_ready() || !capture_ready() {
+        return;
+    }
+    let _g = gesthor_tests::serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cam = filmed_y4m(tmp.path(), Some(WAVE));
+    let server = Server::start(&tmp.path().join("live"), &["--listen", "127.0.0.1:0"]);
+    let driver = Driver::start();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let record = rt.block_on(async {
+        let c = chromium(&driver, &cam, &tmp.path().join("profile")).await;
+        c.goto(&server.url).await.unwrap();
+        wait_page(&c, "the page never got its session", "window.live && window.live.session").await;
+        // an episode whose interventions are the person's: before the camera, the robot is
+        // shown the program's referencing gesture
+        let shown = "document.querySelector('#side-0 .shown').textContent";
+        page(&c, "(document.getElementById('gesture').value = 'program', document.getElementById('interventions').value = 'person', document.getElementById('index').value = '1')").await;
+        click(&c, "start").await;
+        wait_page(&c, "the episode did not start", "window.live.episode").await;
+        click(&c, "step").await;
+        wait_page(&c, "no first step", "window.live.sides[0].steps == 1").await;
+        assert_eq!(page(&c, shown).await, json!("referencing"));
+
+        // the camera on: the filmed wave is read as one, and no key is pressed
+        let t = Instant::now();
+        click(&c, "camera").await;
+        wait_page(&c, "the filmed wave was never read as a wave", "window.live.wavingFrames >= 1").await;
+        let seen = page(&c, "window.live.framesSeen").await.as_f64().unwrap();
+        eprintln!("a wave read after {seen} webcam frames in {:.1} s", t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        // the call reaches the robot at the next observation, as the key's does
+        click(&c, "step").await;
+        click(&c, "step").await;
+        wait_page(&c, "no third step", "window.live.sides[0].steps == 3").await;
+        assert_eq!(page(&c, shown).await, json!("intervention"));
+        page(&c, "(document.getElementById('speed').value = '30', true)").await;
+        click(&c, "run").await;
+        wait_page(&c, "the episode never ended", "window.live.ended").await;
+        let read = page(&c, "window.live.framesSeen").await.as_f64().unwrap() - seen;
+        eprintln!("then {read} frames read in {:.1} s of the episode", t.elapsed().as_secs_f64());
+        let errors = page(&c, "window.live.errors").await;
+        assert_eq!(errors, json!([]), "the page's errors");
+        let end = page(&c, "window.live.sides[0].end").await;
+        c.close().await.unwrap();
+        PathBuf::from(end["record"].as_str().unwrap())
+    });
+    // the record has the call, from the third step on, and replays to the same path
+    let steps = std::fs::read_to_string(record.join("steps.jsonl")).unwrap();
+    let shown: Vec<bool> = steps.lines().map(|l| l.contains("\"shown\":2")).collect();
+    assert_eq!(shown[..3], [false, false, true], "{steps}");
+    let o = Command::new(bin("orchestrator")).args(["live", "replay", &record.display().to_string()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("the same path"));
 }
 
 #[test]
@@ -437,21 +620,75 @@ fn bad_frames_and_programs_get_one_error_each_and_a_closed_tab_frees_its_session
 }
 
 #[test]
-fn listening_beyond_loopback_asks_for_a_token_and_a_bad_checkpoint_is_named() {
+fn listening_beyond_loopback_asks_for_a_token_over_https_and_bad_files_are_named() {
     let tmp = tempfile::tempdir().unwrap();
-    let o = Command::new(bin("orchestrator"))
-        .args(["live", "--checkpoint", &trained_run().display().to_string(), "--listen", "0.0.0.0:0"])
-        .args(["--dataset", &dataset().display().to_string()])
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && e.contains("--insecure"), "{e}");
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    // beyond loopback: HTTPS with a certificate made at start, the token in the printed URL
+    let server = Server::start(&tmp.path().join("live"), &["--listen", "0.0.0.0:0"]);
+    assert!(server.url.starts_with("https://") && server.url.contains("?token="), "{}", server.url);
+    let fingerprint = server.fingerprint.clone().unwrap();
+    let token = server.url.split("?token=").nth(1).unwrap();
+    rt.block_on(async {
+        let page = https_get(server.port, &fingerprint, &format!("/?token={token}")).await.unwrap();
+        assert!(status(&page) == "200" && page.contains("GesTHOR live"), "{page}");
+        for path in ["/", "/sessions", "/?token=0123"] {
+            let refused = https_get(server.port, &fingerprint, path).await.unwrap();
+            assert!(status(&refused) == "403" && refused.contains("token"), "{path}: {refused}");
+        }
+        // a client that expects another certificate does not get through
+        assert!(https_get(server.port, &sha256_colons(b"another certificate"), "/").await.is_err());
+    });
+    // plain HTTP to the HTTPS port gets no page
+    assert!(!http_response(server.port, &format!("/?token={token}")).contains("GesTHOR live"));
+    drop(server);
+
+    // --insecure: plain HTTP beyond loopback, still with the token
     let server = Server::start(&tmp.path().join("live"), &["--listen", "0.0.0.0:0", "--insecure"]);
-    assert!(server.url.contains("?token="), "{}", server.url);
+    assert!(server.url.starts_with("http://") && server.url.contains("?token="), "{}", server.url);
+    assert!(server.fingerprint.is_none());
     assert!(http_get(server.port, "/").contains("token"));
     assert!(http_get(server.port, "/sessions").contains("token"));
     let token = server.url.split("?token=").nth(1).unwrap();
     assert!(http_get(server.port, &format!("/?token={token}")).contains("GesTHOR live"));
+    drop(server);
+
+    // a certificate and key of one's own, on loopback: HTTPS with them, no token
+    let names = vec!["localhost".to_string()];
+    let key = rcgen::KeyPair::generate().unwrap();
+    let cert = rcgen::CertificateParams::new(names).unwrap().self_signed(&key).unwrap();
+    let (cert_pem, key_pem) = (tmp.path().join("cert.pem"), tmp.path().join("key.pem"));
+    std::fs::write(&cert_pem, cert.pem()).unwrap();
+    std::fs::write(&key_pem, key.serialize_pem()).unwrap();
+    let (c, k) = (cert_pem.display().to_string(), key_pem.display().to_string());
+    let server =
+        Server::start(&tmp.path().join("live"), &["--listen", "127.0.0.1:0", "--tls-cert", &c, "--tls-key", &k]);
+    assert!(server.url.starts_with("https://localhost:") && !server.url.contains("token"), "{}", server.url);
+    assert_eq!(server.fingerprint.as_deref(), Some(sha256_colons(cert.der()).as_str()));
+    let page = rt.block_on(https_get(server.port, &sha256_colons(cert.der()), "/")).unwrap();
+    assert!(page.contains("GesTHOR live"), "{page}");
+    drop(server);
+
+    // a missing or garbled certificate or key: one line naming the file and its flag
+    let garbled = tmp.path().join("garbled.pem");
+    std::fs::write(&garbled, "-----BEGIN CERTIFICATE-----\nnot base64 at all!\n-----END CERTIFICATE-----\n").unwrap();
+    let missing = tmp.path().join("missing.pem").display().to_string();
+    let g = garbled.display().to_string();
+    for (args, named) in [
+        (["--tls-cert", &missing, "--tls-key", &k], ("--tls-cert", "missing.pem")),
+        (["--tls-cert", &g, "--tls-key", &k], ("--tls-cert", "garbled.pem")),
+        (["--tls-cert", &c, "--tls-key", &c], ("--tls-key", "cert.pem")),
+        (["--tls-cert", &c, "--tls-key", &missing], ("--tls-key", "missing.pem")),
+    ] {
+        let o = Command::new(bin("orchestrator"))
+            .args(["live", "--checkpoint", &trained_run().display().to_string(), "--listen", "0.0.0.0:0"])
+            .args(["--dataset", &dataset().display().to_string()])
+            .args(args)
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && e.contains(named.0) && e.contains(named.1), "{args:?}: {e}");
+        assert_eq!(e.trim().lines().count(), 1, "{e}");
+    }
 
     // a run whose checkpoint is not one: the learner cannot load it
     let run = tmp.path().join("badrun");

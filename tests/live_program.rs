@@ -1,6 +1,7 @@
 //! `orchestrator live` at the socket, for what a person brings of their own: a program they place
 //! (a room, a target, where the person and the robot stand) and a gesture they upload (a motion
-//! file, or a video of themselves); and the person performing the perceived gestures, filmed.
+//! file, or a video of themselves); and the person performing the perceived gestures, filmed;
+//! then in a real browser: a program placed by clicking the map, the person's film playing.
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -16,7 +17,7 @@ use worker::dataset::{Dataset, Verify};
 use worker::gesture::Motion;
 use worker::scene::Split;
 
-use crate::live::{Server, filmed_y4m, next};
+use crate::live::{Driver, Server, browser_ready, chromium, click, filmed_y4m, next, page, wait_page};
 
 /// A POST on loopback: the status code and the body.
 fn http_post(port: u16, path: &str, body: &[u8]) -> (u16, String) {
@@ -132,7 +133,7 @@ fn a_person_places_a_program_and_uploads_their_gesture() {
 
         // a video of the person gesturing (our avatar, filmed), read as `gesture capture` reads one
         if capture_ready() {
-            let y4m = filmed_y4m(tmp.path());
+            let y4m = filmed_y4m(tmp.path(), None);
             let (status, body) = http_post(server.port, &upload("me.y4m"), &std::fs::read(&y4m).unwrap());
             assert_eq!(status, 202, "{body}");
             let told = next(&mut ws).await;
@@ -157,4 +158,78 @@ fn a_person_places_a_program_and_uploads_their_gesture() {
     assert!(worst < 1e-2, "{worst}");
     replays(&upload_record);
     assert!(tmp.path().join("live").read_dir().unwrap().flatten().any(|s| s.path().join("uploads/wave.csv").is_file()));
+}
+
+/// Clicks the map where world point (x, z) is drawn, as a person's click lands (`map_transform`
+/// maps a world point to the map picture's pixel; the canvas may be shown scaled).
+fn click_map(x: f32, z: f32) -> String {
+    format!(
+        "(() => {{ const [a, b, c, d, e, f] = window.live.room.map_transform, m = document.getElementById('map'); \
+         const box = m.getBoundingClientRect(), u = a * {x} + b * {z} + c, v = d * {x} + e * {z} + f; \
+         m.dispatchEvent(new MouseEvent('click', {{ bubbles: true, clientX: box.left + u * box.width / m.width, \
+         clientY: box.top + v * box.height / m.height }})); return true; }})()"
+    )
+}
+
+#[test]
+fn a_program_placed_on_the_map_runs_in_a_real_browser_with_the_person_gesturing_beside_it() {
+    if !browser_ready() {
+        return;
+    }
+    let _g = gesthor_tests::serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cam = filmed_y4m(tmp.path(), None);
+    let server = Server::start(&tmp.path().join("live"), &["--listen", "127.0.0.1:0"]);
+    let driver = Driver::start();
+    let base = Dataset::open(&dataset(), Verify::Quick).unwrap().program(Split::Val, 1).unwrap();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let record = rt.block_on(async {
+        let c = chromium(&driver, &cam, &tmp.path().join("profile")).await;
+        c.goto(&server.url).await.unwrap();
+        wait_page(&c, "the page never got its session", "window.live && window.live.session").await;
+        let choose = |id: &str, value: &str| {
+            format!("(() => {{ const s = document.getElementById('{id}'); s.value = '{value}'; s.dispatchEvent(new Event('change')); return s.value == '{value}'; }})()")
+        };
+        assert_eq!(page(&c, &choose("program-kind", "placed")).await, json!(true));
+        assert_eq!(page(&c, &choose("room", &base.scene)).await, json!(true), "{} is not offered", base.scene);
+        let room = format!("window.live.room && window.live.room.room == '{}'", base.scene);
+        wait_page(&c, "the room never came", &room).await;
+        assert_eq!(page(&c, &choose("target", &base.target_object.to_string())).await, json!(true));
+        // the person first, then the robot (the page moves on to it), then its facing
+        page(&c, &click_map(base.human_pos[0], base.human_pos[2])).await;
+        assert_eq!(page(&c, "document.getElementById('placing').value").await, json!("robot"));
+        page(&c, &click_map(base.robot_pos[0], base.robot_pos[2])).await;
+        page(&c, &format!("(document.getElementById('robot-yaw').value = '{}', true)", base.robot_yaw)).await;
+        click(&c, "start").await;
+        let label = wait_page(&c, "the placed program did not start", "window.live.episode && window.live.episode.label").await;
+        assert!(label.as_str().unwrap().contains("placed in"), "{label}");
+
+        // the person performs the gesture the robot perceives: the film plays, frame after frame
+        click(&c, "step").await;
+        wait_page(&c, "no first step", "window.live.sides[0].steps == 1").await;
+        let film = "(() => { const d = document.querySelector('#side-0 .avatar').getContext('2d').getImageData(0, 0, 120, 120).data; \
+                    let h = 0; for (let i = 0; i < d.length; i += 4) h = (h * 31 + d[i] + 7 * d[i + 1]) % 1000003; return h; })()";
+        let first = wait_page(&c, "the person's film was never drawn", &format!("{film} != 0 && {film}")).await;
+        wait_page(&c, "the person's film stands still", &format!("{film} != {first}")).await;
+        page(&c, "(document.getElementById('speed').value = '30', true)").await;
+        click(&c, "run").await;
+        wait_page(&c, "the episode never ended", "window.live.ended").await;
+        assert_eq!(page(&c, "window.live.errors").await, json!([]), "the page's errors");
+        let end = page(&c, "window.live.sides[0].end").await;
+        c.close().await.unwrap();
+        PathBuf::from(end["record"].as_str().unwrap())
+    });
+    // where the clicks landed: within a few pixels of the map (60 a metre, the canvas scaled)
+    let (p, _) = recorded(&record);
+    assert_eq!((p.scene.as_str(), p.target_object), (base.scene.as_str(), base.target_object));
+    let off = |a: [f32; 3], b: [f32; 3]| ((a[0] - b[0]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+    assert!(
+        off(p.human_pos, base.human_pos) < 0.06,
+        "the person at {:?}, clicked at {:?}",
+        p.human_pos,
+        base.human_pos
+    );
+    assert!(off(p.robot_pos, base.robot_pos) < 0.2, "the robot at {:?}, clicked at {:?}", p.robot_pos, base.robot_pos);
+    assert_eq!(p.robot_yaw, base.robot_yaw);
+    replays(&record);
 }

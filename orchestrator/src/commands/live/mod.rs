@@ -14,7 +14,8 @@
 //! - [`avatar`]: the person performing the gesture the robots perceive, filmed for the page;
 //! - [`picture`]: pictures as the page shows them;
 //! - [`session`]: one tab's simulator, policies, webcam and record;
-//! - [`server`]: the page's files, the socket, the sessions open.
+//! - [`server`]: the page's files, the socket, the sessions open;
+//! - [`tls`]: HTTPS, with the person's certificate or one made at start.
 
 pub mod avatar;
 pub mod gesture;
@@ -24,6 +25,7 @@ pub mod record;
 pub mod room;
 pub mod server;
 pub mod session;
+pub mod tls;
 pub mod webcam;
 pub mod wire;
 
@@ -49,13 +51,21 @@ pub struct LiveArgs {
     pub checkpoints: Vec<PathBuf>,
     #[arg(long, default_value = "data/gond")]
     pub dataset: PathBuf,
-    /// Where to listen. Beyond loopback the page asks for a token printed at start, and the
-    /// webcam's frames would travel unencrypted: that needs --insecure.
+    /// Where to listen. Beyond loopback the page asks for a token printed at start and is
+    /// served over HTTPS: with --tls-cert/--tls-key, or else a self-signed certificate made at
+    /// start, whose SHA-256 fingerprint is printed to check the browser's warning against.
     #[arg(long, default_value = "127.0.0.1:8480")]
     pub listen: SocketAddr,
-    /// Listen beyond loopback over plain HTTP (behind a TLS proxy, or on a network you trust).
-    #[arg(long)]
+    /// Serve plain HTTP beyond loopback instead of HTTPS (behind a TLS proxy, or on a network
+    /// you trust): the webcam's frames travel unencrypted.
+    #[arg(long, conflicts_with = "tls_cert")]
     pub insecure: bool,
+    /// The server's certificate (PEM, its chain after it) for HTTPS, on loopback too.
+    #[arg(long, requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// The certificate's private key (PEM).
+    #[arg(long, requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
     /// Where the sessions are recorded (a folder per session, one per episode in it).
     #[arg(long, default_value = "runs/live")]
     pub out: PathBuf,
@@ -84,12 +94,13 @@ pub fn run(a: LiveArgs) -> anyhow::Result<()> {
     }
     anyhow::ensure!(!a.checkpoints.is_empty(), "--checkpoint: name at least one checkpoint or run directory");
     let beyond = !a.listen.ip().is_loopback();
-    anyhow::ensure!(
-        !beyond || a.insecure,
-        "--listen {}: beyond loopback the page and the webcam's frames would travel unencrypted; \
-         TLS is not built in: pass --insecure to serve plain HTTP (behind a TLS proxy), or listen on 127.0.0.1",
-        a.listen
-    );
+    // an unspecified address is reached by the machine's name
+    let host = if a.listen.ip().is_unspecified() { crate::remote::hostname() } else { a.listen.ip().to_string() };
+    let tls = match (&a.tls_cert, &a.tls_key) {
+        (Some(cert), Some(key)) => Some((tls::from_files(cert, key)?, false)),
+        _ if beyond && !a.insecure => Some((tls::self_signed(vec![host.clone()])?, true)),
+        _ => None,
+    };
     let dataset =
         Dataset::open(&a.dataset, Verify::Quick).with_context(|| format!("--dataset {}", a.dataset.display()))?;
     let mut checkpoints = Vec::new();
@@ -108,12 +119,31 @@ pub fn run(a: LiveArgs) -> anyhow::Result<()> {
     rt.block_on(async move {
         let listener =
             tokio::net::TcpListener::bind(a.listen).await.with_context(|| format!("--listen {}", a.listen))?;
-        let at = listener.local_addr()?;
-        let host = if at.ip().is_loopback() { format!("localhost:{}", at.port()) } else { at.to_string() };
+        let port = listener.local_addr()?.port();
+        let host = match a.listen.ip() {
+            _ if !beyond => "localhost".into(),
+            std::net::IpAddr::V6(ip) if !ip.is_unspecified() => format!("[{ip}]"),
+            _ => host,
+        };
+        let scheme = if tls.is_some() { "https" } else { "http" };
         let query = token.map(|t| format!("?token={t}")).unwrap_or_default();
-        println!("GesTHOR live: open http://{host}/{query} (sessions are recorded in {})", a.out.display());
+        println!("GesTHOR live: open {scheme}://{host}:{port}/{query} (sessions are recorded in {})", a.out.display());
+        match &tls {
+            Some((id, true)) => println!(
+                "the certificate was made now, self-signed, so the browser warns of it: go on if the \
+                 SHA-256 fingerprint it shows is {}",
+                id.fingerprint
+            ),
+            Some((id, false)) => println!("the certificate's SHA-256 fingerprint is {}", id.fingerprint),
+            None => {}
+        }
         use std::io::Write;
         std::io::stdout().flush()?;
-        axum::serve(listener, server::router(app)).await.context("serving the page")
+        let app = server::router(app);
+        match tls {
+            Some((id, _)) => axum::serve(tls::TlsListener::new(listener, id.config)?, app).await,
+            None => axum::serve(listener, app).await,
+        }
+        .context("serving the page")
     })
 }

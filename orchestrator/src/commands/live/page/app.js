@@ -10,10 +10,11 @@ const $ = (id) => document.getElementById(id);
 
 // What the page has seen, for people reading the console and for the browser test: the
 // episode, and per side (one robot, or two when two checkpoints are compared) its steps, its
-// path and its end; `ended` once every side has.
+// path and its end; `ended` once every side has; of the webcam, the frames sent and read, and
+// how many of those were read as a wave.
 const live = (window.live = {
   session: null, episode: null, sides: [], ended: false, episodes: [],
-  framesSent: 0, framesSeen: 0, waving: false, captured: null, uploaded: null, errors: [],
+  framesSent: 0, framesSeen: 0, waving: false, wavingFrames: 0, captured: null, uploaded: null, errors: [],
   room: null, placed: { person: null, robot: null },
 });
 
@@ -110,6 +111,7 @@ const handlers = {
   frame_seen(m) {
     live.framesSeen += 1;
     live.waving = m.waving;
+    if (m.waving) live.wavingFrames += 1;
     $("camera-status").textContent =
       `${live.framesSeen} frames read · ${m.person ? "you are seen" : "no one seen"}` +
       (m.waving ? " · waving: intervention!" : "") + (m.capturing ? " · capturing…" : "");
