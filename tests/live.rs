@@ -446,10 +446,6 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
         let views = "[...document.querySelectorAll('.side .rgb, .side .depth')].filter(i => i.naturalWidth > 0).length";
         wait_page(&c, "the two robots' views were not shown", &format!("{views} == 4")).await;
         assert_eq!(page(&c, "document.querySelectorAll('.side .bar').length").await, json!(8));
-        // the page mid-episode, for the docs when asked (GESTHOR_LIVE_SCREENSHOT=docs/live.png)
-        if let Some(shot) = std::env::var_os("GESTHOR_LIVE_SCREENSHOT") {
-            std::fs::write(shot, c.screenshot().await.unwrap()).unwrap();
-        }
         click(&c, "run").await;
         wait_page(&c, "the side-by-side episode never ended", "window.live.ended").await;
         let ends = page(&c, "window.live.sides.map(s => s.end)").await;
