@@ -217,10 +217,10 @@ async fn https_get(port: u16, fingerprint: &str, path: &str) -> std::io::Result<
     tls.write_all(format!("GET {path} HTTP/1.0\r\nHost: localhost\r\n\r\n").as_bytes()).await?;
     let mut bytes = Vec::new();
     // a server that closes without TLS's goodbye has still said all it had to
-    if let Err(e) = tls.read_to_end(&mut bytes).await {
-        if e.kind() != std::io::ErrorKind::UnexpectedEof || bytes.is_empty() {
-            return Err(e);
-        }
+    if let Err(e) = tls.read_to_end(&mut bytes).await
+        && (e.kind() != std::io::ErrorKind::UnexpectedEof || bytes.is_empty())
+    {
+        return Err(e);
     }
     Ok(String::from_utf8_lossy(&bytes).into_owned())
 }
