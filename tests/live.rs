@@ -336,22 +336,28 @@ impl Drop for Driver {
     }
 }
 
-/// Headless Chromium through `driver`, its fake camera playing `cam`, in a profile of its own.
-pub(crate) async fn chromium(driver: &Driver, cam: &Path, profile: &Path) -> fantoccini::Client {
-    let args = [
+/// Headless Chromium through `driver`, its fake camera playing `cam`, in a profile of its own,
+/// with `extra` flags.
+pub(crate) async fn chromium(driver: &Driver, cam: &Path, profile: &Path, extra: &[&str]) -> fantoccini::Client {
+    let (cam, profile) = (
+        format!("--use-file-for-fake-video-capture={}", cam.display()),
+        format!("--user-data-dir={}", profile.display()),
+    );
+    let mut args = vec![
         "--headless=new",
         "--no-sandbox",
         "--use-fake-ui-for-media-stream",
         "--use-fake-device-for-media-stream",
-        &format!("--use-file-for-fake-video-capture={}", cam.display()),
+        &cam,
         "--disable-gpu",
         "--disable-background-networking",
         "--disable-component-update",
         "--disable-sync",
         "--no-first-run",
         "--window-size=1400,1050",
-        &format!("--user-data-dir={}", profile.display()),
+        &profile,
     ];
+    args.extend(extra);
     let mut caps = serde_json::Map::new();
     caps.insert("goog:chromeOptions".into(), json!({"binary": "/usr/bin/chromium", "args": args}));
     fantoccini::ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
@@ -397,7 +403,7 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
     let profile = tmp.path().join("profile");
     let rt = tokio::runtime::Runtime::new().unwrap();
     let (record, person_record) = rt.block_on(async {
-        let c = chromium(&driver, &cam, &profile).await;
+        let c = chromium(&driver, &cam, &profile, &[]).await;
         c.goto(&server.url).await.unwrap();
         wait_page(&c, "the page never got its session", "window.live && window.live.session").await;
 
@@ -511,7 +517,7 @@ fn a_filmed_wave_at_the_webcam_calls_the_intervention_gesture_in_a_real_browser(
     let driver = Driver::start();
     let rt = tokio::runtime::Runtime::new().unwrap();
     let record = rt.block_on(async {
-        let c = chromium(&driver, &cam, &tmp.path().join("profile")).await;
+        let c = chromium(&driver, &cam, &tmp.path().join("profile"), &[]).await;
         c.goto(&server.url).await.unwrap();
         wait_page(&c, "the page never got its session", "window.live && window.live.session").await;
         // an episode whose interventions are the person's: before the camera, the robot is

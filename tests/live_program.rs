@@ -1,7 +1,8 @@
 //! `orchestrator live` at the socket, for what a person brings of their own: a program they place
 //! (a room, a target, where the person and the robot stand) and a gesture they upload (a motion
 //! file, or a video of themselves); and the person performing the perceived gestures, filmed;
-//! then in a real browser: a program placed by clicking the map, the person's film playing.
+//! then in a real browser over HTTPS: a program placed by clicking the map, the person's film
+//! playing.
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -172,19 +173,29 @@ fn click_map(x: f32, z: f32) -> String {
 }
 
 #[test]
-fn a_program_placed_on_the_map_runs_in_a_real_browser_with_the_person_gesturing_beside_it() {
+fn a_program_placed_on_the_map_runs_in_a_real_browser_over_https_with_the_person_gesturing_beside_it() {
     if !browser_ready() {
         return;
     }
     let _g = gesthor_tests::serial();
     let tmp = tempfile::tempdir().unwrap();
     let cam = filmed_y4m(tmp.path(), None);
-    let server = Server::start(&tmp.path().join("live"), &["--listen", "127.0.0.1:0"]);
+    // over HTTPS, the page's socket over wss:// (the certificate made here, which Chromium is
+    // told to accept; the pinned check of a certificate is the HTTPS test's, tests/live.rs)
+    let key = rcgen::KeyPair::generate().unwrap();
+    let cert = rcgen::CertificateParams::new(vec!["localhost".to_string()]).unwrap().self_signed(&key).unwrap();
+    let (cert_pem, key_pem) = (tmp.path().join("cert.pem"), tmp.path().join("key.pem"));
+    std::fs::write(&cert_pem, cert.pem()).unwrap();
+    std::fs::write(&key_pem, key.serialize_pem()).unwrap();
+    let (c, k) = (cert_pem.display().to_string(), key_pem.display().to_string());
+    let tls = ["--listen", "127.0.0.1:0", "--tls-cert", &c, "--tls-key", &k];
+    let server = Server::start(&tmp.path().join("live"), &tls);
+    assert!(server.url.starts_with("https://"), "{}", server.url);
     let driver = Driver::start();
     let base = Dataset::open(&dataset(), Verify::Quick).unwrap().program(Split::Val, 1).unwrap();
     let rt = tokio::runtime::Runtime::new().unwrap();
     let record = rt.block_on(async {
-        let c = chromium(&driver, &cam, &tmp.path().join("profile")).await;
+        let c = chromium(&driver, &cam, &tmp.path().join("profile"), &["--ignore-certificate-errors"]).await;
         c.goto(&server.url).await.unwrap();
         wait_page(&c, "the page never got its session", "window.live && window.live.session").await;
         let choose = |id: &str, value: &str| {
