@@ -213,7 +213,7 @@ fn a_program_placed_on_the_map_runs_in_a_real_browser_over_https_with_the_person
         page(&c, &format!("(document.getElementById('robot-yaw').value = '{}', true)", base.robot_yaw)).await;
         click(&c, "start").await;
         let label = wait_page(&c, "the placed program did not start", "window.live.episode && window.live.episode.label").await;
-        assert!(label.as_str().unwrap().contains("placed in"), "{label}");
+        assert!(label.as_str().unwrap().contains(&format!("{} placed →", base.scene)), "{label}");
 
         // the person performs the gesture the robot perceives: the film plays, frame after frame
         click(&c, "step").await;

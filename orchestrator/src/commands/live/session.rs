@@ -186,7 +186,7 @@ impl Session {
                 let program = match (program, placed) {
                     (Some(p), None) => Program::Dataset(p),
                     (None, Some(p)) => Program::Placed(p),
-                    _ => anyhow::bail!("start: name a dataset program or place one, not both"),
+                    _ => anyhow::bail!("start: a dataset program (`program`) or one placed (`placed`), one of the two"),
                 };
                 self.start(&program, checkpoint, versus, gesture, interventions)
             }
@@ -241,7 +241,7 @@ impl Session {
             }
             Program::Placed(placed) => {
                 let (split, p, own) = room::program(ds, placed)?;
-                (format!("placed in {}", placed.room), split, p, own)
+                ("placed".to_string(), split, p, own)
             }
         };
         let human = Humanoid::seeded(p.seed);
