@@ -129,21 +129,26 @@ fn children(pid: u32) -> Vec<String> {
 
 /// The body of a GET on loopback.
 fn http_get(port: u16, path: &str) -> String {
-    let text = http_response(port, path);
-    text.split_once("\r\n\r\n").map(|(_, b)| b.to_string()).unwrap_or(text)
+    body(http_response(port, "GET", path, b""))
 }
 
-/// What a GET in plain HTTP on loopback is answered with (whatever came before an error).
-fn http_response(port: u16, path: &str) -> String {
+/// What a request in plain HTTP on loopback is answered with (whatever came before an error).
+pub(crate) fn http_response(port: u16, method: &str, path: &str, body: &[u8]) -> String {
     let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
-    write!(s, "GET {path} HTTP/1.0\r\nHost: localhost\r\n\r\n").unwrap();
+    write!(s, "{method} {path} HTTP/1.0\r\nHost: localhost\r\nContent-Length: {}\r\n\r\n", body.len()).unwrap();
+    s.write_all(body).unwrap();
     let mut bytes = Vec::new();
     let _ = s.read_to_end(&mut bytes);
     String::from_utf8_lossy(&bytes).into_owned()
 }
 
+/// The body of an HTTP response.
+pub(crate) fn body(response: String) -> String {
+    response.split_once("\r\n\r\n").map(|(_, b)| b.to_string()).unwrap_or(response)
+}
+
 /// The status code of an HTTP response.
-fn status(response: &str) -> &str {
+pub(crate) fn status(response: &str) -> &str {
     response.split_whitespace().nth(1).unwrap_or_default()
 }
 
@@ -641,7 +646,7 @@ fn listening_beyond_loopback_asks_for_a_token_over_https_and_bad_files_are_named
         assert!(https_get(server.port, &sha256_colons(b"another certificate"), "/").await.is_err());
     });
     // plain HTTP to the HTTPS port gets no page
-    assert!(!http_response(server.port, &format!("/?token={token}")).contains("GesTHOR live"));
+    assert!(!http_response(server.port, "GET", &format!("/?token={token}"), b"").contains("GesTHOR live"));
     drop(server);
 
     // --insecure: plain HTTP beyond loopback, still with the token

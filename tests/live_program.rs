@@ -4,8 +4,6 @@
 //! then in a real browser over HTTPS: a program placed by clicking the map, the person's film
 //! playing.
 
-use std::io::{Read, Write};
-use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -18,17 +16,14 @@ use worker::dataset::{Dataset, Verify};
 use worker::gesture::Motion;
 use worker::scene::Split;
 
-use crate::live::{Driver, Server, browser_ready, chromium, click, filmed_y4m, next, page, wait_page};
+use crate::live::{
+    Driver, Server, browser_ready, chromium, click, filmed_y4m, http_response, next, page, status, wait_page,
+};
 
 /// A POST on loopback: the status code and the body.
 fn http_post(port: u16, path: &str, body: &[u8]) -> (u16, String) {
-    let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
-    write!(s, "POST {path} HTTP/1.0\r\nHost: localhost\r\nContent-Length: {}\r\n\r\n", body.len()).unwrap();
-    s.write_all(body).unwrap();
-    let mut text = String::new();
-    s.read_to_string(&mut text).unwrap();
-    let status = text.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
-    (status, text.split_once("\r\n\r\n").map(|(_, b)| b.to_string()).unwrap_or_default())
+    let response = http_response(port, "POST", path, body);
+    (status(&response).parse().unwrap_or(0), crate::live::body(response))
 }
 
 async fn send(ws: &mut crate::live::Socket, m: Value) {

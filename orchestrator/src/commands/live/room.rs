@@ -52,15 +52,11 @@ fn room_of(ds: &Dataset, split: &str, room: &str) -> anyhow::Result<(Split, Scen
     Ok((s, id))
 }
 
-fn context(ds: &Dataset, id: SceneId) -> anyhow::Result<RoomContext> {
-    let scene = ds.scene(id).with_context(|| format!("room {}", id.name()))?;
-    Ok(RoomContext::new(id, scene, &EnvConfig::default(), ds.manifest.build.success_distance))
-}
-
 /// A room from above and its reachable targets.
 pub fn view(ds: &Dataset, split: &str, room: &str) -> anyhow::Result<RoomView> {
     let (_, id) = room_of(ds, split, room)?;
-    let ctx = context(ds, id)?;
+    let scene = ds.scene(id).with_context(|| format!("room {room}"))?;
+    let ctx = RoomContext::new(id, scene, &EnvConfig::default(), ds.manifest.build.success_distance);
     let map = TopDownMap::new(&ctx.scene, 60.0);
     let targets = ctx
         .targets
@@ -79,10 +75,13 @@ pub fn view(ds: &Dataset, split: &str, room: &str) -> anyhow::Result<RoomView> {
 /// The program `placed` describes, its split and the person's referencing gesture.
 pub fn program(ds: &Dataset, placed: &Placement) -> anyhow::Result<(Split, Program, Motion)> {
     let (split, id) = room_of(ds, &placed.split, &placed.room)?;
-    let ctx = context(ds, id)?;
-    let t = ctx.targets.get(&placed.target).with_context(|| {
-        format!("target {}: not an object of {} the robot can reach and see", placed.target, placed.room)
-    })?;
+    let scene = ds.scene(id).with_context(|| format!("room {}", placed.room))?;
+    // whether the robot can reach and see it, with_poses checks below
+    let t = scene
+        .objects
+        .get(placed.target)
+        .with_context(|| format!("target {}: {} has no such object", placed.target, placed.room))?;
+    let (category, center) = (t.category, t.center());
     let [x, z] = placed.person;
     let [rx, rz, ryaw] = placed.robot;
     anyhow::ensure!(
@@ -90,20 +89,20 @@ pub fn program(ds: &Dataset, placed: &Placement) -> anyhow::Result<(Split, Progr
         "the person's or the robot's place is not a number"
     );
     let human = Point2::new(x, z);
-    let human_yaw = wrap_deg(yaw_of(Point2::new(t.center.x, t.center.z) - human).round());
+    let human_yaw = wrap_deg(yaw_of(Point2::new(center.x, center.z) - human).round());
     let at_cm = |v: f32| (v * 100.0).round() as i64 as u64;
     let key = [PLACED_KEY, id.floorplan() as u64, placed.target as u64, at_cm(x), at_cm(z)];
     let program_seed = seed::mix(ds.manifest.build.seed, &key);
     let pointing = ds.manifest.build.pointing;
-    let s = synthesize(pointing, program_seed, Point3::new(x, 0.0, z), human_yaw, t.center);
+    let s = synthesize(pointing, program_seed, Point3::new(x, 0.0, z), human_yaw, center);
     let placed_program = Program {
         id: 0,
         scene: id.name(),
         scene_type: id.scene_type,
-        target: t.category,
+        target: category,
         target_object: placed.target,
-        target_pos: [t.center.x, t.center.y, t.center.z],
-        instances: ctx.scene.instances(t.category).count() as u32,
+        target_pos: [center.x, center.y, center.z],
+        instances: scene.instances(category).count() as u32,
         human_pos: [x, 0.0, z],
         human_yaw,
         robot_pos: [rx, 0.0, rz],
@@ -119,7 +118,7 @@ pub fn program(ds: &Dataset, placed: &Placement) -> anyhow::Result<(Split, Progr
         seed: program_seed,
     };
     let robot = RobotPose { x: rx, z: rz, yaw: ryaw };
-    let p = with_poses(&ctx.scene, &placed_program, None, Some(robot), ds.manifest.build.success_distance)
+    let p = with_poses(&scene, &placed_program, None, Some(robot), ds.manifest.build.success_distance)
         .map_err(|e| anyhow::anyhow!("the program placed in {}: {e}", placed.room))?;
     let motion = Motion::from_flat(&s.motion).context("the synthesised motion's size")?;
     Ok((split, p, motion))

@@ -271,7 +271,10 @@ impl Session {
             let sim = Sim::start(&cfg, interventions == Interventions::Person)?;
             // each run's seed draws the intervention gesture its person shows
             let iv = sim.pool.env(0).context("the episode's env")?.intervention_index() as usize;
-            let film = avatar::film(&human, &intervention(iv), INTERVENTION_NAMES[iv])?;
+            let film = match sides.iter().find(|s: &&Side| s.intervention.name == INTERVENTION_NAMES[iv]) {
+                Some(beside) => beside.intervention.clone(),
+                None => avatar::film(&human, &intervention(iv), INTERVENTION_NAMES[iv])?,
+            };
             sides.push(Side { number, checkpoint: ck.name.clone(), intervention: film });
             robots.push(Robot { number, checkpoint: c, sim, rec, ended: false });
         }
