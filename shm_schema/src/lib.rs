@@ -291,6 +291,40 @@ impl ObsLayout {
     }
 }
 
+/// How a worker's frames lie in the GPU memory it exports to the learner (`env.frames =
+/// "device"`): no bytes travel through shared memory, the learner imports the memory itself (a
+/// Vulkan opaque file descriptor, passed over a Unix socket) and reads each env's slot in place.
+/// Slot `s`'s colour layer starts at `s × layer_bytes` (RGBA8, rows of `row_bytes`), its
+/// depth+id layer at `info_offset + s × layer_bytes` (u32 little-endian per pixel:
+/// `depth16 << 16 | id`, depth 0..10 m → 0..65535); rows top first.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend)]
+#[type_name("gesthor::DeviceFrameLayout")]
+pub struct DeviceFrameLayout {
+    pub slots: u32,
+    pub width: u32,
+    pub height: u32,
+    /// Bytes per row: `width × 4` rounded up to [`DeviceFrameLayout::ROW_ALIGNMENT`].
+    pub row_bytes: u32,
+    pub layer_bytes: u64,
+    pub info_offset: u64,
+    /// Bytes the memory holds (at least `2 × info_offset`).
+    pub size: u64,
+}
+
+impl DeviceFrameLayout {
+    /// A texture-to-buffer copy's rows start at multiples of this (Vulkan via wgpu).
+    pub const ROW_ALIGNMENT: u32 = 256;
+
+    /// The layout of `slots` frames of `width × height`.
+    pub fn new(slots: u32, width: u32, height: u32) -> DeviceFrameLayout {
+        let row_bytes = (width * 4).next_multiple_of(Self::ROW_ALIGNMENT);
+        let layer_bytes = row_bytes as u64 * height as u64;
+        let info_offset = layer_bytes * slots as u64;
+        DeviceFrameLayout { slots, width, height, row_bytes, layer_bytes, info_offset, size: 2 * info_offset }
+    }
+}
+
 /// Service names; they carry the run id so that two runs on one host never meet.
 pub mod service {
     /// Publish-subscribe, `[u8]` payload with user header [`super::ObsHeader`]: worker → learner.
@@ -612,6 +646,10 @@ mod tests {
         assert_eq!((l.rgb_offset, l.depth_offset, l.gesture_offset, l.total_len), (768, 602880, 1004288, 1080320));
         let l = ObsLayout::new(2, 64, 64);
         assert_eq!((l.rgb_offset, l.depth_offset, l.gesture_offset, l.total_len), (384, 24960, 41344, 79360));
+        // device frames: 224 × 4 = 896 bytes a row, padded to 1,024
+        let d = DeviceFrameLayout::new(8, 224, 224);
+        assert_eq!((d.row_bytes, d.layer_bytes, d.info_offset, d.size), (1024, 229_376, 1_835_008, 3_670_016));
+        assert_eq!(DeviceFrameLayout::new(8, 64, 64).row_bytes, 256);
     }
 
     #[test]
