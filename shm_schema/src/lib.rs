@@ -308,7 +308,8 @@ pub struct DeviceFrameLayout {
     pub row_bytes: u32,
     pub layer_bytes: u64,
     pub info_offset: u64,
-    /// Bytes the memory holds (at least `2 × info_offset`).
+    /// Bytes of the exported allocation: at least `2 × info_offset`, exactly what the exporter
+    /// allocated (an importer must give this size).
     pub size: u64,
 }
 

@@ -23,4 +23,6 @@ pub enum RenderError {
     UnknownScene { index: usize },
     #[error("reading the rendered frames back failed: {0}")]
     Readback(String),
+    #[error("frames on the device: {0}")]
+    Export(String),
 }

@@ -9,6 +9,7 @@ use super::adapter::{self, Gpu};
 use super::config::RenderConfig;
 use super::culling::Draw;
 use super::error::RenderError;
+use super::export::ExportedFrames;
 use super::instances::{Growable, Instance};
 use super::mesh::{MESH_COUNT, MeshRange, Vertex};
 use super::pipeline::Pipeline;
@@ -16,6 +17,7 @@ use super::projection::ViewUniform;
 use super::readback::Readback;
 use super::targets::{INFO_CLEAR, Targets};
 use super::view::ViewOut;
+use super::visible::VisibleCount;
 
 /// What a lane draws for a share of a chunk: per view its uniforms and its run of draws
 /// into the instance list.
@@ -44,6 +46,8 @@ pub(super) struct Lane {
     readback: Readback,
     instances: Growable,
     scratch_uniforms: Vec<u8>,
+    /// Frames kept on the device ([`Lane::export`]) and the count of their targets' pixels.
+    exported: Option<(ExportedFrames, VisibleCount)>,
 }
 
 impl Lane {
@@ -106,6 +110,7 @@ impl Lane {
             readback,
             instances: Growable::new("instances", wgpu::BufferUsages::VERTEX),
             scratch_uniforms: Vec::new(),
+            exported: None,
         })
     }
 
@@ -113,6 +118,74 @@ impl Lane {
     /// pass per view into its layer and the copy of every layer, and submits, without
     /// waiting: `read` waits.
     pub(super) fn submit(&mut self, work: &LaneWork<'_>) {
+        let mut encoder = self.record(work);
+        self.readback.copy(&mut encoder, &self.targets, work.uniforms.len());
+        self.queue.submit([encoder.finish()]);
+    }
+
+    /// Allocates the exported frame memory for `layout` (once; later calls return it).
+    pub(super) fn export(&mut self, layout: shm_schema::DeviceFrameLayout) -> Result<&ExportedFrames, RenderError> {
+        if self.exported.as_ref().is_some_and(|(e, _)| e.layout() != layout) {
+            return Err(RenderError::Export("the frames were already exported with another layout".into()));
+        }
+        if self.exported.is_none() {
+            let frames = ExportedFrames::new(&self.device, layout)?;
+            let count = VisibleCount::new(&self.device, &self.targets, self.capacity);
+            self.exported = Some((frames, count));
+        }
+        Ok(&self.exported.as_ref().expect("just made").0)
+    }
+
+    /// As [`Lane::submit`], the views going to their `slots` of the exported frames instead of
+    /// the readback, with the count of each view's `target_ids[i]` pixels; `read_visible` waits.
+    pub(super) fn submit_exported(
+        &mut self,
+        work: &LaneWork<'_>,
+        slots: &[u32],
+        target_ids: &[u16],
+    ) -> Result<(), RenderError> {
+        if self.exported.is_none() {
+            return Err(RenderError::Export("render_exported before export_frames".into()));
+        }
+        let mut encoder = self.record(work);
+        let (frames, count) = self.exported.as_ref().expect("checked");
+        for (layer, &slot) in slots.iter().enumerate() {
+            frames.copy_layer(&mut encoder, &self.targets, layer as u32, slot);
+        }
+        count.record(&self.queue, &mut encoder, target_ids);
+        self.queue.submit([encoder.finish()]);
+        Ok(())
+    }
+
+    /// The exported memory's bytes, through a mappable copy.
+    pub(super) fn read_exported(&self) -> Result<Vec<u8>, RenderError> {
+        let (frames, _) = self.exported.as_ref().ok_or_else(|| RenderError::Export("nothing was exported".into()))?;
+        let size = frames.layout().size;
+        let read = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("exported frames read"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(&frames.buffer, 0, &read, 0, size);
+        self.queue.submit([encoder.finish()]);
+        super::readback::read_mapped(&self.device, &read.slice(..), |data| data.to_vec())
+    }
+
+    /// Slots of the exported frames, once exported.
+    pub(super) fn exported_slots(&self) -> Option<usize> {
+        self.exported.as_ref().map(|(e, _)| e.layout().slots as usize)
+    }
+
+    /// Waits for the last [`Lane::submit_exported`] and returns its views' target pixel counts.
+    pub(super) fn read_visible(&self, views: usize) -> Result<Vec<u32>, RenderError> {
+        let (_, count) = self.exported.as_ref().ok_or_else(|| RenderError::Export("nothing was exported".into()))?;
+        count.read(&self.device, views)
+    }
+
+    /// Writes the views' uniforms and instances and records one render pass per view.
+    fn record(&mut self, work: &LaneWork<'_>) -> wgpu::CommandEncoder {
         let k = work.uniforms.len();
         debug_assert!(k <= self.capacity && work.view_draws.len() == k);
         let stride = self.view_stride as usize;
@@ -174,8 +247,7 @@ impl Lane {
                 );
             }
         }
-        self.readback.copy(&mut encoder, &self.targets, k);
-        self.queue.submit([encoder.finish()]);
+        encoder
     }
 
     /// Waits for the last submission and unpacks its views into `out`.

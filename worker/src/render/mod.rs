@@ -37,7 +37,9 @@
 //! level of detail into draws), `targets` (the per-chunk texture arrays), `readback` (copy, map,
 //! unpack), `lane` (one device: records, submits and reads back its share of a chunk),
 //! `view` (per-view inputs and outputs), `renderer` (the `Renderer` API that ties them
-//! together); `mesh` (unit meshes) and `bench` (throughput fixtures).
+//! together); `mesh` (unit meshes) and `bench` (throughput fixtures). Frames that stay on the
+//! device skip the readback: `export` (GPU memory another process imports, each view copied
+//! into its env's slot) and `visible` (the one figure the host still needs: target pixels).
 
 pub mod bench;
 pub mod mesh;
@@ -46,6 +48,7 @@ mod adapter;
 mod config;
 mod culling;
 mod error;
+mod export;
 mod instances;
 mod lane;
 mod pipeline;
@@ -55,11 +58,13 @@ mod renderer;
 mod scenes;
 mod targets;
 mod view;
+mod visible;
 
 pub use bench::{bench_views, benchmark_room, figure_parts, spread_cameras};
 pub use config::RenderConfig;
 pub use culling::Frustum;
 pub use error::RenderError;
+pub use export::ExportedFrames;
 pub use projection::{ViewUniform, project};
 pub use renderer::Renderer;
 pub use scenes::SceneHandle;

@@ -60,28 +60,39 @@ impl Readback {
     /// Waits for the submitted copy, maps the buffer and unpacks one view into each output.
     pub(super) fn read(&self, device: &wgpu::Device, out: &mut [ViewOut<'_>]) -> Result<(), RenderError> {
         let end = self.info_offset + self.layer_bytes * out.len() as u64;
-        let slice = self.buffer.slice(..end);
-        let (tx, rx) = mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| RenderError::Readback(e.to_string()))?;
-        match rx.try_recv() {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(RenderError::Readback(e.to_string())),
-            Err(_) => return Err(RenderError::Readback("the map callback did not run".into())),
-        }
-        {
-            let data = slice.get_mapped_range().map_err(|e| RenderError::Readback(e.to_string()))?;
+        read_mapped(device, &self.buffer.slice(..end), |data| {
             for (i, o) in out.iter_mut().enumerate() {
                 let color = &data[i * self.layer_bytes as usize..];
                 let info = &data[(self.info_offset + i as u64 * self.layer_bytes) as usize..];
                 unpack_view(color, info, self.row_bytes as usize, self.width as usize, self.height as usize, o);
             }
-        }
-        self.buffer.unmap();
-        Ok(())
+        })
     }
+}
+
+/// Waits for the device's submissions, maps `slice` for reading, hands its bytes to `f` and
+/// unmaps it.
+pub(super) fn read_mapped<T>(
+    device: &wgpu::Device,
+    slice: &wgpu::BufferSlice<'_>,
+    f: impl FnOnce(&[u8]) -> T,
+) -> Result<T, RenderError> {
+    let (tx, rx) = mpsc::channel();
+    slice.map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| RenderError::Readback(e.to_string()))?;
+    match rx.try_recv() {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => return Err(RenderError::Readback(e.to_string())),
+        Err(_) => return Err(RenderError::Readback("the map callback did not run".into())),
+    }
+    let out = {
+        let data = slice.get_mapped_range().map_err(|e| RenderError::Readback(e.to_string()))?;
+        f(&data)
+    };
+    slice.buffer().unmap();
+    Ok(out)
 }
 
 /// Copies one view from the padded readback rows into the caller's slices: RGBA → RGB and

@@ -6,6 +6,7 @@ use super::adapter::{MAX_LANES, describe, lanes_from_env};
 use super::config::RenderConfig;
 use super::culling::{Draw, Frustum, cull};
 use super::error::RenderError;
+use super::export::ExportedFrames;
 use super::instances::{Grouped, Instance};
 use super::lane::{Lane, LaneWork};
 use super::mesh;
@@ -147,6 +148,59 @@ impl Renderer {
             self.render_chunk(vs, os)?;
         }
         Ok(())
+    }
+
+    /// Allocates GPU memory for `slots` frames that another process can import (see `export`:
+    /// Vulkan with `VK_KHR_external_memory_fd`, one lane), once; `render_exported` draws into it.
+    pub fn export_frames(&mut self, slots: usize) -> Result<&ExportedFrames, RenderError> {
+        if self.lanes.len() != 1 {
+            return Err(RenderError::Export(format!(
+                "frames on the device need one lane (GESTHOR_RENDER_LANES={})",
+                self.lanes.len()
+            )));
+        }
+        let layout = shm_schema::DeviceFrameLayout::new(slots as u32, self.cfg.width, self.cfg.height);
+        self.lanes[0].export(layout)
+    }
+
+    /// Renders view `i` into slot `slots[i]` of the exported frames (nothing is read back) and
+    /// returns how many of its pixels show part `targets[i]` (`count_id` of the read-back
+    /// path). When it returns, the frames are in the exported memory.
+    pub fn render_exported(
+        &mut self,
+        views: &[View<'_>],
+        slots: &[u32],
+        targets: &[u16],
+    ) -> Result<Vec<u32>, RenderError> {
+        if views.len() != slots.len() || views.len() != targets.len() {
+            return Err(RenderError::OutputCount { views: views.len(), outputs: slots.len().min(targets.len()) });
+        }
+        let capacity = self.lanes[0]
+            .exported_slots()
+            .ok_or_else(|| RenderError::Export("render_exported before export_frames".into()))?;
+        for (index, (v, &slot)) in views.iter().zip(slots).enumerate() {
+            if self.scenes.get(v.scene).is_none() {
+                return Err(RenderError::UnknownScene { index });
+            }
+            if slot as usize >= capacity {
+                return Err(RenderError::Export(format!("view {index}: slot {slot} of {capacity}")));
+            }
+        }
+        let mut counts = Vec::with_capacity(views.len());
+        let cap = self.capacity;
+        let (lane, s) = (&mut self.lanes[0], &mut self.scratch[0]);
+        for ((vs, ss), ts) in views.chunks(cap).zip(slots.chunks(cap)).zip(targets.chunks(cap)) {
+            s.prepare(vs, &self.scenes, &self.cfg, self.culling);
+            lane.submit_exported(&s.work(), ss, ts)?;
+            counts.extend(lane.read_visible(vs.len())?);
+        }
+        Ok(counts)
+    }
+
+    /// The exported frame memory's bytes, copied back through the device (for checks: the
+    /// learner reads them in place).
+    pub fn read_exported(&self) -> Result<Vec<u8>, RenderError> {
+        self.lanes[0].read_exported()
     }
 
     /// Splits the chunk between the lanes. One lane works on this thread; several each have a

@@ -36,7 +36,8 @@ impl Targets {
         };
         let out_usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
         let color = texture("colour", COLOR_FORMAT, out_usage);
-        let info = texture("depth+id", INFO_FORMAT, out_usage);
+        // read by the visible-pixel count of frames kept on the device (`visible.rs`)
+        let info = texture("depth+id", INFO_FORMAT, out_usage | wgpu::TextureUsages::TEXTURE_BINDING);
         let depth = texture("depth buffer", DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT);
         let layer_views = |t: &wgpu::Texture| -> Vec<wgpu::TextureView> {
             (0..layers as u32)

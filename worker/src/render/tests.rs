@@ -316,3 +316,61 @@ fn a_renderer_can_move_to_another_thread() {
     fn send<T: Send>() {}
     send::<Renderer>();
 }
+
+/// Frames kept on the device: every view lands in its slot byte for byte as the read-back path
+/// gives it, in chunks and out of order, and the target counts equal `count_id` of the
+/// read-back ids.
+#[test]
+fn exported_frames_equal_the_read_back_ones() {
+    let Some(mut r) = renderer(&cfg(40, 24, 2)) else { return };
+    let parts = benchmark_room().parts();
+    let scene = r.upload_scene(&parts);
+    let cameras = spread_cameras(&parts, 3);
+    let c = cameras[0].position;
+    let figure = figure_parts(Point3::new(c.x + 0.4, 0.0, c.z + 1.2), 200.0, true);
+    let views: Vec<View> = cameras.iter().map(|&camera| View { scene, camera, dynamic: &figure }).collect();
+    let expected = render(&mut r, &views);
+    let exported = match r.export_frames(4) {
+        Ok(e) => e,
+        Err(e) => {
+            assert!(!adapter_required(), "{e}, but CI or scripts/setup.sh installs lavapipe, which exports");
+            eprintln!("skipped: {e}");
+            return;
+        }
+    };
+    let layout = exported.layout();
+    assert_eq!((layout.slots, layout.row_bytes), (4, 256));
+    assert!(layout.size >= 2 * layout.info_offset);
+    let fd = exported.fd().try_clone_to_owned().unwrap();
+    let slots = [3, 0, 2];
+    // the person's id and one that shows in the first view, and one that shows nowhere
+    let shown = *expected[1].ids.iter().find(|&&i| i != ID_NONE && i != ID_HUMAN).unwrap_or(&ID_NONE);
+    let targets = [ID_HUMAN, shown, 60_000];
+    let counts = r.render_exported(&views, &slots, &targets).unwrap();
+    let wanted: Vec<u32> = expected.iter().zip(targets).map(|(f, t)| count_id(&f.ids, t)).collect();
+    assert_eq!(counts, wanted);
+    assert!(counts[0] > 0 && counts[1] > 0 && counts[2] == 0, "{counts:?}");
+    let stat = nix::sys::stat::fstat(&fd).unwrap();
+    assert!(stat.st_size as u64 >= layout.size, "the exported fd holds {} bytes", stat.st_size);
+    // the memory as the device holds it (`learner::device_frames` imports the fd itself)
+    let bytes = r.read_exported().unwrap();
+    assert_eq!(bytes.len() as u64, layout.size);
+    let (w, h, row) = (40, 24, layout.row_bytes as usize);
+    for (f, &slot) in expected.iter().zip(&slots) {
+        let colour = &bytes[slot as usize * layout.layer_bytes as usize..];
+        let info = &bytes[(layout.info_offset + slot as u64 * layout.layer_bytes) as usize..];
+        for y in 0..h {
+            for x in 0..w {
+                let (rgb, depth, id) = f.at(x, y);
+                let p = y * row + x * 4;
+                assert_eq!(&colour[p..p + 3], &rgb, "slot {slot} ({x}, {y})");
+                let v = u32::from_le_bytes(info[p..p + 4].try_into().unwrap());
+                assert_eq!(((v >> 16) as u16, v as u16), (depth, id), "slot {slot} ({x}, {y})");
+            }
+        }
+    }
+    // another layout is refused; slots beyond the memory too
+    assert!(matches!(r.export_frames(5), Err(RenderError::Export(_))));
+    let err = r.render_exported(&views[..1], &[4], &[ID_HUMAN]).unwrap_err();
+    assert!(err.to_string().contains("slot 4 of 4"), "{err}");
+}
