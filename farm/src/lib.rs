@@ -10,6 +10,7 @@
 //!   the learner's side of them
 //! - [`stepper`]: what a worker drives ([`stepper::Stepper`]) and a synthetic one for tests
 //! - [`frame_set`]: labelled RGB-D frames for pretraining the visual encoder
+//! - [`frame_socket`]: a worker's exported frame memory handed to the learner (device frames)
 //! - [`checkpoints`]: where a run's checkpoints live and how they are named
 //! - [`metrics`]: SR, SPL, DTS at k stops, episode results and trajectories
 //! - [`profile`]: where a training run's time goes (learner timeline, worker loops)
@@ -21,6 +22,7 @@ pub mod config;
 pub mod files;
 pub mod font;
 pub mod frame_set;
+pub mod frame_socket;
 pub mod learner_ports;
 pub mod metrics;
 pub mod process;
