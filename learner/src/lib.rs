@@ -21,11 +21,13 @@
 //! ([`encoder`]) → the network ([`net`]: spec, layers, ResNet, network, acting agent) → what a
 //! run logs ([`logs`]: records, metrics) → PPO ([`ppo`]: rollout, Adam, trainer, checkpoints) →
 //! the policy server ([`serve`]: worker batches, integrity, policies, the serve loop; beside it
-//! [`transport`]) → the binary. Under them all, [`device`]; over net, logs and PPO, the
+//! [`transport`]) → the binary. Under them all, [`device`] (and [`device_frames`], frames read in
+//! place from a worker's exported GPU memory); over net, logs and PPO, the
 //! throughput figures ([`bench`]) and the synthetic in-process run ([`smoke`]).
 
 pub mod bench;
 pub mod device;
+pub mod device_frames;
 pub mod encoder;
 pub mod inputs;
 pub mod logs;
