@@ -54,6 +54,14 @@ timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.t
 step train faithful-gpu 16x32, two groups
 timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.toml --workers 16 --frames 150000 \
   --out /tmp/bench-512 --table "$out/train-512.md" 2>&1 | grep -v "^\[bench\] [0-9]" | tail -3
+# the same with the frames kept on the GPU (issue 52): drawn into memory each worker exports,
+# imported by CUDA in the learner; no frame crosses the host
+step train faithful-gpu 16x32, two groups, frames on the device
+timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.toml --workers 16 --frames 150000 \
+  --set env.frames=device --out /tmp/bench-512-device --table "$out/train-512-device.md" 2>&1 \
+  | grep -v "^\[bench\] [0-9]" | tail -3
+grep -h "imported\|frames on the device\|Error\|error" /tmp/bench-512-device/logs/learner.log \
+  /tmp/bench-512-device/logs/worker-0.log 2>/dev/null | head -5 | tee "$out/device-frames.txt"
 step done
 kill $dmon 2>/dev/null
 cat "$out"/train-*.md

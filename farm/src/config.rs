@@ -122,6 +122,20 @@ pub struct EnvConfig {
     pub move_step: f32,
     /// RotateLeft / RotateRight angle, degrees.
     pub turn_deg: f32,
+    /// How frames reach the learner.
+    pub frames: FramePath,
+}
+
+/// How a worker's frames reach the learner.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FramePath {
+    /// Read back to the host and written into the observation's shared memory (every CPU config).
+    #[default]
+    SharedMemory,
+    /// Kept in GPU memory the worker exports and the learner imports (Vulkan external memory;
+    /// CUDA on a GPU): no frame crosses the host. The shared memory carries everything else.
+    Device,
 }
 
 impl Default for EnvConfig {
@@ -136,6 +150,7 @@ impl Default for EnvConfig {
             robot_height: 1.5,
             move_step: 0.25,
             turn_deg: 15.0,
+            frames: FramePath::SharedMemory,
         }
     }
 }

@@ -24,7 +24,7 @@ pub const MAGIC: [u8; 4] = *b"GTFH";
 pub const VERSION: u32 = 1;
 
 /// Bytes of one encoded message.
-pub const MESSAGE_LEN: usize = 72;
+pub const MESSAGE_LEN: usize = 76;
 
 /// `sockaddr_un.sun_path` holds 108 bytes with the closing NUL (Linux).
 pub const MAX_PATH_BYTES: usize = 107;
@@ -38,6 +38,8 @@ pub struct FrameHandoff {
     pub generation: u32,
     /// The Vulkan device's UUID, so that the learner can check CUDA sees the same card.
     pub device_uuid: [u8; 16],
+    /// The Vulkan memory type the memory came from (a Vulkan importer must name the same).
+    pub memory_type: u32,
     pub layout: DeviceFrameLayout,
 }
 
@@ -172,7 +174,8 @@ fn read_rest(stream: &UnixStream, bytes: &mut [u8; MESSAGE_LEN], mut got: usize)
     Ok(())
 }
 
-/// magic, version, worker_id, generation, device_uuid, then the layout's fields in order.
+/// magic, version, worker_id, generation, device_uuid, memory_type, then the layout's fields
+/// in order.
 fn encode(msg: &FrameHandoff) -> [u8; MESSAGE_LEN] {
     let l = &msg.layout;
     let mut out = [0u8; MESSAGE_LEN];
@@ -182,6 +185,7 @@ fn encode(msg: &FrameHandoff) -> [u8; MESSAGE_LEN] {
     w.put(&msg.worker_id.to_le_bytes());
     w.put(&msg.generation.to_le_bytes());
     w.put(&msg.device_uuid);
+    w.put(&msg.memory_type.to_le_bytes());
     for v in [l.slots, l.width, l.height, l.row_bytes] {
         w.put(&v.to_le_bytes());
     }
@@ -202,7 +206,7 @@ fn decode(bytes: &[u8; MESSAGE_LEN]) -> Result<FrameHandoff, FrameSocketError> {
     if version != VERSION {
         return Err(FrameSocketError::BadVersion { got: version });
     }
-    let (worker_id, generation, device_uuid) = (r.u32(), r.u32(), r.take());
+    let (worker_id, generation, device_uuid, memory_type) = (r.u32(), r.u32(), r.take(), r.u32());
     let layout = DeviceFrameLayout {
         slots: r.u32(),
         width: r.u32(),
@@ -212,7 +216,7 @@ fn decode(bytes: &[u8; MESSAGE_LEN]) -> Result<FrameHandoff, FrameSocketError> {
         info_offset: r.u64(),
         size: r.u64(),
     };
-    Ok(FrameHandoff { worker_id, generation, device_uuid, layout })
+    Ok(FrameHandoff { worker_id, generation, device_uuid, memory_type, layout })
 }
 
 struct Writer<'a> {
@@ -258,7 +262,13 @@ mod tests {
 
     fn handoff() -> FrameHandoff {
         let uuid: [u8; 16] = std::array::from_fn(|i| 0xA0 + i as u8);
-        FrameHandoff { worker_id: 3, generation: 7, device_uuid: uuid, layout: DeviceFrameLayout::new(8, 40, 24) }
+        FrameHandoff {
+            worker_id: 3,
+            generation: 7,
+            device_uuid: uuid,
+            memory_type: 2,
+            layout: DeviceFrameLayout::new(8, 40, 24),
+        }
     }
 
     #[test]

@@ -141,10 +141,11 @@ pub(crate) fn rgb_tensor(obs: &EnvBatch, device: Device) -> Tensor {
 fn rgb_gather(obs: &EnvBatch, device: Device, pinned: Option<&Mutex<Option<Tensor>>>) -> Tensor {
     // (may alias the batch's buffer, see `gather`)
     let (h, w) = (obs.height as i64, obs.width as i64);
-    gather(obs, device, pinned, |f| {
+    gather(obs, device, pinned, |f| match f.device.filter(|d| d.rgb) {
+        Some(d) => d.frames.rgb(&slots(f.envs)),
         // SAFETY: `EnvBatch::validate` checked the slice holds E*H*W*3 bytes; the tensor lives no longer
         // than the batch's buffers (`Prepared<'a>`), or is copied (`to_device`, `cat`).
-        unsafe { Tensor::from_blob(f.rgb.as_ptr(), &[f.envs as i64, h, w, 3], &[], Kind::Uint8, Device::Cpu) }
+        None => unsafe { Tensor::from_blob(f.rgb.as_ptr(), &[f.envs as i64, h, w, 3], &[], Kind::Uint8, Device::Cpu) },
     })
 }
 
@@ -156,10 +157,18 @@ pub(crate) fn depth_tensor(obs: &EnvBatch, device: Device) -> Tensor {
 
 fn depth_gather(obs: &EnvBatch, device: Device, pinned: Option<&Mutex<Option<Tensor>>>) -> Tensor {
     let (h, w) = (obs.height as i64, obs.width as i64);
-    gather(obs, device, pinned, |f| unsafe {
+    gather(obs, device, pinned, |f| match f.device.filter(|d| d.depth) {
+        Some(d) => d.frames.depth(&slots(f.envs)),
         // SAFETY: as for rgb; u16 and i16 have the same size and alignment.
-        Tensor::from_blob(f.depth.as_ptr() as *const u8, &[f.envs as i64, h, w], &[], Kind::Int16, Device::Cpu)
+        None => unsafe {
+            Tensor::from_blob(f.depth.as_ptr() as *const u8, &[f.envs as i64, h, w], &[], Kind::Int16, Device::Cpu)
+        },
     })
+}
+
+/// The slots of a group's envs in its worker's exported frames.
+fn slots(envs: usize) -> Vec<i64> {
+    (0..envs as i64).collect()
 }
 
 /// Gestures `[N, 100, 95]` in half precision on `device`.
@@ -217,10 +226,11 @@ fn gather(
     pinned: Option<&Mutex<Option<Tensor>>>,
     view: impl Fn(&FrameView) -> Tensor,
 ) -> Tensor {
-    let groups = obs.frames.iter().filter(|f| f.envs > 0).map(view);
+    let parts: Vec<Tensor> = obs.frames.iter().filter(|f| f.envs > 0).map(view).collect();
+    // frames imported from the workers' GPU memory are on the device already
+    let on_host = parts.iter().all(|p| p.device() == Device::Cpu);
     match pinned {
-        Some(slot) if device.is_cuda() => {
-            let parts: Vec<Tensor> = groups.collect();
+        Some(slot) if device.is_cuda() && on_host => {
             let mut shape = parts[0].size();
             shape[0] = parts.iter().map(|p| p.size()[0]).sum();
             let kind = parts[0].kind();
@@ -238,7 +248,7 @@ fn gather(
             buffer.to_device(device)
         }
         _ => {
-            let mut parts: Vec<Tensor> = groups.map(|t| t.to_device(device)).collect();
+            let mut parts: Vec<Tensor> = parts.into_iter().map(|t| t.to_device(device)).collect();
             if parts.len() == 1 { parts.pop().unwrap() } else { Tensor::cat(&parts, 0) }
         }
     }

@@ -7,8 +7,9 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use farm::config::{Device as DeviceChoice, RunConfig};
+use farm::config::{Device as DeviceChoice, FramePath, RunConfig};
 use farm::process;
+use learner::serve::frames::FrameImports;
 use learner::serve::policy::{ExpertPolicy, Policy, RandomPolicy};
 use learner::serve::ppo_policy::{Blank, PpoPolicy};
 use learner::serve::server::{ServeOptions, serve};
@@ -214,10 +215,24 @@ struct ServeArgs {
     start_wait: f64,
 }
 
-fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Result<Box<dyn Policy>> {
+/// The policy to serve. With `env.frames = "device"` the workers hand their frame memory over
+/// `imports` whichever policy runs; PPO reads frames from it, the baselines read none (their
+/// imports are returned, to keep the socket open while they serve).
+fn make_policy(
+    a: &ServeArgs,
+    cfg: &RunConfig,
+    dev: tch::Device,
+    imports: Option<FrameImports>,
+) -> anyhow::Result<(Box<dyn Policy>, Option<FrameImports>)> {
+    fn ppo(p: PpoPolicy, imports: Option<FrameImports>) -> (Box<dyn Policy>, Option<FrameImports>) {
+        match imports {
+            Some(i) => (Box::new(p.with_device_frames(i)), None),
+            None => (Box::new(p), None),
+        }
+    }
     Ok(match (a.policy, &a.checkpoint) {
-        (PolicyKind::Random, _) => Box::new(RandomPolicy::new(cfg.run.seed)),
-        (PolicyKind::Expert, _) => Box::new(ExpertPolicy),
+        (PolicyKind::Random, _) => (Box::new(RandomPolicy::new(cfg.run.seed)), imports),
+        (PolicyKind::Expert, _) => (Box::new(ExpertPolicy), imports),
         (PolicyKind::Ppo, Some(ckpt)) => {
             let blank = match a.blank {
                 None => Blank::default(),
@@ -225,11 +240,11 @@ fn make_policy(a: &ServeArgs, cfg: &RunConfig, dev: tch::Device) -> anyhow::Resu
                 Some(BlankKind::Depth) => Blank { rgb: false, depth: true },
                 Some(BlankKind::Both) => Blank { rgb: true, depth: true },
             };
-            Box::new(PpoPolicy::eval(cfg, a.workers, dev, ckpt, blank, a.greedy)?)
+            ppo(PpoPolicy::eval(cfg, a.workers, dev, ckpt, blank, a.greedy)?, imports)
         }
         (PolicyKind::Ppo, None) => {
             anyhow::ensure!(!a.eval, "--eval with --policy ppo needs --checkpoint");
-            Box::new(PpoPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?)
+            ppo(PpoPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?, imports)
         }
     })
 }
@@ -241,7 +256,11 @@ fn run_serve(a: ServeArgs, dev: tch::Device) -> anyhow::Result<()> {
     let cfg = RunConfig::load(&a.config)?;
     // where the policy runs, for the run's log (`orchestrator bench train` prints it)
     tracing::info!("{}", device::report(dev));
-    let mut policy = make_policy(&a, &cfg, dev)?;
+    let imports = match cfg.env.frames {
+        FramePath::Device => Some(FrameImports::listen(&a.run_dir, dev)?),
+        FramePath::SharedMemory => None,
+    };
+    let (mut policy, _unread_imports) = make_policy(&a, &cfg, dev, imports)?;
     if a.resume && a.policy != PolicyKind::Ppo {
         tracing::info!("--resume: policy `{}` keeps no state; nothing to resume", policy.name());
     }

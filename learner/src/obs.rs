@@ -111,6 +111,18 @@ pub struct FrameView<'a> {
     /// Linear depth, `[E, H, W]` u16 (0..10 m → 0..65535).
     pub depth: &'a [u16],
     pub gesture: GestureView<'a>,
+    /// `env.frames = "device"`: the group's frames are in the memory its worker exported (slots
+    /// `0..envs`), read from there instead of `rgb` / `depth` for the modalities it names.
+    pub device: Option<DeviceFrames<'a>>,
+}
+
+/// Frames a worker keeps in GPU memory the learner imported, and which of them to read there
+/// (an evaluation that blanks a modality reads that one's zeros from the host slices).
+#[derive(Clone, Copy, Debug)]
+pub struct DeviceFrames<'a> {
+    pub frames: &'a crate::device_frames::ImportedFrames,
+    pub rgb: bool,
+    pub depth: bool,
 }
 
 /// One step of all N envs, in env order: what the agent acts on and the trainer learns from.
@@ -217,6 +229,7 @@ impl OwnedObs {
                 rgb: &self.rgb,
                 depth: &self.depth,
                 gesture: GestureView::F16(&self.gesture),
+                device: None,
             }],
             envs: &self.envs,
         }
@@ -233,6 +246,7 @@ impl OwnedObs {
                 rgb: &self.rgb[envs.start * px * 3..envs.end * px * 3],
                 depth: &self.depth[envs.start * px..envs.end * px],
                 gesture: GestureView::F16(&self.gesture[envs.start * g..envs.end * g]),
+                device: None,
             }],
             envs: &self.envs[envs],
         }
@@ -251,6 +265,7 @@ impl OwnedObs {
                 rgb: &self.rgb[start * px * 3..(start + e) * px * 3],
                 depth: &self.depth[start * px..(start + e) * px],
                 gesture: GestureView::F16(&self.gesture[start * g..(start + e) * g]),
+                device: None,
             });
             start += e;
         }

@@ -73,6 +73,7 @@ pub fn serve_pipe(
             rgb: view.rgb_all(),
             depth: view.depth_all(),
             gesture: GestureView::F16(as_f16(view.gesture_bits_all())),
+            device: None,
         }];
         let obs = EnvBatch { height: shape.height, width: shape.width, frames, envs: &steps };
         let (actions, probs) = agent.act_explained(&obs, mode)?;

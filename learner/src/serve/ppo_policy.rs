@@ -18,10 +18,11 @@ use shm_schema::EnvRecord;
 
 use crate::logs::metrics::MetricsLog;
 use crate::net::agent::Agent;
-use crate::obs::{EnvBatch, EnvStep, FrameView, GestureKind, GestureView};
+use crate::obs::{DeviceFrames, EnvBatch, EnvStep, FrameView, GestureKind, GestureView};
 use crate::ppo::checkpoint;
 use crate::ppo::trainer::Trainer;
 use crate::serve::batch::WorkerBatch;
+use crate::serve::frames::FrameImports;
 use crate::serve::policy::Policy;
 
 /// What the network does with the batches.
@@ -57,6 +58,8 @@ pub struct PpoPolicy {
     /// The server's latest progress record, logged with the next update (one point per update,
     /// at the update's frame count).
     farm_progress: Option<crate::logs::records::Progress>,
+    /// `env.frames = "device"`: the workers' frames, imported from their GPU memory.
+    imports: Option<FrameImports>,
 }
 
 impl PpoPolicy {
@@ -146,7 +149,15 @@ impl PpoPolicy {
             generations: vec![None; workers],
             learning: 0.0,
             farm_progress: None,
+            imports: None,
         }
+    }
+
+    /// Reads the workers' frames from the GPU memory they hand over `imports` (`env.frames =
+    /// "device"`) instead of from their observations' shared memory.
+    pub fn with_device_frames(mut self, imports: FrameImports) -> PpoPolicy {
+        self.imports = Some(imports);
+        self
     }
 
     fn save_checkpoint(&mut self) -> anyhow::Result<()> {
@@ -213,6 +224,11 @@ impl Policy for PpoPolicy {
             anyhow::ensure!(workers.contains(&w), "worker {w} is outside the round's workers {workers:?}");
             anyhow::ensure!(p.num_envs() == e, "worker {w} sends {} envs, the config says {e}", p.num_envs());
         }
+        if let Some(imports) = &mut self.imports {
+            for p in &batch.parts {
+                imports.ensure(p.worker, p.generation)?;
+            }
+        }
         // One frame group per worker, in worker order; missing workers send zeros.
         let mut parts = batch.parts.iter().peekable();
         for w in workers.clone() {
@@ -231,6 +247,11 @@ impl Policy for PpoPolicy {
                         rgb: if self.blank.rgb { &self.zero_rgb } else { p.rgb() },
                         depth: if self.blank.depth { &self.zero_depth } else { p.depth() },
                         gesture: GestureView::F16(p.gesture()),
+                        device: self.imports.as_ref().and_then(|i| i.frames(p.worker)).map(|frames| DeviceFrames {
+                            frames,
+                            rgb: !self.blank.rgb,
+                            depth: !self.blank.depth,
+                        }),
                     });
                 }
                 None => {
@@ -242,6 +263,7 @@ impl Policy for PpoPolicy {
                         rgb: &self.zero_rgb,
                         depth: &self.zero_depth,
                         gesture: GestureView::F16(&self.zero_gesture),
+                        device: None,
                     });
                 }
             }

@@ -219,6 +219,11 @@ impl Crew {
         if let Some(p) = &spec.programs {
             anyhow::ensure!(p.len() == spec.workers, "{} program lists for {} workers", p.len(), spec.workers);
         }
+        anyhow::ensure!(
+            spec.cfg.env.frames == farm::config::FramePath::SharedMemory
+                || (spec.host.is_none() && spec.remote_slots == 0),
+            "env.frames = \"device\" keeps frames in the GPU memory of the learner's machine: no remote workers"
+        );
         let first_generation = spec.host.map_or(0, |h| h.first_generation);
         let progress_from = std::fs::metadata(spec.run_dir.join("farm.jsonl")).map_or(0, |m| m.len());
         let mut crew = Crew {
@@ -346,6 +351,10 @@ impl Crew {
         }
         if s.synthetic {
             args.push("--synthetic".into());
+        }
+        if s.cfg.env.frames == farm::config::FramePath::Device {
+            // the learner binds it in the run folder (`learner::device_frames`)
+            args.extend(["--frames-socket".into(), farm::frame_socket::socket_path(&s.run_dir).into()]);
         }
         let log = self.log_path(&format!("worker-{id}"));
         append_line(&log, &format!("=== worker {id}, generation {g} ==="));

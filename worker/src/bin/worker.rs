@@ -9,7 +9,7 @@ use anyhow::Context;
 use clap::Parser;
 use nix::sys::signal::Signal;
 
-use farm::config::RunConfig;
+use farm::config::{FramePath, RunConfig};
 use farm::process;
 use farm::stepper::{Stepper, SyntheticStepper};
 use farm::transport::{self, Exit, WorkerOptions};
@@ -54,6 +54,10 @@ struct Cli {
     /// Seconds to wait for the learner to connect.
     #[arg(long, default_value_t = 120)]
     connect_timeout: u64,
+    /// The learner's frame socket (`env.frames = "device"`: the exported frame memory is handed
+    /// over it; given by the orchestrator).
+    #[arg(long)]
+    frames_socket: Option<PathBuf>,
 }
 
 fn read_programs(path: &Path) -> anyhow::Result<Vec<u64>> {
@@ -63,7 +67,12 @@ fn read_programs(path: &Path) -> anyhow::Result<Vec<u64>> {
 
 fn build_stepper(cli: &Cli, cfg: &RunConfig) -> anyhow::Result<Box<dyn Stepper>> {
     let programs = cli.programs.as_deref().map(read_programs).transpose()?;
+    let on_device = cfg.env.frames == FramePath::Device;
     if cli.synthetic {
+        anyhow::ensure!(
+            !on_device,
+            "--synthetic frames go through shared memory: env.frames must be \"shared_memory\""
+        );
         return Ok(Box::new(SyntheticStepper::new(
             cli.worker_id,
             cfg.env.envs_per_worker,
@@ -79,8 +88,13 @@ fn build_stepper(cli: &Cli, cfg: &RunConfig) -> anyhow::Result<Box<dyn Stepper>>
         programs: programs.map(ProgramSource::Sequence).unwrap_or(ProgramSource::Sample),
         expert_hints: cli.expert_hints,
     };
-    let pool = EnvPool::new(cfg, spec)?;
+    let mut pool = EnvPool::new(cfg, spec)?;
     tracing::info!("renderer: {}", pool.renderer_info());
+    if on_device {
+        let socket = cli.frames_socket.as_deref().context("env.frames = \"device\" needs --frames-socket")?;
+        pool.hand_frames_to(socket, std::time::Duration::from_secs(cli.connect_timeout))?;
+        tracing::info!("frames stay on the device, handed to the learner over {}", socket.display());
+    }
     Ok(Box::new(pool))
 }
 

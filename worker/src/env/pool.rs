@@ -99,6 +99,9 @@ pub struct EnvPool {
     shape: ObsShape,
     /// Time spent in the renderer since the pool was made (the training profile).
     render_time: std::time::Duration,
+    /// `env.frames = "device"`: the connection the exported frames were handed over (kept open
+    /// for the worker's life), once [`EnvPool::hand_frames_to`] has run.
+    frames_link: Option<std::os::unix::net::UnixStream>,
 }
 
 impl EnvPool {
@@ -151,7 +154,42 @@ impl EnvPool {
             person_calls: vec![None; n],
             shape,
             render_time: std::time::Duration::ZERO,
+            frames_link: None,
         })
+    }
+
+    /// `env.frames = "device"`: exports GPU memory for the pool's frames and hands it to the
+    /// learner listening on `socket` (retrying until `timeout`: the learner may still be
+    /// starting). From then on frames are drawn into it and never read back; the observation's
+    /// frame sections stay unwritten.
+    pub fn hand_frames_to(&mut self, socket: &std::path::Path, timeout: std::time::Duration) -> anyhow::Result<()> {
+        let n = self.envs.len();
+        let frames = self.renderer.export_frames(n).context("exporting the frame memory")?;
+        let handoff = farm::frame_socket::FrameHandoff {
+            worker_id: self.spec.worker_id,
+            generation: self.spec.generation,
+            device_uuid: frames.device_uuid(),
+            memory_type: frames.memory_type(),
+            layout: frames.layout(),
+        };
+        let start = std::time::Instant::now();
+        let stream = loop {
+            match std::os::unix::net::UnixStream::connect(socket) {
+                Ok(s) => break s,
+                Err(e) if start.elapsed() < timeout => {
+                    tracing::debug!("frame socket {}: {e}; retrying", socket.display());
+                    std::thread::sleep(std::time::Duration::from_millis(100));
+                }
+                Err(e) => {
+                    return Err(e)
+                        .with_context(|| format!("connecting to the learner's frame socket {}", socket.display()));
+                }
+            }
+        };
+        farm::frame_socket::send(&stream, &handoff, frames.fd())
+            .with_context(|| format!("handing the frames to the learner over {}", socket.display()))?;
+        self.frames_link = Some(stream);
+        Ok(())
     }
 
     pub fn num_envs(&self) -> usize {
@@ -275,6 +313,13 @@ impl EnvPool {
     /// Renders every running env's view in one call, straight into the payload, then fills
     /// records and gestures.
     fn observe(&mut self, payload: &mut [u8]) -> anyhow::Result<()> {
+        if self.frames_link.is_some() {
+            return self.observe_on_device(payload);
+        }
+        anyhow::ensure!(
+            self.cfg.env.frames == farm::config::FramePath::SharedMemory,
+            "env.frames = \"device\": the frames were never handed to the learner (the worker's --frames-socket)"
+        );
         let n = self.envs.len();
         let mut handles = Vec::with_capacity(n);
         for i in 0..n {
@@ -322,6 +367,50 @@ impl EnvPool {
                 e.set_visible_pixels(px);
             }
         }
+        self.fill_records(records, gesture)
+    }
+
+    /// [`EnvPool::observe`] with the frames kept on the device: each running env's view goes to
+    /// its slot of the exported memory and only its target's pixel count comes back.
+    fn observe_on_device(&mut self, payload: &mut [u8]) -> anyhow::Result<()> {
+        let ObsSections { records, gesture, .. } =
+            ObsSections::new(&self.shape, payload).context("observation buffer")?;
+        let mut scenes = Vec::new();
+        for (i, slot) in self.envs.iter().enumerate() {
+            if let Slot::Running(e) = slot {
+                scenes.push((i, e.program.scene_id()));
+            }
+        }
+        let handles = scenes.iter().map(|&(_, id)| self.scene_handle(id)).collect::<anyhow::Result<Vec<_>>>()?;
+        let person: Vec<Vec<Part>> = scenes
+            .iter()
+            .map(|&(i, _)| match &self.envs[i] {
+                Slot::Running(e) => e.person_parts(),
+                Slot::Idle => unreachable!("only running envs were listed"),
+            })
+            .collect();
+        let mut views = Vec::with_capacity(scenes.len());
+        let (mut slots, mut targets) = (Vec::with_capacity(scenes.len()), Vec::with_capacity(scenes.len()));
+        for ((&(i, _), &scene), parts) in scenes.iter().zip(&handles).zip(&person) {
+            if let Slot::Running(e) = &self.envs[i] {
+                views.push(View { scene, camera: e.camera(), dynamic: parts });
+                slots.push(i as u32);
+                targets.push(e.target_id());
+            }
+        }
+        let t = std::time::Instant::now();
+        let counts = self.renderer.render_exported(&views, &slots, &targets)?;
+        self.render_time += t.elapsed();
+        for (&slot, px) in slots.iter().zip(counts) {
+            if let Slot::Running(e) = &mut self.envs[slot as usize] {
+                e.set_visible_pixels(px);
+            }
+        }
+        self.fill_records(records, gesture)
+    }
+
+    /// Fills every env's record and gesture section of the observation.
+    fn fill_records(&mut self, records: &mut [EnvRecord], gesture: &mut [u16]) -> anyhow::Result<()> {
         for (i, (r, g)) in records.iter_mut().zip(gesture.chunks_exact_mut(GESTURE_FRAMES * GESTURE_DIMS)).enumerate() {
             self.env_steps[i] += 1;
             let mut rec = EnvRecord { env_step: self.env_steps[i], episode: self.episodes[i], ..Default::default() };

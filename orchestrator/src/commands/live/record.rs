@@ -85,7 +85,10 @@ impl Sim {
     pub fn start(cfg: &RunConfig, person: bool) -> anyhow::Result<Sim> {
         let spec =
             PoolSpec { worker_id: 0, generation: 0, programs: ProgramSource::Sequence(vec![0]), expert_hints: false };
-        let mut pool = EnvPool::new(cfg, spec)?;
+        // the page shows the frames: they come back to the host whatever the run trained with
+        let mut cfg = cfg.clone();
+        cfg.env.frames = farm::config::FramePath::SharedMemory;
+        let mut pool = EnvPool::new(&cfg, spec)?;
         if person {
             pool.set_person_calls(0, Some(false));
         }

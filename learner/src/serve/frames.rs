@@ -1,0 +1,109 @@
+//! The learner's end of `env.frames = "device"`: a Unix socket in the run folder where every
+//! worker process hands over the GPU memory it draws its frames into (one file descriptor, once
+//! per process), and the imports made of them, one per worker slot. A restarted worker hands
+//! over new memory with its new generation; an observation is read only from the memory of
+//! the generation that sent it.
+
+use std::collections::HashMap;
+use std::os::fd::OwnedFd;
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use anyhow::Context;
+use farm::frame_socket::{self, FrameHandoff};
+use tch::Device;
+
+use crate::device_frames::ImportedFrames;
+
+/// How long an observation waits for its worker's frames to be handed over (the worker sends
+/// them before its first observation; the accepting thread may lag behind).
+const HANDOFF_WAIT: Duration = Duration::from_secs(60);
+
+/// The frame socket and the imports of every worker slot.
+pub struct FrameImports {
+    path: PathBuf,
+    device: Device,
+    arrivals: mpsc::Receiver<anyhow::Result<(FrameHandoff, OwnedFd)>>,
+    /// Handed over but not yet needed, by (worker, generation).
+    pending: HashMap<(u32, u32), (FrameHandoff, OwnedFd)>,
+    /// By worker slot: the generation imported and its frames.
+    imported: HashMap<u32, (u32, ImportedFrames)>,
+}
+
+impl FrameImports {
+    /// Binds the frame socket of `run_dir` (replacing one a dead run left) and accepts workers on
+    /// a thread of its own; frames are imported onto `device` when first needed.
+    pub fn listen(run_dir: &Path, device: Device) -> anyhow::Result<FrameImports> {
+        let path = frame_socket::socket_path(run_dir);
+        if path.exists() {
+            std::fs::remove_file(&path)
+                .with_context(|| format!("removing the stale frame socket {}", path.display()))?;
+        }
+        let listener =
+            UnixListener::bind(&path).with_context(|| format!("binding the frame socket {}", path.display()))?;
+        let (tx, arrivals) = mpsc::channel();
+        std::thread::Builder::new().name("frame-socket".into()).spawn(move || accept(listener, tx))?;
+        Ok(FrameImports { path, device, arrivals, pending: HashMap::new(), imported: HashMap::new() })
+    }
+
+    /// Makes sure worker `worker`'s frames of `generation` are imported, waiting for them to be
+    /// handed over if need be.
+    pub fn ensure(&mut self, worker: u32, generation: u32) -> anyhow::Result<()> {
+        if self.imported.get(&worker).is_some_and(|(g, _)| *g == generation) {
+            return Ok(());
+        }
+        let deadline = std::time::Instant::now() + HANDOFF_WAIT;
+        while !self.pending.contains_key(&(worker, generation)) {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            match self.arrivals.recv_timeout(left) {
+                Ok(arrival) => {
+                    let (h, fd) = arrival?;
+                    self.pending.insert((h.worker_id, h.generation), (h, fd));
+                }
+                Err(_) => anyhow::bail!(
+                    "worker {worker} (generation {generation}) has not handed its frames over {} within {} s",
+                    self.path.display(),
+                    HANDOFF_WAIT.as_secs()
+                ),
+            }
+        }
+        let (h, fd) = self.pending.remove(&(worker, generation)).expect("waited for it");
+        // older generations of this slot will never be read
+        self.pending.retain(|&(w, g), _| w != worker || g > generation);
+        let frames = ImportedFrames::import(fd, h.layout, h.device_uuid, h.memory_type, self.device)
+            .with_context(|| format!("importing worker {worker}'s frames (generation {generation})"))?;
+        tracing::info!(
+            "worker {worker} (generation {generation}): {} frames of {}x{} imported from its GPU memory",
+            h.layout.slots,
+            h.layout.width,
+            h.layout.height
+        );
+        self.imported.insert(worker, (generation, frames));
+        Ok(())
+    }
+
+    /// Worker `worker`'s imported frames (after [`FrameImports::ensure`]).
+    pub fn frames(&self, worker: u32) -> Option<&ImportedFrames> {
+        self.imported.get(&worker).map(|(_, f)| f)
+    }
+}
+
+impl Drop for FrameImports {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Accepts workers until the learner ends; each connection hands over one message.
+fn accept(listener: UnixListener, tx: mpsc::Sender<anyhow::Result<(FrameHandoff, OwnedFd)>>) {
+    for stream in listener.incoming() {
+        let got = stream
+            .context("accepting a worker on the frame socket")
+            .and_then(|s: UnixStream| frame_socket::recv(&s).context("a worker's frame handoff"));
+        if tx.send(got).is_err() {
+            return;
+        }
+    }
+}
