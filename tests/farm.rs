@@ -710,3 +710,33 @@ fn frames_kept_on_the_device_are_the_frames_read_back() {
     assert_ne!(blind, read_back);
     assert_eq!(episodes("device"), (read_back, blind));
 }
+
+/// `kill -9` of a worker whose frames stay on the device: its restart hands over new memory
+/// as generation 1, the learner imports it and reads the new worker's frames from there, and
+/// training goes on.
+#[test]
+fn a_killed_worker_hands_its_new_frame_memory_over() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = small_ppo_config(tmp.path(), "");
+    let dir = tmp.path().join("run");
+    let args = ["--workers", "2", "--config", cfg.to_str().unwrap(), "--set", "env.frames=device", "--seconds", "600"];
+    let mut run = Run::start(&dir, &[&args[..], &["--report-every", "0.5"]].concat());
+    let p = run.wait_progress(Duration::from_secs(240), "frames from both workers", |p| {
+        p["workers_seen"] == 2 && p["frames"].as_u64() > Some(100)
+    });
+    let victim = run.worker_pid(1).expect("worker 1 is running");
+    kill(Pid::from_raw(victim), Signal::SIGKILL).unwrap();
+    let frames_then = u(&p, "frames");
+    run.wait_progress(Duration::from_secs(240), "the restarted worker back in the batches", |p| {
+        p["restarts"].as_u64() >= Some(1) && p["workers_live"] == 2 && p["frames"].as_u64() > Some(frames_then + 200)
+    });
+    run.signal(Signal::SIGINT);
+    let status = run.wait(EVENT_DEADLINE);
+    assert_eq!(status.code(), Some(130), "{}", run.diagnostics());
+    let log = std::fs::read_to_string(dir.join("logs/learner.log")).unwrap();
+    for imported in ["worker 0 (generation 0)", "worker 1 (generation 0)", "worker 1 (generation 1)"] {
+        assert!(log.contains(&format!("{imported}: 2 frames of 32x32 imported")), "{imported}:\n{log}");
+    }
+    assert_gone(&run);
+}
