@@ -82,7 +82,9 @@ fn import_with_driver(
             type_: sys::CUexternalMemoryHandleType::CU_EXTERNAL_MEMORY_HANDLE_TYPE_OPAQUE_FD,
             handle: sys::CUDA_EXTERNAL_MEMORY_HANDLE_DESC_st__bindgen_ty_1 { fd: fd.as_raw_fd() },
             size,
-            flags: 0,
+            // the worker allocates its frame memory dedicated to one buffer (render/export.rs),
+            // and CUDA must be told so to import it
+            flags: sys::CUDA_EXTERNAL_MEMORY_DEDICATED,
             reserved: [0; 16],
         };
         let mut ext: sys::CUexternalMemory = std::ptr::null_mut();

@@ -80,7 +80,7 @@ impl ExportedFrames {
             return Err(fail("no memory type can hold the frames".into()));
         };
         let mut export = vk::ExportMemoryAllocateInfo::default().handle_types(HANDLE);
-        // a dedicated allocation: some drivers export only those, and CUDA imports it whole
+        // a dedicated allocation: some drivers export only those (the importer says so: CUDA_EXTERNAL_MEMORY_DEDICATED)
         let mut dedicated = vk::MemoryDedicatedAllocateInfo::default().buffer(buffer);
         let alloc = vk::MemoryAllocateInfo::default()
             .allocation_size(req.size)
