@@ -8,10 +8,10 @@
 #
 #   GESTHOR_BIN_DIR=.bin bash scripts/gpu_bench.sh OUT_DIR
 #
-# The three release binaries, stripped and xz-packed, are about 16 MB (unpacked 48 MB: too much
-# beside the work tree for a 64 MiB transfer): here `strip -o` each into a folder and
-# `tar cJf .pack/bins.tar.xz -C that-folder orchestrator learner worker`; there
-# `python3 -m tarfile -e .pack/bins.tar.xz .bin` (the machine has no xz tool of its own to rely on).
+# The three release binaries, stripped and xz-packed, are about 14 MB (unpacked 48 MB: too much
+# beside the work tree for a 64 MiB transfer): `bash scripts/gpu_pack.sh` here makes .pack/ and
+# .gl/; there `python3 -m tarfile -e .pack/bins.tar.xz .bin` (the machine has no xz tool of its own
+# to rely on), then this script with GESTHOR_BIN_DIR=.bin.
 set -uo pipefail
 out=${1:?give the folder the tables go to}
 mkdir -p "$out"
