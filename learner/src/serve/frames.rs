@@ -37,12 +37,7 @@ impl FrameImports {
     /// a thread of its own; frames are imported onto `device` when first needed.
     pub fn listen(run_dir: &Path, device: Device) -> anyhow::Result<FrameImports> {
         let path = frame_socket::socket_path(run_dir);
-        if path.exists() {
-            std::fs::remove_file(&path)
-                .with_context(|| format!("removing the stale frame socket {}", path.display()))?;
-        }
-        let listener =
-            UnixListener::bind(&path).with_context(|| format!("binding the frame socket {}", path.display()))?;
+        let listener = frame_socket::bind(&path)?;
         let (tx, arrivals) = mpsc::channel();
         std::thread::Builder::new().name("frame-socket".into()).spawn(move || accept(listener, tx))?;
         Ok(FrameImports { path, device, arrivals, pending: HashMap::new(), imported: HashMap::new() })

@@ -174,20 +174,15 @@ impl EnvPool {
         };
         let start = std::time::Instant::now();
         let stream = loop {
-            match std::os::unix::net::UnixStream::connect(socket) {
+            match farm::frame_socket::connect(socket) {
                 Ok(s) => break s,
-                Err(e) if start.elapsed() < timeout => {
-                    tracing::debug!("frame socket {}: {e}; retrying", socket.display());
+                Err(farm::frame_socket::FrameSocketError::Connect { .. }) if start.elapsed() < timeout => {
                     std::thread::sleep(std::time::Duration::from_millis(100));
                 }
-                Err(e) => {
-                    return Err(e)
-                        .with_context(|| format!("connecting to the learner's frame socket {}", socket.display()));
-                }
+                Err(e) => return Err(e).context("handing the frames to the learner"),
             }
         };
-        farm::frame_socket::send(&stream, &handoff, frames.fd())
-            .with_context(|| format!("handing the frames to the learner over {}", socket.display()))?;
+        farm::frame_socket::send(&stream, &handoff, frames.fd()).context("handing the frames to the learner")?;
         self.frames_link = Some(stream);
         Ok(())
     }
