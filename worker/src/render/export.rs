@@ -148,16 +148,18 @@ impl ExportedFrames {
         self.memory_type
     }
 
-    /// Records the copies of target layer `layer` into slot `slot`.
-    pub(super) fn copy_layer(
+    /// Records the copies of target layers `layer..layer + count` into slots `slot..slot +
+    /// count` (consecutive slots are consecutive in memory: one copy per target).
+    pub(super) fn copy_layers(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         targets: &super::targets::Targets,
         layer: u32,
         slot: u32,
+        count: u32,
     ) {
         let l = &self.layout;
-        let extent = wgpu::Extent3d { width: l.width, height: l.height, depth_or_array_layers: 1 };
+        let extent = wgpu::Extent3d { width: l.width, height: l.height, depth_or_array_layers: count };
         let colour = slot as u64 * l.layer_bytes;
         for (texture, offset) in [(&targets.color, colour), (&targets.info, l.info_offset + colour)] {
             encoder.copy_texture_to_buffer(

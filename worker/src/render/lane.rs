@@ -149,8 +149,12 @@ impl Lane {
         }
         let mut encoder = self.record(work);
         let (frames, count) = self.exported.as_ref().expect("checked");
-        for (layer, &slot) in slots.iter().enumerate() {
-            frames.copy_layer(&mut encoder, &self.targets, layer as u32, slot);
+        // one copy per run of consecutive slots (all of them, when every env is running)
+        let mut layer = 0;
+        while layer < slots.len() {
+            let run = 1 + slots[layer..].windows(2).take_while(|w| w[1] == w[0] + 1).count();
+            frames.copy_layers(&mut encoder, &self.targets, layer as u32, slots[layer], run as u32);
+            layer += run;
         }
         count.record(&self.queue, &mut encoder, target_ids);
         self.queue.submit([encoder.finish()]);
