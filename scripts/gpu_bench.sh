@@ -60,8 +60,8 @@ step train faithful-gpu 16x32, two groups, frames on the device
 timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.toml --workers 16 --frames 150000 \
   --set env.frames=device --out /tmp/bench-512-device --table "$out/train-512-device.md" 2>&1 \
   | grep -v "^\[bench\] [0-9]" | tail -3
-grep -h "imported\|frames on the device\|Error\|error" /tmp/bench-512-device/logs/learner.log \
-  /tmp/bench-512-device/logs/worker-0.log 2>/dev/null | head -5 | tee "$out/device-frames.txt"
+grep -h "imported\|frames on the device\|Error\|error" /tmp/bench-512-device/run/logs/learner.log \
+  /tmp/bench-512-device/run/logs/worker-0.log 2>/dev/null | head -5 | tee "$out/device-frames.txt"
 step done
 kill $dmon 2>/dev/null
 cat "$out"/train-*.md
