@@ -180,6 +180,8 @@ mod error;
 mod vulkan;
 
 pub use error::ImportError;
+#[cfg(test)]
+pub(crate) use vulkan::TestExport;
 
 #[cfg(test)]
 mod tests {
