@@ -216,23 +216,23 @@ struct ServeArgs {
 }
 
 /// The policy to serve. With `env.frames = "device"` the workers hand their frame memory over
-/// `imports` whichever policy runs; PPO reads frames from it, the baselines read none (their
-/// imports are returned, to keep the socket open while they serve).
+/// `imports` whichever policy runs; PPO takes it to read frames from, the baselines read none
+/// (the caller keeps it, and the socket open, while they serve).
 fn make_policy(
     a: &ServeArgs,
     cfg: &RunConfig,
     dev: tch::Device,
-    imports: Option<FrameImports>,
-) -> anyhow::Result<(Box<dyn Policy>, Option<FrameImports>)> {
-    fn ppo(p: PpoPolicy, imports: Option<FrameImports>) -> (Box<dyn Policy>, Option<FrameImports>) {
-        match imports {
-            Some(i) => (Box::new(p.with_device_frames(i)), None),
-            None => (Box::new(p), None),
+    imports: &mut Option<FrameImports>,
+) -> anyhow::Result<Box<dyn Policy>> {
+    let ppo = |p: PpoPolicy, imports: &mut Option<FrameImports>| -> Box<dyn Policy> {
+        match imports.take() {
+            Some(i) => Box::new(p.with_device_frames(i)),
+            None => Box::new(p),
         }
-    }
+    };
     Ok(match (a.policy, &a.checkpoint) {
-        (PolicyKind::Random, _) => (Box::new(RandomPolicy::new(cfg.run.seed)), imports),
-        (PolicyKind::Expert, _) => (Box::new(ExpertPolicy), imports),
+        (PolicyKind::Random, _) => Box::new(RandomPolicy::new(cfg.run.seed)),
+        (PolicyKind::Expert, _) => Box::new(ExpertPolicy),
         (PolicyKind::Ppo, Some(ckpt)) => {
             let blank = match a.blank {
                 None => Blank::default(),
@@ -256,11 +256,11 @@ fn run_serve(a: ServeArgs, dev: tch::Device) -> anyhow::Result<()> {
     let cfg = RunConfig::load(&a.config)?;
     // where the policy runs, for the run's log (`orchestrator bench train` prints it)
     tracing::info!("{}", device::report(dev));
-    let imports = match cfg.env.frames {
+    let mut imports = match cfg.env.frames {
         FramePath::Device => Some(FrameImports::listen(&a.run_dir, dev)?),
         FramePath::SharedMemory => None,
     };
-    let (mut policy, _unread_imports) = make_policy(&a, &cfg, dev, imports)?;
+    let mut policy = make_policy(&a, &cfg, dev, &mut imports)?;
     if a.resume && a.policy != PolicyKind::Ppo {
         tracing::info!("--resume: policy `{}` keeps no state; nothing to resume", policy.name());
     }

@@ -8,7 +8,7 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use cudarc::driver::sys;
 use tch::Device;
 
-use super::error::ImportError;
+use super::error::{ImportError, hex};
 
 /// An imported external memory, mapped as one buffer at `ptr`, holding a reference on its
 /// device's primary context (the one libtorch's runtime API uses, so torch can read `ptr`).
@@ -30,10 +30,6 @@ fn check(call: &'static str, r: sys::CUresult) -> Result<(), ImportError> {
         sys::CUresult::CUDA_SUCCESS => Ok(()),
         _ => Err(ImportError::Cuda { call, code: format!("{r:?} ({})", r as u32) }),
     }
-}
-
-fn hex(b: &[u8; 16]) -> String {
-    b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
 impl Mapped {

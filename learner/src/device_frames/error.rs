@@ -27,3 +27,8 @@ pub enum ImportError {
     )]
     UuidMismatch { ordinal: usize, cuda: String, worker: String },
 }
+
+/// A device UUID as the errors print it: 32 lowercase hex digits.
+pub(super) fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
