@@ -84,6 +84,14 @@ impl FrameImports {
     pub fn frames(&self, worker: u32) -> Option<&ImportedFrames> {
         self.imported.get(&worker).map(|(_, f)| f)
     }
+
+    /// Waits until every copy out of the imported frames is done (a no-op without a GPU).
+    pub fn finish_copies(&self) {
+        // one device for all: one synchronize serves every worker's frames
+        if let Some((_, f)) = self.imported.values().next() {
+            f.finish_copies();
+        }
+    }
 }
 
 impl Drop for FrameImports {

@@ -311,6 +311,12 @@ impl Policy for PpoPolicy {
                 a.actions
             }
         };
+        // The answer lets each worker draw over its slots: the copies out of them must be done.
+        // The actions' copy to the host already waited for them (they were queued before the
+        // forward on the same stream); this keeps it so should an answer ever not need a forward.
+        if let Some(imports) = &self.imports {
+            imports.finish_copies();
+        }
         // Answer only the workers that sent, in batch order.
         let mut out = Vec::with_capacity(batch.num_envs());
         for p in &batch.parts {
