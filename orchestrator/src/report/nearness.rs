@@ -9,7 +9,7 @@ use worker::dataset::Dataset;
 use worker::program::Program;
 
 /// The classes of [`class_of`], in table order.
-const CLASSES: [&str; 3] = ["the nearest", "2nd–3rd nearest", "farther"];
+pub(super) const CLASSES: [&str; 3] = ["the nearest", "2nd–3rd nearest", "farther"];
 
 /// Per program, the target's rank among its room's objects by floor distance from the robot's
 /// start (0: it is the nearest).
@@ -33,7 +33,7 @@ fn rank_among(objects: &[[f32; 3]], p: &Program) -> usize {
 }
 
 /// 0: the target is the nearest object, 1: second or third nearest, 2: farther.
-fn class_of(rank: usize) -> usize {
+pub(super) fn class_of(rank: usize) -> usize {
     match rank {
         0 => 0,
         1 | 2 => 1,

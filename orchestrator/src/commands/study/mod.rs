@@ -17,7 +17,7 @@
 //!     test/tables.csv             the selected checkpoint on test (normal, blind, other_gesture)
 //!     train/tables.csv            the selected checkpoint on train (T4.3)
 //! OUT/random/seed<k>/tables.csv   Random on test
-//! OUT/T4.2.md … T4.7.md, pointing.md, .csv, study.json, sr_spl.png, learning_curves.png
+//! OUT/T4.2.md … T4.7.md, pointing.md, .csv, paired.md, study.json, sr_spl.png, learning_curves.png
 //! ```
 //!
 //! With `--parallel N`, N models are in flight at once (`lanes`), each with its own steps; the
@@ -30,6 +30,7 @@
 
 pub mod ablations;
 mod lanes;
+mod paired;
 mod progress;
 pub mod records;
 mod steps;
@@ -416,6 +417,7 @@ fn model(
             lane.step(*kind, *work, None, if k == 0 { "recorded" } else { "" });
         }
         eprintln!("[study] {name}: recorded in {}", p.join("records").join(run.file_name()).display());
+        records::add_outcomes(p, &run.file_name(), &r, &run.dir.join("test"))?;
         return Ok(r);
     }
     let trained = run.trained(a.workers);
@@ -518,6 +520,8 @@ fn report(a: &StudyArgs, runs: &[Run], results: &[RunResult], pending: &[String]
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     summary::write(&a.out, results, &curves, pending)?;
     ablations::write(&a.out, results)?;
+    let facts = runs.first().and_then(|r| paired::program_facts(&r.cfg));
+    paired::write(&a.out, results, facts.as_ref())?;
     if let Some(p) = &a.publish {
         // the published tables hold every model recorded there, of this invocation or another
         // (a study of some methods must not drop the others' rows)
@@ -534,6 +538,7 @@ fn report(a: &StudyArgs, runs: &[Run], results: &[RunResult], pending: &[String]
         }
         summary::write(p, &all, &curves, pending)?;
         ablations::write(p, &all)?;
+        paired::write(p, &all, facts.as_ref())?;
     }
     Ok(())
 }

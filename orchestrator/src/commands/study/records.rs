@@ -7,6 +7,7 @@
 //! ```text
 //! DIR/records/<name>/record.json   the run's config, the study's evaluation settings, the result
 //!                    test.csv          the selected checkpoint's tables on test (normal, blind)
+//!                    test-episodes.csv … each of its test episodes' outcome (pairing methods)
 //!                    val.csv           … on val (the evaluation that selected it)
 //!                    train.csv         … on train (T4.3)
 //!                    curve.jsonl       training success against frames (learning_curves.png)
@@ -46,6 +47,8 @@ struct CurvePoint {
     frames: f64,
     success_rate: Option<f64>,
 }
+
+const OUTCOMES: &str = "test-episodes.csv";
 
 fn folder(publish: &Path, name: &str) -> PathBuf {
     publish.join("records").join(name)
@@ -138,6 +141,9 @@ pub fn write(
     rel.test_tables = copy(&r.test_tables, "test.csv")?;
     rel.val_tables = copy(&r.val_tables, "val.csv")?;
     rel.train_tables = copy(&r.train_tables, "train.csv")?;
+    if let Some(test) = r.test_tables.as_deref().and_then(evaluation_dir) {
+        write_outcomes(&dir, test)?;
+    }
     if let Some(m) = metrics {
         let rows: Vec<CurvePoint> = farm::files::read_jsonl(m)?;
         let lines: Vec<String> = rows.iter().map(serde_json::to_string).collect::<Result<_, _>>()?;
@@ -151,6 +157,38 @@ pub fn write(
         train_tables: r.train_tables.as_ref().map(|_| dir.join("train.csv")),
         ..r.clone()
     })
+}
+
+/// The evaluation folder whose `tables.csv` `tables` is, when its passes are there (a record's
+/// copy has none).
+fn evaluation_dir(tables: &Path) -> Option<&Path> {
+    tables.parent().filter(|d| tables.file_name() == Some("tables.csv".as_ref()) && d.join("normal").is_dir())
+}
+
+fn write_outcomes(record: &Path, evaluation: &Path) -> anyhow::Result<()> {
+    let outcomes = crate::report::outcomes::of_evaluation(evaluation)?;
+    Ok(farm::files::write_atomic(&record.join(OUTCOMES), crate::report::outcomes::to_csv(&outcomes).as_bytes())?)
+}
+
+/// The test outcomes of `r` (a record's or a run folder's result), when they were kept.
+pub fn outcomes(r: &RunResult) -> anyhow::Result<Option<Vec<crate::report::outcomes::Outcome>>> {
+    let Some(tables) = &r.test_tables else { return Ok(None) };
+    let beside = tables.with_file_name(OUTCOMES);
+    if beside.is_file() {
+        return crate::report::outcomes::read_csv(&beside).map(Some);
+    }
+    evaluation_dir(tables).map(crate::report::outcomes::of_evaluation).transpose()
+}
+
+/// Adds the test outcomes to record `name` made before records kept them, from the run folder's
+/// test evaluation `test` when that is of the recorded checkpoint.
+pub fn add_outcomes(publish: &Path, name: &str, r: &RunResult, test: &Path) -> anyhow::Result<()> {
+    let dir = folder(publish, name);
+    let evaluated = std::fs::read_to_string(test.join("checkpoint")).unwrap_or_default();
+    if dir.join(OUTCOMES).is_file() || !test.join("normal").is_dir() || !evaluated.trim().ends_with(&r.checkpoint) {
+        return Ok(());
+    }
+    write_outcomes(&dir, test)
 }
 
 /// The first line where two configs differ, as (a's, b's).
@@ -202,6 +240,44 @@ mod tests {
         let e =
             read(&publish, "both-seed1", &cfg, Settings { val_programs: 100, ..settings() }).unwrap_err().to_string();
         assert!(e.contains("`evaluation`"), "{e}");
+    }
+
+    /// A run's test evaluation as `eval` leaves it: tables and the normal pass's episodes.
+    fn test_evaluation(run: &Path, r: &RunResult) -> PathBuf {
+        let test = run.join("test");
+        std::fs::create_dir_all(test.join("normal")).unwrap();
+        std::fs::copy(r.test_tables.as_ref().unwrap(), test.join("tables.csv")).unwrap();
+        let episodes: Vec<String> = [(3, true), (4, false)]
+            .map(|(p, ok)| serde_json::to_string(&crate::report::tables::tests::result(p, ok)).unwrap())
+            .into();
+        std::fs::write(test.join("normal/episodes.jsonl"), episodes.join("\n") + "\n").unwrap();
+        test
+    }
+
+    #[test]
+    fn a_record_keeps_its_test_episodes_and_an_older_record_gets_them_from_its_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = dir.path().join("runs/both-seed1");
+        std::fs::create_dir_all(&run).unwrap();
+        let cfg =
+            RunConfig::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/tiny/both.toml"))).unwrap();
+        let publish = dir.path().join("docs");
+        let mut r = crate::commands::study::summary::tests::result(dir.path(), "both", 1, 31.5);
+        let test = test_evaluation(&run, &r);
+        let older = write(&publish, "old-seed1", &cfg, settings(), &r, None).unwrap();
+        assert!(outcomes(&older).unwrap().is_none(), "made from tables alone: no episodes to keep");
+
+        r.test_tables = Some(test.join("tables.csv"));
+        write(&publish, "both-seed1", &cfg, settings(), &r, None).unwrap();
+        std::fs::write(test.join("checkpoint"), format!("/study/{}", r.checkpoint)).unwrap();
+        add_outcomes(&publish, "old-seed1", &older, &test).unwrap();
+        std::fs::remove_dir_all(&run).unwrap();
+        for name in ["both-seed1", "old-seed1"] {
+            let back = read(&publish, name, &cfg, settings()).unwrap().unwrap();
+            let o = outcomes(&back).unwrap().expect("kept in the record");
+            let got: Vec<(u64, bool)> = o.iter().map(|o| (o.program, o.success_first)).collect();
+            assert_eq!(got, [(3, true), (4, false)], "{name}");
+        }
     }
 
     #[test]
