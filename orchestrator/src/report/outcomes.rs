@@ -59,7 +59,8 @@ impl Outcome {
 }
 
 /// The outcomes of every pass of an evaluation folder (`<dir>/<pass>/episodes.jsonl`, with
-/// `trajectories.jsonl` beside it where the pass kept them), passes in name order.
+/// `trajectories.jsonl` beside it where the pass kept them), passes in name order, programs in
+/// order within each.
 pub fn of_evaluation(dir: &Path) -> anyhow::Result<Vec<Outcome>> {
     let mut passes: Vec<_> = std::fs::read_dir(dir)
         .with_context(|| format!("reading {}", dir.display()))?
@@ -79,9 +80,11 @@ pub fn of_evaluation(dir: &Path) -> anyhow::Result<Vec<Outcome>> {
                 .collect(),
             false => BTreeMap::new(),
         };
-        for e in &episodes {
-            out.push(Outcome::of(&pass, e, trajectories.get(&(e.worker, e.env, e.program))));
-        }
+        let mut of_pass: Vec<Outcome> =
+            episodes.iter().map(|e| Outcome::of(&pass, e, trajectories.get(&(e.worker, e.env, e.program)))).collect();
+        // in program order: the episodes end in whatever order the workers finish them
+        of_pass.sort_by_key(|o| o.program);
+        out.extend(of_pass);
     }
     Ok(out)
 }
