@@ -117,7 +117,8 @@ pub fn read_csv(path: &Path) -> anyhow::Result<Vec<Outcome>> {
     let mut out = Vec::new();
     for (n, line) in lines.enumerate() {
         let f: Vec<&str> = line.split(',').collect();
-        let at = |col: usize| format!("{} line {}, column `{}`", path.display(), n + 2, HEADER.split(',').nth(col).unwrap());
+        let at =
+            |col: usize| format!("{} line {}, column `{}`", path.display(), n + 2, HEADER.split(',').nth(col).unwrap());
         anyhow::ensure!(f.len() == 8, "{} line {}: {} fields, expected 8", path.display(), n + 2, f.len());
         let num = |col: usize| f[col].parse::<u64>().with_context(|| at(col));
         let flag = |col: usize| match f[col] {

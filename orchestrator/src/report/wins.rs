@@ -108,8 +108,12 @@ pub fn markdown(a: Models<'_>, b: Models<'_>, facts: &ProgramFacts<'_>) -> Optio
         for (first, stops) in [(true, "1"), (false, "∞")] {
             let p = count(ps.iter().copied(), first);
             let (n, z) = (p.programs(), p.mcnemar_z());
-            writeln!(md, "| {name} | {stops} | {n} | {} | {} | {} | {} | {z:.1} |", p.both, p.only_first, p.only_second, p.neither)
-                .unwrap();
+            writeln!(
+                md,
+                "| {name} | {stops} | {n} | {} | {} | {} | {} | {z:.1} |",
+                p.both, p.only_first, p.only_second, p.neither
+            )
+            .unwrap();
         }
     }
 
@@ -211,10 +215,18 @@ mod tests {
         ];
         let b = vec![
             (1, vec![o(0, false, 0, true), o(1, true, 0, true)]),
-            (2, vec![o(0, false, 0, true), o(1, false, 2, true), Outcome { pass: "blind".into(), ..o(1, true, 2, true) }]),
+            (
+                2,
+                vec![
+                    o(0, false, 0, true),
+                    o(1, false, 2, true),
+                    Outcome { pass: "blind".into(), ..o(1, true, 2, true) },
+                ],
+            ),
         ];
         let ranks = [0, 5];
-        let md = markdown(("+Both", &a), ("+Intervention", &b), &ProgramFacts { ranks: Some(&ranks), instances: None }).unwrap();
+        let md = markdown(("+Both", &a), ("+Intervention", &b), &ProgramFacts { ranks: Some(&ranks), instances: None })
+            .unwrap();
         assert!(md.contains("| 1 | 1 | 2 | 0 | 1 | 1 | 0 | 0.0 |"), "{md}");
         assert!(md.contains("| 2 | 1 | 2 | 0 | 2 | 0 | 0 | 1.4 |"), "{md}");
         // pooled: 3 wins against 1, z = 2/√4; the blind pass and seed 3 are left out
@@ -223,6 +235,9 @@ mod tests {
         assert!(md.contains("| intervention / intervention | 1 | 100.0 | 0.0 | 1 | 0 |"), "{md}");
         assert!(md.contains("| the target's nearness to the start | the nearest | 2 | 100.0 | 0.0 | 2 | 0 |"), "{md}");
         assert!(!md.contains("instances"), "no instances given: no such split\n{md}");
-        assert!(markdown(("+Both", &a[2..]), ("+Intervention", &b), &ProgramFacts::default()).is_none(), "no seed in common");
+        assert!(
+            markdown(("+Both", &a[2..]), ("+Intervention", &b), &ProgramFacts::default()).is_none(),
+            "no seed in common"
+        );
     }
 }

@@ -40,10 +40,7 @@ pub fn write(out: &Path, results: &[RunResult], facts: Option<&(Vec<usize>, Vec<
         models.sort_by_key(|(seed, _)| *seed);
         Ok(models)
     };
-    let facts = ProgramFacts {
-        ranks: facts.map(|(r, _)| r.as_slice()),
-        instances: facts.map(|(_, i)| i.as_slice()),
-    };
+    let facts = ProgramFacts { ranks: facts.map(|(r, _)| r.as_slice()), instances: facts.map(|(_, i)| i.as_slice()) };
     let mut md = String::from(
         "# The study's methods paired over test programs and seeds\n\nWritten by `orchestrator study` \
          with its tables, from each model's test episodes.\n\n",
