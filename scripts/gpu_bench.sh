@@ -2,9 +2,10 @@
 # The faithful config's throughput on a GPU machine (BENCHMARKS.md, "On the H100"): the learner's
 # acting and update at several batch sizes, PyTorch's own trunk and transfer for comparison, then
 # `bench train` end to end at §4.3.2's 20 envs and at configs/faithful-gpu's rounds of 512 envs
-# (one group, two groups). For a machine with CUDA PyTorch and no Rust: the binaries are built
-# elsewhere and found in $GESTHOR_BIN_DIR (default target/release); libtorch is the machine's
-# PyTorch; a Vulkan loader carried as Debian packages in .gl/ is unpacked when there.
+# (one group, two groups, two groups timed stage by stage). For a machine with CUDA PyTorch and no
+# Rust: the binaries are built elsewhere and found in $GESTHOR_BIN_DIR (default target/release);
+# libtorch is the machine's PyTorch; a Vulkan loader carried as Debian packages in .gl/ is unpacked
+# when there.
 #
 #   GESTHOR_BIN_DIR=.bin bash scripts/gpu_bench.sh OUT_DIR
 #
@@ -62,6 +63,12 @@ timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.t
   | grep -v "^\[bench\] [0-9]" | tail -3
 grep -h "imported\|frames on the device\|Error\|error" /tmp/bench-512-device/run/logs/learner.log \
   /tmp/bench-512-device/run/logs/worker-0.log 2>/dev/null | head -5 | tee "$out/device-frames.txt"
+# two groups again, acting and the update timed stage by stage (issue 52): the learner waits for
+# the GPU after each stage, so this run is slower than the one above; its last table says which
+# stage of the inference share to cut
+step train faithful-gpu 16x32, two groups, by stage
+timeout 150 "$bin/orchestrator" bench train --config configs/faithful-gpu/both.toml --workers 16 --frames 150000 \
+  --stages --out /tmp/bench-512-stages --table "$out/train-512-stages.md" 2>&1 | grep -v "^\[bench\] [0-9]" | tail -3
 step done
 kill $dmon 2>/dev/null
 cat "$out"/train-*.md

@@ -1,5 +1,5 @@
-//! Where a training run's time goes: the learner's timeline and its workers' loops, as cumulative
-//! seconds. The learner writes one into every progress record (`farm.jsonl`, field `profile`);
+//! Where a training run's time goes: the learner's timeline (and, when it times them, its acting
+//! and updates by stage) and its workers' loops, as cumulative seconds. The learner writes one into every progress record (`farm.jsonl`, field `profile`);
 //! `orchestrator bench train` reads the last one.
 
 use serde::{Deserialize, Serialize};
@@ -72,12 +72,69 @@ impl WorkerTime {
     }
 }
 
+/// Cumulative wall seconds of the learner's acting and updates, stage by stage (`learner serve
+/// --profile-stages`). A GPU is synchronized after each stage, so that a stage is charged its own
+/// work rather than whatever the device still had queued — which slows the run down.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct StageTimes {
+    /// Acting: the frames and gestures onto the device (host copy into pinned staging and
+    /// upload, or the copies out of the workers' device frames), and the other inputs.
+    pub act_inputs_s: f64,
+    /// Acting: the visual encoders: the frozen trunk or pretrained encoder whose features the
+    /// rollout stores, and the network's visual branches (their heads, or whole trained CNNs).
+    pub act_visual_s: f64,
+    /// Acting: the rest of the forward: gesture network, target and pose layers, GRU, heads.
+    pub act_rest_s: f64,
+    /// Acting: the logits' and values' copy to the host, and sampling the actions.
+    pub act_sample_s: f64,
+    /// Acting: the previous action's feedback and this step stored in the rollout, the memory
+    /// committed.
+    pub act_store_s: f64,
+    /// Updating: GAE, the rollout's arrays onto the device, each minibatch's selection, the
+    /// update's books.
+    pub update_prepare_s: f64,
+    /// Updating: each minibatch's forward over its sequences, the losses, the backward pass.
+    pub update_backward_s: f64,
+    /// Updating: gradient clipping and the optimizer's steps.
+    pub update_step_s: f64,
+    /// Acting calls timed (a round, or one group's round with `ppo.env_groups`).
+    pub rounds: u64,
+    /// Updates timed.
+    pub updates: u64,
+}
+
+impl StageTimes {
+    /// The acting stages, by name, in the order they run.
+    pub fn acting(&self) -> [(&'static str, f64); 5] {
+        [
+            ("inputs onto the device", self.act_inputs_s),
+            ("visual encoders", self.act_visual_s),
+            ("rest of the forward (gesture, GRU, heads)", self.act_rest_s),
+            ("actions to the host, sampling", self.act_sample_s),
+            ("storing the step", self.act_store_s),
+        ]
+    }
+
+    /// The update's stages, by name, in the order they run.
+    pub fn updating(&self) -> [(&'static str, f64); 3] {
+        [
+            ("GAE, minibatches", self.update_prepare_s),
+            ("forward + backward", self.update_backward_s),
+            ("gradient clipping + optimizer step", self.update_step_s),
+        ]
+    }
+}
+
 /// The profile of a run so far.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct Profile {
     pub learner: LearnerTime,
     pub workers: WorkerTime,
+    /// Only when the learner times its stages: without, its records stay as they were.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stages: Option<StageTimes>,
 }
 
 #[cfg(test)]
@@ -101,5 +158,17 @@ mod tests {
             x = std::hint::black_box(x.wrapping_mul(31).wrapping_add(i));
         }
         assert!(process_cpu_seconds() > spent, "{x}");
+    }
+
+    /// A learner that times no stages writes the records it wrote before stages existed.
+    #[test]
+    fn stage_times_are_written_only_when_timed() {
+        assert!(!serde_json::to_string(&Profile::default()).unwrap().contains("stages"));
+        let timed = Profile {
+            stages: Some(StageTimes { act_visual_s: 1.5, rounds: 3, ..Default::default() }),
+            ..Default::default()
+        };
+        let back: Profile = serde_json::from_str(&serde_json::to_string(&timed).unwrap()).unwrap();
+        assert_eq!(back, timed);
     }
 }

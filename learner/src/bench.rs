@@ -55,7 +55,8 @@ pub fn with_tiny_ppo(mut c: RunConfig) -> RunConfig {
 /// depend on the values; `orchestrator encoder pretrain` makes real ones).
 pub fn random_encoder_weights(dir: &Path, size: u32) -> Result<PathBuf, LearnerError> {
     let vs = nn::VarStore::new(Device::Cpu);
-    let _trunk = crate::encoder::RgbdEncoder::new(&(vs.root() / "trunk"));
+    // `seeded` keeps these draws out of the sequence of a network another thread builds meanwhile
+    let _trunk = crate::device::seeded(0, || crate::encoder::RgbdEncoder::new(&(vs.root() / "trunk")));
     let bytes = crate::encoder::net::weights_bytes(&vs, "trunk", &crate::encoder::EncoderInfo::new(size, size))
         .map_err(AgentError::Config)?;
     let path = dir.join(format!("rgbd{size}-random.safetensors"));
@@ -75,7 +76,7 @@ pub fn faithful_config(weights: &Path) -> RunConfig {
 /// values; ImageNet weights are the user's to supply).
 pub fn random_resnet_weights(dir: &Path) -> Result<PathBuf, LearnerError> {
     let vs = nn::VarStore::new(Device::Cpu);
-    let _net = crate::net::resnet::Resnet18::new(&vs.root());
+    let _net = crate::device::seeded(0, || crate::net::resnet::Resnet18::new(&vs.root()));
     let path = dir.join("resnet18-random.safetensors");
     vs.save(&path).map_err(|e| AgentError::Config(format!("{}: {e}", path.display())))?;
     Ok(path)

@@ -22,8 +22,9 @@
 //! run logs ([`logs`]: records, metrics) → PPO ([`ppo`]: rollout, Adam, trainer, checkpoints) →
 //! the policy server ([`serve`]: worker batches, integrity, policies, the serve loop; beside it
 //! [`transport`]) → the binary. Under them all, [`device`] (and [`device_frames`], frames read in
-//! place from a worker's exported GPU memory); over net, logs and PPO, the
-//! throughput figures ([`bench`]) and the synthetic in-process run ([`smoke`]).
+//! place from a worker's exported GPU memory) and [`stages`] (acting and updates timed stage by
+//! stage); over net, logs and PPO, the throughput figures ([`bench`]) and the synthetic
+//! in-process run ([`smoke`]).
 
 pub mod bench;
 pub mod device;
@@ -36,6 +37,7 @@ pub mod obs;
 pub mod ppo;
 pub mod serve;
 pub mod smoke;
+pub mod stages;
 pub use farm::learner_ports as transport;
 
 pub use logs::metrics::{MetricsLog, UpdateMetrics};

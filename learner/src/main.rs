@@ -213,6 +213,10 @@ struct ServeArgs {
     /// Before the first batch, wait up to this many seconds for every worker to connect.
     #[arg(long, default_value_t = 60.0)]
     start_wait: f64,
+    /// PPO training: time acting and updates stage by stage into the progress records, waiting
+    /// for the device after each stage (slower; `orchestrator bench train --stages`).
+    #[arg(long)]
+    profile_stages: bool,
 }
 
 /// The policy to serve. With `env.frames = "device"` the workers hand their frame memory over
@@ -244,7 +248,8 @@ fn make_policy(
         }
         (PolicyKind::Ppo, None) => {
             anyhow::ensure!(!a.eval, "--eval with --policy ppo needs --checkpoint");
-            ppo(PpoPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?, imports)
+            let p = PpoPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?;
+            ppo(if a.profile_stages { p.with_stage_times() } else { p }, imports)
         }
     })
 }
@@ -263,6 +268,9 @@ fn run_serve(a: ServeArgs, dev: tch::Device) -> anyhow::Result<()> {
     let mut policy = make_policy(&a, &cfg, dev, &mut imports)?;
     if a.resume && a.policy != PolicyKind::Ppo {
         tracing::info!("--resume: policy `{}` keeps no state; nothing to resume", policy.name());
+    }
+    if a.profile_stages && policy.stage_times().is_none() {
+        tracing::info!("--profile-stages: policy `{}` does not train; no stages to time", policy.name());
     }
     let mut opts =
         ServeOptions::new(&a.run_id, a.workers, &a.run_dir, cfg.env.envs_per_worker, cfg.env.width, cfg.env.height);

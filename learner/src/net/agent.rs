@@ -17,6 +17,7 @@ use crate::net::network::PolicyNet;
 use crate::net::resnet::{self, WeightsError};
 use crate::net::spec::NetSpec;
 use crate::obs::{EnvBatch, ObsError};
+use crate::stages::{Stage, StageClock};
 
 /// Why an agent could not be built for a config.
 #[derive(Debug, thiserror::Error)]
@@ -72,6 +73,8 @@ pub struct Agent {
     /// Each env's gesture features, recomputed only when its gesture or the layer changes.
     gestures: GestureMemo,
     notes: Vec<String>,
+    /// Acting's stages timed, when on (the trainer's updates use it too).
+    pub(crate) stages: StageClock,
 }
 
 impl Agent {
@@ -130,6 +133,7 @@ impl Agent {
             force_reset: vec![false; n_envs],
             gestures: GestureMemo::default(),
             notes,
+            stages: StageClock::default(),
         })
     }
 
@@ -214,7 +218,7 @@ impl Agent {
         obs.validate(envs.len(), self.hw())?;
         let starts =
             obs.envs.iter().zip(&self.force_reset[envs]).map(|(e, f)| e.episode_start || e.lost || *f).collect();
-        let inputs = if self.spec.random() { Inputs::none() } else { self.net.prepare(obs, self.device) };
+        let inputs = if self.spec.random() { Inputs::none() } else { self.net.prepare(obs, self.device, &self.stages) };
         Ok((Prepared::new(inputs, obs), starts))
     }
 
@@ -247,14 +251,17 @@ impl Agent {
                 }
                 _ => None,
             };
-            let feats = self.net.encode_with(x, gesture).unsqueeze(0);
+            self.stages.lap(Stage::ActRest);
+            let feats = self.net.encode_with(x, gesture, Some(&self.stages)).unsqueeze(0);
             let keep: Vec<f32> = starts.iter().map(|s| if *s { 0.0 } else { 1.0 }).collect();
             let keep = Tensor::from_slice(&keep).to_device(self.device).view([1, -1]);
             let (out, hidden) = self.net.step(&feats, &memory, &keep);
             let (logits, values) = self.net.heads(&out.squeeze_dim(0));
+            self.stages.lap(Stage::ActRest);
             let logits =
                 Vec::<f32>::try_from(logits.to_kind(Kind::Float).to_device(Device::Cpu).flatten(0, -1)).unwrap();
             let values = Vec::<f32>::try_from(values.to_kind(Kind::Float).to_device(Device::Cpu)).unwrap();
+            self.stages.lap(Stage::ActSample);
             Forward { logits, values, hidden, starts }
         })
     }

@@ -39,6 +39,7 @@ use crate::net::resnet::{self, Resnet18};
 use crate::net::spec::NetSpec;
 use crate::net::stretches;
 use crate::obs::EnvBatch;
+use crate::stages::{Stage, StageClock};
 
 /// The network. Variables live in the [`crate::net::agent::Agent`]'s var store under `resnet.` (the
 /// frozen trunk), `encoder.` (the frozen pretrained encoder) and `visual.` (its head), `rgb.`,
@@ -120,15 +121,19 @@ impl PolicyNet {
     }
 
     /// One step's observation → the stored form (runs the frozen trunk, without gradients).
-    pub(crate) fn prepare(&self, obs: &EnvBatch, device: Device) -> Inputs {
+    pub(crate) fn prepare(&self, obs: &EnvBatch, device: Device, stages: &StageClock) -> Inputs {
         tch::no_grad(|| {
             let s = &self.spec;
-            let visual = self
-                .pretrained
-                .as_ref()
-                .map(|p| p.features(&self.staging.rgb(obs, device), &self.staging.depth(obs, device)));
+            let visual = self.pretrained.as_ref().map(|p| {
+                let (rgb, depth) = (self.staging.rgb(obs, device), self.staging.depth(obs, device));
+                stages.lap(Stage::ActInputs);
+                let features = p.features(&rgb, &depth);
+                stages.lap(Stage::ActVisual);
+                features
+            });
             let mut rgb = (s.rgb && visual.is_none()).then(|| self.staging.rgb(obs, device));
             let mut depth = (s.depth && visual.is_none()).then(|| self.staging.depth(obs, device));
+            stages.lap(Stage::ActInputs);
             if let Some(f) = &self.frozen {
                 let n = obs.n() as i64;
                 let mut images = Vec::new();
@@ -146,32 +151,28 @@ impl PolicyNet {
                 if depth.is_some() {
                     depth = parts.next();
                 }
+                stages.lap(Stage::ActVisual);
             }
             let pose = s.pose.then(|| inputs::pose_tensor(obs, device));
             let gesture = s.gesture.then(|| {
                 let mask = inputs::gesture_mask(obs, device).to_kind(Kind::Half).view([-1, 1, 1]);
                 self.staging.gesture(obs, device).narrow(2, 0, s.gesture_dims) * mask
             });
-            Inputs {
-                rgb,
-                depth,
-                visual,
-                gesture,
-                gesture_index: None,
-                target: s.semantic.then(|| inputs::target_tensor(obs, device)),
-                pose,
-            }
+            let target = s.semantic.then(|| inputs::target_tensor(obs, device));
+            stages.lap(Stage::ActInputs);
+            Inputs { rgb, depth, visual, gesture, gesture_index: None, target, pose }
         })
     }
 
     /// Stored inputs `[B, ..]` → concatenated features `[B, D]`.
     pub(crate) fn encode(&self, x: &Inputs) -> Tensor {
-        self.encode_with(x, None)
+        self.encode_with(x, None, None)
     }
 
     /// [`PolicyNet::encode`], with the gesture network's output for `x`'s rows given when it was
-    /// computed beforehand (acting's `GestureMemo`).
-    pub(crate) fn encode_with(&self, x: &Inputs, gesture: Option<Tensor>) -> Tensor {
+    /// computed beforehand (acting's `GestureMemo`); `stages` times the visual branches apart
+    /// (acting).
+    pub(crate) fn encode_with(&self, x: &Inputs, gesture: Option<Tensor>, stages: Option<&StageClock>) -> Tensor {
         let mut parts = Vec::new();
         if let (Some(p), Some(t)) = (&self.pretrained, &x.visual) {
             parts.push(p.forward(t));
@@ -181,6 +182,9 @@ impl PolicyNet {
         }
         if let (Some(enc), Some(t)) = (&self.depth, &x.depth) {
             parts.push(enc.forward(t, true));
+        }
+        if let Some(s) = stages {
+            s.lap(Stage::ActVisual);
         }
         if let (Some(l), Some(t)) = (&self.gesture, &x.gesture) {
             parts.push(gesture.unwrap_or_else(|| {

@@ -22,6 +22,7 @@ use crate::net::agent::{ActMode, Actions, Agent, AgentError};
 use crate::obs::{EnvBatch, EnvStep, ObsError};
 use crate::ppo::optim::Adam;
 use crate::ppo::rollout::{FeedbackCounts, Rollout, flags};
+use crate::stages::{Stage, StageClock};
 
 /// Adam's ε: 1e-5, the usual choice for PPO (torch's default is 1e-8).
 const ADAM_EPS: f64 = 1e-5;
@@ -118,6 +119,7 @@ impl Trainer {
     /// a step is stored once every group has acted, and the step that completes a rollout must
     /// be a round for all (the update needs every env's next observation; [`Trainer::wants_all`]).
     pub fn step_at(&mut self, at: usize, obs: &EnvBatch) -> Result<StepOutput, ObsError> {
+        self.agent.stages.start(true);
         let (x, starts) = self.agent.prepare_at(at, obs)?;
         let n = starts.len();
         if self.wants_all() && n != self.rollout.envs {
@@ -134,6 +136,7 @@ impl Trainer {
         self.counts.truncated_without_final += c.truncated_without_final;
         self.counts.lost += c.lost;
         self.track_episodes(at, obs.envs);
+        self.agent.stages.lap(Stage::ActStore);
 
         // 2.–4. A full rollout: bootstrap from V(o_T) (the old policy's), learn, and act on o_T
         //       with the new policy from the same memory.
@@ -147,11 +150,24 @@ impl Trainer {
 
         // 1. (cont.) Act and store. A final observation's action is ignored by the env.
         let acted = self.agent.choose(&fwd, ActMode::Sample);
+        self.agent.stages.lap(Stage::ActSample);
         let valid: Vec<bool> = obs.envs.iter().map(|e| !e.lost && !e.is_final_observation()).collect();
         self.rollout.push_at(at, &x, &fwd.starts, &acted, &valid);
         self.last_real[at..at + n].copy_from_slice(&valid);
         self.agent.commit_at(at, fwd, obs);
+        self.agent.stages.lap(Stage::ActStore);
         Ok(StepOutput { actions: acted, update })
+    }
+
+    /// Times acting and updates stage by stage from now on, synchronizing the device after each
+    /// stage ([`Trainer::stage_times`]).
+    pub fn time_stages(&mut self) {
+        self.agent.stages = StageClock::on(self.agent.device());
+    }
+
+    /// The stage times so far; `None` unless [`Trainer::time_stages`] turned them on.
+    pub fn stage_times(&self) -> Option<farm::profile::StageTimes> {
+        self.agent.stages.times()
     }
 
     /// Whether the next step must be a round for all envs: it completes the rollout.
@@ -186,6 +202,8 @@ impl Trainer {
     /// The PPO update on the full rollout; `bootstrap` is V(o_T) per env.
     pub(crate) fn update(&mut self, bootstrap: &[f32]) -> UpdateMetrics {
         let started = Instant::now();
+        let stages = &self.agent.stages;
+        stages.start(false);
         let hp = self.hp.clone();
         let r = &self.rollout;
         let (t_len, n) = (r.steps, r.envs);
@@ -226,13 +244,11 @@ impl Trainer {
                     let starts: Vec<bool> =
                         (0..t_len).flat_map(|t| mb.iter().map(move |&k| r.starts[t * n + k as usize])).collect();
                     let valid = sel(&b_valid);
+                    let x = r.minibatch(&idx).expect("a full rollout has inputs");
+                    stages.lap(Stage::UpdatePrepare);
 
                     // Re-run the network over the minibatch's whole sequences.
-                    let (logits, values) = self.agent.net.evaluate(
-                        &r.minibatch(&idx).expect("a full rollout has inputs"),
-                        &r.h0.index_select(1, &idx),
-                        &starts,
-                    );
+                    let (logits, values) = self.agent.net.evaluate(&x, &r.h0.index_select(1, &idx), &starts);
                     let logp_all = logits.log_softmax(-1, Kind::Float);
                     let new_logp = logp_all.gather(-1, &sel(&b_act).unsqueeze(-1), false).squeeze_dim(-1);
                     let entropy = -(logp_all.exp() * &logp_all).sum_dim_intlist(-1, false, Kind::Float);
@@ -256,9 +272,11 @@ impl Trainer {
 
                     self.opt.zero_grad();
                     loss.backward();
+                    stages.lap(Stage::UpdateBackward);
                     let grad_norm = self.opt.clip_grad_norm(hp.max_grad_norm);
                     if grad_norm.is_finite() {
                         self.opt.step();
+                        stages.lap(Stage::UpdateStep);
                     } else {
                         // one bad minibatch must not poison every weight with NaN
                         m.skipped_steps += 1;
@@ -299,6 +317,7 @@ impl Trainer {
         m.bootstrapped = std::mem::take(&mut self.counts.bootstrapped) as u64;
         m.truncated_without_final = std::mem::take(&mut self.counts.truncated_without_final) as u64;
         m.lost_messages = std::mem::take(&mut self.counts.lost) as u64;
+        self.agent.stages.lap(Stage::UpdatePrepare);
         m
     }
 }
@@ -542,6 +561,40 @@ mod tests {
         }
         let err = t.step_at(0, &obs.batch_of(0..2)).unwrap_err().to_string();
         assert!(err.contains("every env"), "{err}");
+    }
+
+    /// Untimed, a trainer keeps no stage times. Timed, a rollout and its update charge every
+    /// stage of acting and of the update — on the small CNNs (visual branches in the forward)
+    /// and on the frozen pretrained encoder (run while preparing the inputs) — and a call's
+    /// stages never add up to more than its wall time.
+    #[test]
+    fn stage_times_fill_every_stage_within_each_call() {
+        let dir = tempfile::tempdir().unwrap();
+        let weights = crate::bench::random_encoder_weights(dir.path(), 64).unwrap();
+        for mut cfg in [crate::bench::tiny_config(), crate::bench::tiny_frozen_config(&weights)] {
+            (cfg.ppo.rollout, cfg.ppo.epochs, cfg.model.hidden) = (4, 1, 32);
+            let mut t = Trainer::new(&cfg, 2, Device::Cpu).unwrap();
+            let obs = crate::bench::random_obs(2, 64, 1);
+            t.step(&obs.batch()).unwrap();
+            assert_eq!(t.stage_times(), None);
+            t.time_stages();
+            let sum =
+                |s: farm::profile::StageTimes| s.acting().iter().chain(&s.updating()).map(|(_, v)| v).sum::<f64>();
+            // the rollout's other steps, then the call that completes it and updates
+            for _ in 0..cfg.ppo.rollout {
+                let before = sum(t.stage_times().unwrap());
+                let began = Instant::now();
+                t.step(&obs.batch()).unwrap();
+                let wall = began.elapsed().as_secs_f64();
+                let charged = sum(t.stage_times().unwrap()) - before;
+                assert!(charged <= wall, "{charged} s of stages in a {wall} s call");
+            }
+            let s = t.stage_times().unwrap();
+            assert_eq!((s.rounds, s.updates), (cfg.ppo.rollout as u64, 1));
+            for (name, v) in s.acting().iter().chain(&s.updating()) {
+                assert!(*v > 0.0, "{:?}: {name} not charged: {s:?}", cfg.model.encoder);
+            }
+        }
     }
 
     #[test]

@@ -33,6 +33,11 @@ pub trait Policy {
     fn learning_seconds(&self) -> f64 {
         0.0
     }
+    /// Acting and updates by stage, cumulative, when the policy times them (PPO training with
+    /// `--profile-stages`).
+    fn stage_times(&self) -> Option<farm::profile::StageTimes> {
+        None
+    }
     /// Sees each progress record the server writes (the farm's counters), e.g. to log them
     /// beside its own metrics.
     fn report(&mut self, _progress: &crate::logs::records::Progress) -> anyhow::Result<()> {

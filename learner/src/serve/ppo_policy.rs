@@ -160,6 +160,15 @@ impl PpoPolicy {
         self
     }
 
+    /// Times training's acting and updates stage by stage (`--profile-stages`): each stage then
+    /// waits for the device, which slows the run. Evaluation has nothing to time.
+    pub fn with_stage_times(mut self) -> PpoPolicy {
+        if let Mode::Train { trainer, .. } = &mut self.mode {
+            trainer.time_stages();
+        }
+        self
+    }
+
     fn save_checkpoint(&mut self) -> anyhow::Result<()> {
         if let Mode::Train { trainer, checkpoints, .. } = &self.mode {
             if trainer.updates > 0 {
@@ -205,6 +214,13 @@ impl Policy for PpoPolicy {
 
     fn learning_seconds(&self) -> f64 {
         self.learning
+    }
+
+    fn stage_times(&self) -> Option<farm::profile::StageTimes> {
+        match &self.mode {
+            Mode::Train { trainer, .. } => trainer.stage_times(),
+            Mode::Eval { .. } => None,
+        }
     }
 
     fn groups_now(&self) -> usize {

@@ -517,6 +517,7 @@ impl Server<'_> {
                     w.add(&s.timing);
                     w
                 }),
+                stages: self.policy.stage_times(),
             },
         }
     }

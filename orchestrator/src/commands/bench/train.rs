@@ -4,7 +4,8 @@
 //! The run is an ordinary training run (PPO, checkpoints off); its learner's last progress record
 //! carries the profile (`farm::profile`): the learner's timeline (waiting for observations,
 //! receiving, inference, sending, updates) and the workers' loops (env step, render, transport,
-//! waiting for actions), cumulative seconds. Frame-limited, so a row can be repeated.
+//! waiting for actions), cumulative seconds. Frame-limited, so a row can be repeated. With
+//! `--stages` the learner also times its acting and updates stage by stage (`StageTimes`).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -14,7 +15,7 @@ use anyhow::Context;
 use clap::Args;
 use farm::config::RunConfig;
 use farm::process;
-use farm::profile::Profile;
+use farm::profile::{Profile, StageTimes};
 
 use crate::commands::up;
 use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
@@ -40,6 +41,10 @@ pub struct BenchTrainArgs {
     /// Override a config value, as `up --set` (repeatable), e.g. `--set env.envs_per_worker=16`.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
+    /// Also time the learner's acting and updates stage by stage (`learner serve
+    /// --profile-stages`): the device is synchronized after each stage, so the run is slower.
+    #[arg(long)]
+    pub stages: bool,
 }
 
 /// What one bench run measured.
@@ -138,7 +143,32 @@ pub fn report(b: &TrainBench, cfg: &RunConfig, command: &str) -> String {
     ] {
         let _ = writeln!(md, "| {name} | {v:.1} | {} |", share(v, w.total()));
     }
+    if let Some(s) = &b.profile.stages {
+        stages_table(&mut md, s);
+    }
     md
+}
+
+/// The learner's acting and updates by stage: seconds, share of acting (of the update), and
+/// milliseconds per round (per update).
+fn stages_table(md: &mut String, s: &StageTimes) {
+    let _ = writeln!(
+        md,
+        "\n## Acting and update by stage (synchronized after each stage: this run is slower than one \
+         without --stages)\n\n{} acting calls (rounds, or one group's round), {} updates.\n",
+        s.rounds, s.updates
+    );
+    let _ = writeln!(md, "| stage | seconds | share | ms |\n|---|---:|---:|---:|");
+    for (phase, stages, count, per) in
+        [("acting", &s.acting()[..], s.rounds, "a round"), ("update", &s.updating()[..], s.updates, "an update")]
+    {
+        let total: f64 = stages.iter().map(|(_, v)| v).sum();
+        let ms = |v: f64| if count > 0 { format!("{:.2}", 1e3 * v / count as f64) } else { "-".into() };
+        let _ = writeln!(md, "| **{phase}** | **{total:.1}** | 100% | **{}** {per} |", ms(total));
+        for (name, v) in stages {
+            let _ = writeln!(md, "| {name} | {v:.1} | {} | {} |", share(*v, total), ms(*v));
+        }
+    }
 }
 
 /// Runs the crew until it ends by itself at `frames` (or is interrupted).
@@ -148,6 +178,9 @@ fn train(a: &BenchTrainArgs, cfg: &RunConfig, out: &std::path::Path) -> anyhow::
     let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, PolicyArg::Ppo);
     spec.max_frames = Some(a.frames);
     spec.report_every = 1.0;
+    if a.stages {
+        spec.learner_args.push("--profile-stages".into());
+    }
     let start = Instant::now();
     let mut crew = Crew::start(spec)?;
     let mut last_line = Instant::now();
@@ -212,6 +245,9 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     for kv in &a.set {
         let _ = write!(command, " --set {kv}");
     }
+    if a.stages {
+        command.push_str(" --stages");
+    }
     let md = report(&bench, &cfg, &command);
     print!("{md}");
     farm::files::write_atomic(&out.join("bench_train.md"), md.as_bytes())?;
@@ -231,5 +267,27 @@ mod tests {
         let mut cfg = up::load_config(None).unwrap();
         cfg.checkpoint.every_updates = NO_PERIODIC_CHECKPOINT;
         assert_eq!(RunConfig::from_toml(&cfg.to_toml(), "config.toml").unwrap(), cfg);
+    }
+
+    /// The stage table comes with a learner's stage times only, with each stage's share of its
+    /// phase and its milliseconds per round or update.
+    #[test]
+    fn the_stage_table_is_there_only_with_stage_times() {
+        let cfg = up::load_config(None).unwrap();
+        let mut b = TrainBench { frames: 100, seconds: 2.0, workers: 1, ..Default::default() };
+        assert!(!report(&b, &cfg, "x").contains("by stage"));
+        b.profile.stages = Some(StageTimes {
+            act_inputs_s: 1.0,
+            act_visual_s: 3.0,
+            rounds: 500,
+            update_backward_s: 2.0,
+            updates: 4,
+            ..Default::default()
+        });
+        let md = report(&b, &cfg, "x");
+        assert!(md.contains("## Acting and update by stage"), "{md}");
+        assert!(md.contains("| **acting** | **4.0** | 100% | **8.00** a round |"), "{md}");
+        assert!(md.contains("| visual encoders | 3.0 | 75.0% | 6.00 |"), "{md}");
+        assert!(md.contains("| forward + backward | 2.0 | 100.0% | 500.00 |"), "{md}");
     }
 }
