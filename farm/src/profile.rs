@@ -1,6 +1,7 @@
 //! Where a training run's time goes: the learner's timeline (and, when it times them, its acting
-//! and updates by stage) and its workers' loops, as cumulative seconds. The learner writes one into every progress record (`farm.jsonl`, field `profile`);
-//! `orchestrator bench train` reads the last one.
+//! and updates by stage) and its workers' loops, as cumulative seconds. The learner writes one
+//! into every progress record (`farm.jsonl`, field `profile`); `orchestrator bench train` reads
+//! the last one.
 
 use serde::{Deserialize, Serialize};
 use shm_schema::WorkerTiming;
