@@ -359,7 +359,13 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             let pending = runs.iter().zip(&done).filter(|(_, d)| d.is_none()).map(|(r, _)| r.name());
             // every finished model's tables at once: a study stopped later loses only the
             // models in flight
-            report(&a, &runs, &results, &pending.chain(random_names.iter().cloned()).collect::<Vec<_>>())
+            report(
+                &a,
+                &runs,
+                random.as_ref(),
+                &results,
+                &pending.chain(random_names.iter().cloned()).collect::<Vec<_>>(),
+            )
         },
     )?;
     let mut results: Vec<RunResult> = done.into_iter().flatten().collect();
@@ -395,7 +401,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         }
     }
     progress.finish();
-    report(&a, &runs, &results, &[])?;
+    report(&a, &runs, random.as_ref(), &results, &[])?;
     eprintln!("[study] tables in {}", a.out.join("T4.2.md").display());
     Ok(())
 }
@@ -504,8 +510,14 @@ fn model(
 }
 
 /// Writes T4.2–T4.7 of the models evaluated so far into the study folder (and `--publish`);
-/// `pending` names the runs still to do.
-fn report(a: &StudyArgs, runs: &[Run], results: &[RunResult], pending: &[String]) -> anyhow::Result<()> {
+/// `pending` names the runs still to do; `random` is Random's config when the study evaluates it.
+fn report(
+    a: &StudyArgs,
+    runs: &[Run],
+    random: Option<&RunConfig>,
+    results: &[RunResult],
+    pending: &[String],
+) -> anyhow::Result<()> {
     // each run's training curve: its metrics, or its record's when the run folder is elsewhere
     let curves: Vec<(String, PathBuf)> = runs
         .iter()
@@ -520,7 +532,8 @@ fn report(a: &StudyArgs, runs: &[Run], results: &[RunResult], pending: &[String]
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     summary::write(&a.out, results, &curves, pending)?;
     ablations::write(&a.out, results)?;
-    let facts = runs.first().and_then(|r| paired::program_facts(&r.cfg));
+    // the test programs of the study's dataset (every config of the study has the same)
+    let facts = runs.first().map(|r| &r.cfg).or(random).and_then(paired::program_facts);
     paired::write(&a.out, results, facts.as_ref())?;
     if let Some(p) = &a.publish {
         // the published tables hold every model recorded there, of this invocation or another
