@@ -176,7 +176,12 @@ fn a_published_study_continues_from_its_records_without_its_folder() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let table = std::fs::read_to_string(docs.join("T4.2.md")).unwrap();
     assert_eq!(table, std::fs::read_to_string(first.join("T4.2.md")).unwrap(), "the same tables in both folders");
-    for f in ["records/both-seed1/record.json", "records/both-seed1/test.csv", "records/both-seed1/curve.jsonl"] {
+    for f in [
+        "records/both-seed1/record.json",
+        "records/both-seed1/test.csv",
+        "records/both-seed1/test-episodes.csv",
+        "records/both-seed1/curve.jsonl",
+    ] {
         assert!(docs.join(f).is_file(), "no {f}");
     }
     // the published results name the records, inside the folder, not the run folders
@@ -203,6 +208,10 @@ fn a_published_study_continues_from_its_records_without_its_folder() {
     }
     // the ablation tables read the recorded model's tables
     assert!(std::fs::read_to_string(docs.join("T4.6.md")).unwrap().contains("| +Both |"));
+    // and the pairing, program by program, reads the recorded model's test episodes
+    let paired = std::fs::read_to_string(docs.join("paired.md")).unwrap();
+    assert!(paired.contains("## +Both against VisSem") && paired.contains("| 1 | 1 |"), "{paired}");
+    assert!(paired.contains("the gesture at the start (+Both / VisSem)"), "{paired}");
 
     // a study of one method publishes tables that keep every other recorded model
     let mut c = study(&cfg, &tmp.path().join("one"), "vis_sem");
