@@ -212,14 +212,19 @@ impl Paired {
         let mut p = Paired::default();
         for a in first {
             let Some(b) = second.get(&a.program) else { continue };
-            match (a.at_stops(k).0, b.at_stops(k).0) {
-                (true, true) => p.both += 1,
-                (true, false) => p.only_first += 1,
-                (false, true) => p.only_second += 1,
-                (false, false) => p.neither += 1,
-            }
+            p.add(a.at_stops(k).0, b.at_stops(k).0);
         }
         p
+    }
+
+    /// Counts one program: whether the first and the second succeeded on it.
+    pub fn add(&mut self, first: bool, second: bool) {
+        match (first, second) {
+            (true, true) => self.both += 1,
+            (true, false) => self.only_first += 1,
+            (false, true) => self.only_second += 1,
+            (false, false) => self.neither += 1,
+        }
     }
 
     pub fn programs(&self) -> usize {

@@ -49,12 +49,7 @@ fn count<'a>(pairs: impl IntoIterator<Item = &'a Pair<'a>>, first: bool) -> Pair
     let mut p = Paired::default();
     for x in pairs {
         let (a, b) = if first { (x.a.success_first, x.b.success_first) } else { (x.a.success, x.b.success) };
-        match (a, b) {
-            (true, true) => p.both += 1,
-            (true, false) => p.only_first += 1,
-            (false, true) => p.only_second += 1,
-            (false, false) => p.neither += 1,
-        }
+        p.add(a, b);
     }
     p
 }
