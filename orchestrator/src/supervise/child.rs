@@ -12,18 +12,26 @@ use nix::sys::signal::{Signal, killpg};
 use nix::sys::wait::{WaitPidFlag, WaitStatus, waitpid};
 use nix::unistd::{Pid, getpid, getppid};
 
-/// The environment a learner process starts with: torch's OpenMP threads wait passively unless
-/// the user chose otherwise. Spinning (libgomp's default) costs nothing on idle cores but, where
-/// anything else runs beside the learner (a build, a second training, 20 workers), the threads
-/// spin at every barrier for a partner that is not scheduled: one training beside a build made
-/// 24–42 frames/s spinning and 370–400 waiting passively (same updates, same weights;
-/// BENCHMARKS.md, issue 53).
+/// The environment a learner process starts with: torch's OpenMP threads (libgomp) spin briefly
+/// at a barrier, then sleep, unless the user chose how they wait. Spinning without bound
+/// (libgomp's default, 300,000 spins) costs nothing on idle cores but, where anything else runs
+/// beside the learner (a build, a second training), the threads spin for a partner that is not
+/// scheduled: one training beside a build made 24–42 frames/s spinning and 370–400 waiting
+/// passively. Sleeping at once pays a wake-up at each of the update's many small operations:
+/// 30,000 spins first made the default 12% faster idle at 4 workers, and beside two busy
+/// processes about as fast as passive waiting (299 against 316 frames/s; BENCHMARKS.md, issue 53).
 pub fn learner_env() -> Vec<(&'static str, String)> {
-    const OMP_WAIT: &str = "OMP_WAIT_POLICY";
-    match std::env::var_os(OMP_WAIT) {
-        Some(_) => Vec::new(),
-        None => vec![(OMP_WAIT, "PASSIVE".to_string())],
+    omp_waiting(|name| std::env::var_os(name).is_some())
+}
+
+/// [`learner_env`]'s variables, given which of them the user has set.
+fn omp_waiting(is_set: impl Fn(&str) -> bool) -> Vec<(&'static str, String)> {
+    const WAIT: &str = "OMP_WAIT_POLICY";
+    const SPINS: &str = "GOMP_SPINCOUNT";
+    if is_set(WAIT) || is_set(SPINS) {
+        return Vec::new();
     }
+    vec![(WAIT, "PASSIVE".to_string()), (SPINS, "30000".to_string())]
 }
 
 /// How a child ended.
@@ -145,6 +153,16 @@ pub fn machine_cpu_seconds() -> Option<(f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_learner_spins_briefly_unless_the_user_chose_how_openmp_waits() {
+        let chosen = |names: &'static [&'static str]| move |name: &str| names.contains(&name);
+        let ours = omp_waiting(chosen(&[]));
+        assert_eq!(ours, [("OMP_WAIT_POLICY", "PASSIVE".to_string()), ("GOMP_SPINCOUNT", "30000".to_string())]);
+        // either of the user's overrules both of ours (libgomp reads the spin count over the policy)
+        assert!(omp_waiting(chosen(&["OMP_WAIT_POLICY"])).is_empty());
+        assert!(omp_waiting(chosen(&["GOMP_SPINCOUNT"])).is_empty());
+    }
 
     #[test]
     fn spawn_reap_and_signal() {

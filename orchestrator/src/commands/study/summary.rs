@@ -349,7 +349,10 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
         md,
         "\n## Runs\n\n| method | rooms | seed | selected checkpoint | val SR 1 stop (%) | test SR 1 stop (%) |\n|---|---|---:|---|---:|---:|"
     );
-    for r in results {
+    // the dissertation's order, then seed: the same table whichever study command wrote it
+    let mut ordered: Vec<&RunResult> = results.iter().collect();
+    ordered.sort_by_key(|r| (METHODS.iter().position(|m| m.stem == r.stem), r.scene_type.map(|t| t.name()), r.seed));
+    for r in ordered {
         let val = if r.val_sr1.is_nan() { "-".into() } else { format!("{:.1}", r.val_sr1) };
         let rooms = r.scene_type.map_or("all", |t| t.name());
         // inside the study folder, wherever that is
@@ -505,11 +508,12 @@ pub(crate) mod tests {
     fn the_table_puts_the_dissertation_beside_ours_and_judges_orderings() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
+        // as a study's commands may find them: the table's order is the dissertation's, then seed
         let results = [
-            result(d, "both", 1, 10.0),
+            result(d, "vis_sem", 2, 5.0),
             result(d, "both", 2, 12.0),
             result(d, "vis_sem", 1, 4.0),
-            result(d, "vis_sem", 2, 5.0),
+            result(d, "both", 1, 10.0),
         ];
         write(d, &results, &[], &["+Both seed 3".into()]).unwrap();
         assert!(d.join("sr_spl.png").is_file());
@@ -517,6 +521,10 @@ pub(crate) mod tests {
         assert!(md.contains("| +Both | 2 | 11.0 ± 1.4 |") && md.contains("49.2 / 28.7 / 1.976"), "{md}");
         assert!(md.contains("| +Both > VisSem | 11.0 ± 1.4 vs 4.5 ± 0.7 | yes |"), "{md}");
         assert!(md.contains("## Still to do") && md.contains("- +Both seed 3"), "{md}");
+        let at = |row: &str| md.find(row).unwrap_or_else(|| panic!("{row} in {md}"));
+        assert!(at("| VisSem | all | 1 |") < at("| VisSem | all | 2 |"), "{md}");
+        assert!(at("| VisSem | all | 2 |") < at("| +Both | all | 1 |"), "{md}");
+        assert!(at("| +Both | all | 1 |") < at("| +Both | all | 2 |"), "{md}");
         let csv = std::fs::read_to_string(d.join("T4.2.csv")).unwrap();
         assert_eq!(csv.lines().count(), 3);
     }
