@@ -13,8 +13,8 @@ use nix::sys::wait::{WaitPidFlag, WaitStatus, waitpid};
 use nix::unistd::{Pid, getpid, getppid};
 
 /// The environment a learner process starts with: torch's OpenMP threads (libgomp) spin briefly
-/// at a barrier, then sleep, unless the user chose how they wait. Spinning without bound
-/// (libgomp's default, 300,000 spins) costs nothing on idle cores but, where anything else runs
+/// at a barrier, then sleep, unless the user chose how they wait. Spinning long (libgomp's
+/// default: 300,000 spins, milliseconds) costs nothing on idle cores but, where anything else runs
 /// beside the learner (a build, a second training), the threads spin for a partner that is not
 /// scheduled: one training beside a build made 24–42 frames/s spinning and 370–400 waiting
 /// passively. Sleeping at once pays a wake-up at each of the update's many small operations:
