@@ -460,9 +460,8 @@ fn compared_ranks(a: &EvalArgs, first_pass: &Path) -> Option<Vec<usize>> {
                     .dataset
             }
         };
-        let ds = worker::dataset::Dataset::open(&dir, worker::dataset::Verify::Quick)
-            .with_context(|| format!("dataset {} (pass --dataset)", dir.display()))?;
-        nearness::target_ranks(&ds, &ds.index(split)?)
+        let (ranks, _) = nearness::program_facts(&dir, split).context("pass --dataset")?;
+        Ok(ranks)
     };
     ranks().map_err(|e| eprintln!("[eval] no table by the target's nearness: {e:#}")).ok()
 }

@@ -3,10 +3,13 @@
 //! gestures shows where the target is not among the nearest things.
 
 use std::fmt::Write;
+use std::path::Path;
 
+use anyhow::Context;
 use farm::metrics::{EpisodeResult, scores};
-use worker::dataset::Dataset;
+use worker::dataset::{Dataset, Verify};
 use worker::program::Program;
+use worker::scene::Split;
 
 /// The classes of [`class_of`], in table order.
 pub(super) const CLASSES: [&str; 3] = ["the nearest", "2nd–3rd nearest", "farther"];
@@ -24,6 +27,14 @@ pub fn target_ranks(ds: &Dataset, programs: &[Program]) -> anyhow::Result<Vec<us
         ranks.push(rank_among(&rooms[p.scene.as_str()], p));
     }
     Ok(ranks)
+}
+
+/// Per program of `split` of the dataset in `dir`: the target's rank ([`target_ranks`]) and how
+/// many instances of its category the room holds.
+pub fn program_facts(dir: &Path, split: Split) -> anyhow::Result<(Vec<usize>, Vec<u32>)> {
+    let ds = Dataset::open(dir, Verify::Quick).with_context(|| format!("dataset {}", dir.display()))?;
+    let programs = ds.index(split)?;
+    Ok((target_ranks(&ds, &programs)?, programs.iter().map(|p| p.instances).collect()))
 }
 
 fn rank_among(objects: &[[f32; 3]], p: &Program) -> usize {

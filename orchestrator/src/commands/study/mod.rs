@@ -529,12 +529,15 @@ fn report(
             path.map(|p| (r.method.stem.to_string(), p))
         })
         .collect();
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    summary::write(&a.out, results, &curves, pending)?;
-    ablations::write(&a.out, results)?;
     // the test programs of the study's dataset (every config of the study has the same)
     let facts = runs.first().map(|r| &r.cfg).or(random).and_then(paired::program_facts);
-    paired::write(&a.out, results, facts.as_ref())?;
+    let tables = |dir: &Path, results: &[RunResult], curves: &[(String, PathBuf)]| -> anyhow::Result<()> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        summary::write(dir, results, curves, pending)?;
+        ablations::write(dir, results)?;
+        paired::write(dir, results, facts.as_ref())
+    };
+    tables(&a.out, results, &curves)?;
     if let Some(p) = &a.publish {
         // the published tables hold every model recorded there, of this invocation or another
         // (a study of some methods must not drop the others' rows)
@@ -549,9 +552,7 @@ fn report(
                 all.push(r);
             }
         }
-        summary::write(p, &all, &curves, pending)?;
-        ablations::write(p, &all)?;
-        paired::write(p, &all, facts.as_ref())?;
+        tables(p, &all, &curves)?;
     }
     Ok(())
 }

@@ -20,12 +20,9 @@ const PAIRS: [(&str, &str); 4] =
 /// Per test program: the target's nearness rank and its category's instances, from the
 /// study's dataset; None (and a note) when it cannot be read.
 pub fn program_facts(cfg: &RunConfig) -> Option<(Vec<usize>, Vec<u32>)> {
-    let facts = || -> anyhow::Result<(Vec<usize>, Vec<u32>)> {
-        let ds = worker::dataset::Dataset::open(&cfg.run.dataset, worker::dataset::Verify::Quick)?;
-        let programs = ds.index(Split::Test)?;
-        Ok((crate::report::nearness::target_ranks(&ds, &programs)?, programs.iter().map(|p| p.instances).collect()))
-    };
-    facts().map_err(|e| eprintln!("[study] paired.md without nearness and instances: {e:#}")).ok()
+    crate::report::nearness::program_facts(&cfg.run.dataset, Split::Test)
+        .map_err(|e| eprintln!("[study] paired.md without nearness and instances: {e:#}"))
+        .ok()
 }
 
 /// Writes `out/paired.md` for the pairs with a seed in common (nothing when there is none).
