@@ -595,8 +595,14 @@ fn eval_of_the_expert_scores_full_success_and_random_does_not() {
     assert_eq!(cells.iter().map(|c| count(c)).sum::<usize>(), n, "{near}");
     assert!(cells.iter().all(|c| c.starts_with("100.0 / 100.0") || count(c) == 0), "{near}");
     assert!(near.lines().any(|l| l.starts_with("| Random")), "{near}");
+    // where each heads at its first move ahead, over the same programs out of view at the start
+    let heads = md.split("## The first move ahead: where the policy heads").nth(1).expect("the heading table");
+    let rows: Vec<&str> = heads.lines().filter(|l| l.starts_with("| Expert") || l.starts_with("| Random")).collect();
+    let out_of_view = |l: &str| l.split('|').nth(3).unwrap().trim().to_string();
+    assert!(rows.len() == 2 && out_of_view(rows[0]) == out_of_view(rows[1]), "{heads}");
     let own = std::fs::read_to_string(expert_dir.join("tables.md")).unwrap();
     assert!(own.contains("## By the target's nearness at the start"), "{own}");
+    assert!(own.contains("## The first move ahead: where the policy heads"), "{own}");
 }
 
 /// `orchestrator bench train` on a few hundred frames: the table, and a profile in the run's

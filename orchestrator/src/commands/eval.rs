@@ -22,6 +22,7 @@ use farm::metrics::{EpisodeResult, scores};
 use worker::program::Program;
 use worker::scene::Split;
 
+use crate::report::first_turn::FirstHeading;
 use crate::report::nearness;
 use crate::report::progress::Bar;
 use crate::report::tables::{EvalMode, Evaluation, compare, paired};
@@ -352,6 +353,10 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         let trajs = crate::report::trajectory::read(&trajectories)?;
         md += &crate::report::first_turn::FirstTurns::of(&trajs, &index, cfg.env.fov_deg).markdown();
     }
+    let headings = first_headings(&label, &out, &index, cfg.env.fov_deg)?;
+    if !headings.is_empty() {
+        md += &FirstHeading::markdown(&headings);
+    }
     if let Some(eps) = evaluation.passes.get(&EvalMode::Normal) {
         let ranks = nearness::target_ranks(&ds, &index)?;
         md += &nearness::markdown(&[(label.clone(), eps.as_slice())], &ranks);
@@ -422,6 +427,25 @@ fn write_tensorboard(tb: &Path, step: u64, ev: &Evaluation, md: &str, maps: &[Pa
     Ok(())
 }
 
+/// Where the policy heads at its first move ahead, in each pass of the evaluation in `dir` that
+/// kept its trajectories.
+fn first_headings(
+    label: &str,
+    dir: &Path,
+    programs: &[Program],
+    fov_deg: f32,
+) -> anyhow::Result<Vec<(String, &'static str, FirstHeading)>> {
+    let mut rows = Vec::new();
+    for mode in EvalMode::ALL {
+        let f = dir.join(mode.name()).join("trajectories.jsonl");
+        if f.is_file() {
+            let trajs = crate::report::trajectory::read(&f)?;
+            rows.push((label.to_string(), mode.name(), FirstHeading::of(&trajs, programs, fov_deg)));
+        }
+    }
+    Ok(rows)
+}
+
 /// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>. Returns its
 /// label, its episodes and the pass's folder.
 fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<EpisodeResult>, PathBuf)> {
@@ -444,40 +468,47 @@ fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<Episode
     Ok((label, read_episodes(f)?, pass_dir))
 }
 
-/// The target's nearness rank of each program of the compared split, from `--dataset` or the
-/// dataset the first evaluation ran on; the comparison goes on without it when that is gone.
-fn compared_ranks(a: &EvalArgs, first_pass: &Path) -> Option<Vec<usize>> {
-    let ranks = || -> anyhow::Result<Vec<usize>> {
+/// The compared split's programs and each one's target nearness rank, from `--dataset` or the
+/// dataset the first evaluation ran on, and the field of view it ran with; the comparison goes on
+/// without the tables that need them when that is gone.
+fn compared_programs(a: &EvalArgs, first_pass: &Path) -> Option<(Vec<Program>, Vec<usize>, f32)> {
+    let open = || -> anyhow::Result<(Vec<Program>, Vec<usize>, f32)> {
         let split = Split::from_name(&a.split)
             .with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
-        let dir = match &a.dataset {
-            Some(d) => d.clone(),
-            None => {
-                let config = first_pass.join("config.toml");
-                RunConfig::load(&config)
-                    .with_context(|| format!("{}: the evaluation's config", config.display()))?
-                    .run
-                    .dataset
+        let config = first_pass.join("config.toml");
+        let cfg = RunConfig::load(&config).with_context(|| format!("{}: the evaluation's config", config.display()));
+        let (dir, fov) = match (&a.dataset, cfg) {
+            (Some(d), cfg) => (d.clone(), cfg.map_or(farm::config::EnvConfig::default().fov_deg, |c| c.env.fov_deg)),
+            (None, cfg) => {
+                let c = cfg?;
+                (c.run.dataset, c.env.fov_deg)
             }
         };
-        let (ranks, _) = nearness::program_facts(&dir, split).context("pass --dataset")?;
-        Ok(ranks)
+        let (programs, ranks) = nearness::program_facts(&dir, split).context("pass --dataset")?;
+        Ok((programs, ranks, fov))
     };
-    ranks().map_err(|e| eprintln!("[eval] no table by the target's nearness: {e:#}")).ok()
+    open().map_err(|e| eprintln!("[eval] no tables by the target's nearness and heading: {e:#}")).ok()
+}
+
+/// The last `k` components of `dir`, joined by "/".
+fn folder_name(dir: &Path, k: usize) -> String {
+    let parts: Vec<String> = dir.components().rev().take(k).map(|c| c.as_os_str().to_string_lossy().into()).collect();
+    parts.into_iter().rev().collect::<Vec<_>>().join("/")
 }
 
 fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
     let found = a.compare.iter().map(|p| normal_episodes(p, &a.split)).collect::<anyhow::Result<Vec<_>>>()?;
-    let ranks = compared_ranks(a, &found[0].2);
+    let facts = compared_programs(a, &found[0].2);
+    let passes: Vec<PathBuf> = found.iter().map(|(_, _, pass)| pass.clone()).collect();
     let mut evaluations: Vec<(String, Vec<EpisodeResult>)> = found.into_iter().map(|(l, e, _)| (l, e)).collect();
-    // one method evaluated twice (another gesture, another checkpoint): name each by its folder
+    // one method evaluated twice (another gesture, another checkpoint, another seed): name each
+    // by its folder, and by its parent's too where the folders share a name (RUN/test)
     let labels: Vec<String> = evaluations.iter().map(|(l, _)| l.clone()).collect();
-    for ((label, _), dir) in evaluations.iter_mut().zip(&a.compare) {
+    let names: Vec<String> = a.compare.iter().map(|d| folder_name(d, 1)).collect();
+    for (((label, _), dir), name) in evaluations.iter_mut().zip(&a.compare).zip(&names) {
         if labels.iter().filter(|l| *l == label).count() > 1 {
-            *label = format!(
-                "{label} ({})",
-                dir.file_name().map_or(dir.display().to_string(), |n| n.to_string_lossy().into())
-            );
+            let shared = names.iter().filter(|n| *n == name).count() > 1;
+            *label = format!("{label} ({})", if shared { folder_name(dir, 2) } else { name.clone() });
         }
     }
     let rows: Vec<_> = evaluations
@@ -490,8 +521,13 @@ fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
         md.push('\n');
         md.push_str(&paired(&refs));
     }
-    if let Some(ranks) = &ranks {
+    if let Some((programs, ranks, fov)) = &facts {
         md += &nearness::markdown(&refs, ranks);
+        let mut headings = Vec::new();
+        for ((label, _), pass) in evaluations.iter().zip(&passes) {
+            headings.extend(first_headings(label, pass.parent().unwrap_or(pass), programs, *fov)?);
+        }
+        md += &FirstHeading::markdown(&headings);
     }
     if let Some(out) = &a.out {
         std::fs::create_dir_all(out)?;
@@ -504,6 +540,13 @@ fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn compared_folders_are_named_by_as_much_of_their_path_as_tells_them_apart() {
+        let p = Path::new("/root/runs/both-seed2/test");
+        assert_eq!((folder_name(p, 1), folder_name(p, 2)), ("test".to_string(), "both-seed2/test".to_string()));
+        assert_eq!(folder_name(Path::new("test"), 2), "test");
+    }
 
     #[test]
     fn a_default_output_folder_is_never_reused() {

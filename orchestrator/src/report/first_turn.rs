@@ -1,6 +1,8 @@
 //! Which way a policy turns first, by the side the target is on: the first use a referencing
-//! gesture has. Counted over the episodes whose target is out of view at the start (more than
-//! half the field of view off the heading) and whose first move is a turn.
+//! gesture has; and where it heads when it first moves ahead, which a policy that always turns
+//! the same way may still take from the gesture (it stops turning facing the target). Counted
+//! over the episodes whose target is out of view at the start (more than half the field of view
+//! off the heading).
 
 use std::fmt::Write;
 
@@ -21,8 +23,73 @@ pub struct FirstTurns {
 /// The target's bearing from the robot's start (degrees, + to the right).
 pub fn start_bearing(p: &Program) -> f32 {
     let s = p.robot_start();
+    bearing(p, s.xz().x, s.xz().y, s.yaw)
+}
+
+/// The target's bearing from a robot at floor point (x, z) facing `yaw` (degrees, + to the right).
+fn bearing(p: &Program, x: f32, z: f32, yaw: f32) -> f32 {
     let t = p.target_center();
-    angle_diff_deg(s.yaw, yaw_of(nalgebra::Vector2::new(t.x, t.z) - s.xz().coords))
+    angle_diff_deg(yaw, yaw_of(nalgebra::Vector2::new(t.x - x, t.z - z)))
+}
+
+/// Where a policy heads at its first move ahead, over the episodes whose target is out of view
+/// at the start.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FirstHeading {
+    pub out_of_view: usize,
+    /// |the target's bearing| at each first move ahead (degrees), ascending.
+    pub errors: Vec<f32>,
+    /// Half the field of view: a heading within it has the target in view.
+    pub half_fov: f32,
+}
+
+impl FirstHeading {
+    pub fn of(trajectories: &[Trajectory], programs: &[Program], fov_deg: f32) -> FirstHeading {
+        let mut h = FirstHeading { half_fov: fov_deg / 2.0, ..FirstHeading::default() };
+        for t in trajectories {
+            let p = &programs[t.program as usize];
+            if start_bearing(p).abs() <= h.half_fov {
+                continue;
+            }
+            h.out_of_view += 1;
+            if let Some(s) = t.steps.iter().find(|s| s.action == Action::MoveAhead as u8) {
+                h.errors.push(bearing(p, s.x, s.z, s.yaw).abs());
+            }
+        }
+        h.errors.sort_by(f32::total_cmp);
+        h
+    }
+
+    /// Share of first moves ahead with the target within half the field of view.
+    pub fn in_view(&self) -> f64 {
+        self.errors.iter().filter(|&&e| e <= self.half_fov).count() as f64 / self.errors.len().max(1) as f64
+    }
+
+    pub fn median(&self) -> Option<f32> {
+        self.errors.get(self.errors.len() / 2).copied()
+    }
+
+    /// One row per (evaluation, pass).
+    pub fn markdown(rows: &[(String, &str, FirstHeading)]) -> String {
+        let mut md = String::from("\n## The first move ahead: where the policy heads\n\n");
+        md += "Episodes whose target is outside the field of view at the start: the target's bearing from the \
+               robot when it first moves ahead. A policy that turns the same way first whichever side the \
+               target is on can still stop turning when it faces the target; what it takes from a gesture \
+               for that, it loses with another room's.\n\n";
+        md += "| evaluation | pass | out of view at the start | moved ahead | target in view at the first move ahead | median \\|bearing\\| |\n|---|---|---:|---:|---:|---:|\n";
+        for (label, pass, h) in rows {
+            let median = h.median().map_or("-".to_string(), |m| format!("{m:.0}°"));
+            writeln!(
+                md,
+                "| {label} | {pass} | {} | {} | {:.1}% | {median} |",
+                h.out_of_view,
+                h.errors.len(),
+                100.0 * h.in_view()
+            )
+            .unwrap();
+        }
+        md
+    }
 }
 
 impl FirstTurns {
@@ -117,5 +184,37 @@ mod tests {
         assert_eq!(f, FirstTurns { left: (1, 2), right: (1, 1), no_turn: 1 });
         assert!((f.toward() - 2.0 / 3.0).abs() < 1e-9);
         assert!(f.markdown().contains("| 50.0% of 2 | 100.0% of 1 | 66.7% | 1 |"), "{}", f.markdown());
+    }
+
+    /// The bearing is read where the robot stands and faces at its first move ahead: turned to
+    /// face the target, then moved (in view); moved at once away from it (behind); never moved.
+    #[test]
+    fn the_first_move_ahead_is_scored_by_the_bearing_then() {
+        let programs = [program(0.0, [2.0, 0.5, 0.0]), program(0.0, [0.0, 0.5, -2.0]), program(0.0, [-2.0, 0.5, 0.0])];
+        let at = |x: f32, yaw: f32, a: Action| TrajectoryStep {
+            x,
+            z: 0.0,
+            yaw,
+            action: a as u8,
+            gesture: 1,
+            intervention: 0,
+        };
+        let (r, m, s) = (Action::RotateRight, Action::MoveAhead, Action::Stop);
+        let trajs = [
+            // turned to face +x, then moves: the target straight ahead
+            Trajectory {
+                program: 0,
+                steps: vec![at(0.0, 0.0, r), at(0.0, 90.0, m), at(0.25, 90.0, s)],
+                ..Trajectory::default()
+            },
+            Trajectory { program: 1, steps: vec![at(0.0, 0.0, m)], ..Trajectory::default() },
+            Trajectory { program: 2, steps: vec![at(0.0, 0.0, s)], ..Trajectory::default() },
+        ];
+        let h = FirstHeading::of(&trajs, &programs, 90.0);
+        assert_eq!((h.out_of_view, h.errors.len()), (3, 2));
+        assert!(h.errors[0] < 1e-3 && (h.errors[1] - 180.0).abs() < 1e-3, "{:?}", h.errors);
+        assert_eq!(h.in_view(), 0.5);
+        let md = FirstHeading::markdown(&[("+Both".into(), "normal", h)]);
+        assert!(md.contains("| +Both | normal | 3 | 2 | 50.0% | 180° |"), "{md}");
     }
 }

@@ -29,12 +29,12 @@ pub fn target_ranks(ds: &Dataset, programs: &[Program]) -> anyhow::Result<Vec<us
     Ok(ranks)
 }
 
-/// Per program of `split` of the dataset in `dir`: the target's rank ([`target_ranks`]) and how
-/// many instances of its category the room holds.
-pub fn program_facts(dir: &Path, split: Split) -> anyhow::Result<(Vec<usize>, Vec<u32>)> {
+/// The programs of `split` of the dataset in `dir`, and each one's target rank ([`target_ranks`]).
+pub fn program_facts(dir: &Path, split: Split) -> anyhow::Result<(Vec<Program>, Vec<usize>)> {
     let ds = Dataset::open(dir, Verify::Quick).with_context(|| format!("dataset {}", dir.display()))?;
     let programs = ds.index(split)?;
-    Ok((target_ranks(&ds, &programs)?, programs.iter().map(|p| p.instances).collect()))
+    let ranks = target_ranks(&ds, &programs)?;
+    Ok((programs, ranks))
 }
 
 fn rank_among(objects: &[[f32; 3]], p: &Program) -> usize {

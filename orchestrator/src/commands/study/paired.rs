@@ -21,6 +21,7 @@ const PAIRS: [(&str, &str); 4] =
 /// study's dataset; None (and a note) when it cannot be read.
 pub fn program_facts(cfg: &RunConfig) -> Option<(Vec<usize>, Vec<u32>)> {
     crate::report::nearness::program_facts(&cfg.run.dataset, Split::Test)
+        .map(|(programs, ranks)| (ranks, programs.iter().map(|p| p.instances).collect()))
         .map_err(|e| eprintln!("[study] paired.md without nearness and instances: {e:#}"))
         .ok()
 }
