@@ -18,7 +18,7 @@ use anyhow::Context;
 use clap::Args;
 
 use farm::config::{Method, RunConfig};
-use farm::metrics::{EpisodeResult, scores};
+use farm::metrics::{EpisodeResult, Trajectory, scores};
 use worker::program::Program;
 use worker::scene::Split;
 
@@ -348,14 +348,13 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         dts_threshold: a.dts_threshold,
     };
     let mut md = evaluation.markdown();
-    let trajectories = out.join(EvalMode::Normal.name()).join("trajectories.jsonl");
-    if evaluation.passes.contains_key(&EvalMode::Normal) && trajectories.is_file() {
-        let trajs = crate::report::trajectory::read(&trajectories)?;
-        md += &crate::report::first_turn::FirstTurns::of(&trajs, &index, cfg.env.fov_deg).markdown();
+    // this evaluation's passes only: an explicit --out may still hold other passes of an earlier one
+    let trajectories = pass_trajectories(&out, evaluation.passes.keys().copied())?;
+    if let Some((_, trajs)) = trajectories.iter().find(|(mode, _)| *mode == EvalMode::Normal) {
+        md += &crate::report::first_turn::FirstTurns::of(trajs, &index, cfg.env.fov_deg).markdown();
     }
-    let headings = first_headings(&label, &out, &index, cfg.env.fov_deg)?;
-    if !headings.is_empty() {
-        md += &FirstHeading::markdown(&headings);
+    if !trajectories.is_empty() {
+        md += &FirstHeading::markdown(&first_headings(&label, &trajectories, &index, cfg.env.fov_deg));
     }
     if let Some(eps) = evaluation.passes.get(&EvalMode::Normal) {
         let ranks = nearness::target_ranks(&ds, &index)?;
@@ -427,23 +426,32 @@ fn write_tensorboard(tb: &Path, step: u64, ev: &Evaluation, md: &str, maps: &[Pa
     Ok(())
 }
 
-/// Where the policy heads at its first move ahead, in each pass of the evaluation in `dir` that
-/// kept its trajectories.
-fn first_headings(
-    label: &str,
+/// The trajectories of each of `modes` whose pass in the evaluation folder `dir` kept them.
+fn pass_trajectories(
     dir: &Path,
-    programs: &[Program],
-    fov_deg: f32,
-) -> anyhow::Result<Vec<(String, &'static str, FirstHeading)>> {
-    let mut rows = Vec::new();
-    for mode in EvalMode::ALL {
+    modes: impl IntoIterator<Item = EvalMode>,
+) -> anyhow::Result<Vec<(EvalMode, Vec<Trajectory>)>> {
+    let mut found = Vec::new();
+    for mode in modes {
         let f = dir.join(mode.name()).join("trajectories.jsonl");
         if f.is_file() {
-            let trajs = crate::report::trajectory::read(&f)?;
-            rows.push((label.to_string(), mode.name(), FirstHeading::of(&trajs, programs, fov_deg)));
+            found.push((mode, crate::report::trajectory::read(&f)?));
         }
     }
-    Ok(rows)
+    Ok(found)
+}
+
+/// Where the policy heads at its first move ahead, a row per pass.
+fn first_headings(
+    label: &str,
+    passes: &[(EvalMode, Vec<Trajectory>)],
+    programs: &[Program],
+    fov_deg: f32,
+) -> Vec<(String, &'static str, FirstHeading)> {
+    passes
+        .iter()
+        .map(|(mode, trajs)| (label.to_string(), mode.name(), FirstHeading::of(trajs, programs, fov_deg)))
+        .collect()
 }
 
 /// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>. Returns its
@@ -525,7 +533,8 @@ fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
         md += &nearness::markdown(&refs, ranks);
         let mut headings = Vec::new();
         for ((label, _), pass) in evaluations.iter().zip(&passes) {
-            headings.extend(first_headings(label, pass.parent().unwrap_or(pass), programs, *fov)?);
+            let trajectories = pass_trajectories(pass.parent().unwrap_or(pass), EvalMode::ALL)?;
+            headings.extend(first_headings(label, &trajectories, programs, *fov));
         }
         md += &FirstHeading::markdown(&headings);
     }
@@ -540,6 +549,21 @@ fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An explicit --out may hold passes of an earlier evaluation: only the asked ones are read.
+    #[test]
+    fn trajectories_are_read_for_the_asked_passes_only() {
+        let d = tempfile::tempdir().unwrap();
+        for (mode, program) in [(EvalMode::Normal, 3), (EvalMode::Blind, 4)] {
+            std::fs::create_dir_all(d.path().join(mode.name())).unwrap();
+            let line = serde_json::to_string(&Trajectory { program, ..Trajectory::default() }).unwrap();
+            std::fs::write(d.path().join(mode.name()).join("trajectories.jsonl"), line + "\n").unwrap();
+        }
+        let found = pass_trajectories(d.path(), [EvalMode::Normal, EvalMode::OtherGesture]).unwrap();
+        assert_eq!(found.len(), 1);
+        assert_eq!((found[0].0, found[0].1[0].program), (EvalMode::Normal, 3));
+        assert_eq!(pass_trajectories(d.path(), EvalMode::ALL).unwrap().len(), 2);
+    }
 
     #[test]
     fn compared_folders_are_named_by_as_much_of_their_path_as_tells_them_apart() {

@@ -9,7 +9,7 @@ use std::fmt::Write;
 use farm::metrics::Trajectory;
 use worker::geometry::{angle_diff_deg, yaw_of};
 use worker::program::Program;
-use worker::robot::Action;
+use worker::robot::{Action, RobotPose};
 
 /// Counts of first turns (right, all) for targets on the robot's left and on its right.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -22,14 +22,13 @@ pub struct FirstTurns {
 
 /// The target's bearing from the robot's start (degrees, + to the right).
 pub fn start_bearing(p: &Program) -> f32 {
-    let s = p.robot_start();
-    bearing(p, s.xz().x, s.xz().y, s.yaw)
+    bearing(p, &p.robot_start())
 }
 
-/// The target's bearing from a robot at floor point (x, z) facing `yaw` (degrees, + to the right).
-fn bearing(p: &Program, x: f32, z: f32, yaw: f32) -> f32 {
+/// The target's bearing from a robot at `pose` (degrees, + to the right).
+fn bearing(p: &Program, pose: &RobotPose) -> f32 {
     let t = p.target_center();
-    angle_diff_deg(yaw, yaw_of(nalgebra::Vector2::new(t.x - x, t.z - z)))
+    angle_diff_deg(pose.yaw, yaw_of(nalgebra::Vector2::new(t.x, t.z) - pose.xz().coords))
 }
 
 /// Where a policy heads at its first move ahead, over the episodes whose target is out of view
@@ -53,7 +52,7 @@ impl FirstHeading {
             }
             h.out_of_view += 1;
             if let Some(s) = t.steps.iter().find(|s| s.action == Action::MoveAhead as u8) {
-                h.errors.push(bearing(p, s.x, s.z, s.yaw).abs());
+                h.errors.push(bearing(p, &RobotPose { x: s.x, z: s.z, yaw: s.yaw }).abs());
             }
         }
         h.errors.sort_by(f32::total_cmp);
