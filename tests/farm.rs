@@ -603,6 +603,24 @@ fn eval_of_the_expert_scores_full_success_and_random_does_not() {
     let own = std::fs::read_to_string(expert_dir.join("tables.md")).unwrap();
     assert!(own.contains("## By the target's nearness at the start"), "{own}");
     assert!(own.contains("## The first move ahead: where the policy heads"), "{own}");
+    // an evaluation of another dataset is named, not read against this split's programs
+    let other = tmp.path().join("other");
+    std::fs::create_dir_all(other.join("normal")).unwrap();
+    let line =
+        std::fs::read_to_string(expert_dir.join("normal/episodes.jsonl")).unwrap().lines().next().unwrap().to_string();
+    let mut beyond: Value = serde_json::from_str(&line).unwrap();
+    beyond["program"] = serde_json::json!(n + 7);
+    std::fs::write(other.join("normal/episodes.jsonl"), format!("{line}\n{beyond}\n")).unwrap();
+    let o = std::process::Command::new(bin("orchestrator"))
+        .args(["eval", "--split", "val", "--compare"])
+        .args([&expert_dir, &other])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains(&format!("program {} is not among the {n} val programs", n + 7)),
+        "{err}"
+    );
 }
 
 /// `orchestrator bench train` on a few hundred frames: the table, and a profile in the run's

@@ -476,26 +476,56 @@ fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<Episode
     Ok((label, read_episodes(f)?, pass_dir))
 }
 
-/// The compared split's programs and each one's target nearness rank, from `--dataset` or the
-/// dataset the first evaluation ran on, and the field of view it ran with; the comparison goes on
-/// without the tables that need them when that is gone.
-fn compared_programs(a: &EvalArgs, first_pass: &Path) -> Option<(Vec<Program>, Vec<usize>, f32)> {
-    let open = || -> anyhow::Result<(Vec<Program>, Vec<usize>, f32)> {
-        let split = Split::from_name(&a.split)
-            .with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
-        let config = first_pass.join("config.toml");
-        let cfg = RunConfig::load(&config).with_context(|| format!("{}: the evaluation's config", config.display()));
-        let (dir, fov) = match (&a.dataset, cfg) {
-            (Some(d), cfg) => (d.clone(), cfg.map_or(farm::config::EnvConfig::default().fov_deg, |c| c.env.fov_deg)),
-            (None, cfg) => {
-                let c = cfg?;
-                (c.run.dataset, c.env.fov_deg)
-            }
+/// The compared split's programs (from `--dataset` or the dataset the first evaluation ran on),
+/// each one's target nearness rank, and the field of view the first evaluation ran with.
+struct ComparedSplit {
+    dataset: PathBuf,
+    programs: Vec<Program>,
+    ranks: Vec<usize>,
+    fov_deg: f32,
+}
+
+impl ComparedSplit {
+    /// `None`, with a note, when the dataset is gone: the comparison goes on without the tables
+    /// that need it.
+    fn open(a: &EvalArgs, first_pass: &Path) -> Option<ComparedSplit> {
+        let open = || -> anyhow::Result<ComparedSplit> {
+            let split = Split::from_name(&a.split)
+                .with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
+            let config = first_pass.join("config.toml");
+            let cfg =
+                RunConfig::load(&config).with_context(|| format!("{}: the evaluation's config", config.display()));
+            let (dataset, fov_deg) = match (&a.dataset, cfg) {
+                (Some(d), Ok(c)) => (d.clone(), c.env.fov_deg),
+                (Some(d), Err(e)) => {
+                    let fov = farm::config::EnvConfig::default().fov_deg;
+                    eprintln!("[eval] {e:#}: headings read with the default field of view, {fov}°");
+                    (d.clone(), fov)
+                }
+                (None, cfg) => {
+                    let c = cfg?;
+                    (c.run.dataset, c.env.fov_deg)
+                }
+            };
+            let (programs, ranks) = nearness::program_facts(&dataset, split).context("pass --dataset")?;
+            Ok(ComparedSplit { dataset, programs, ranks, fov_deg })
         };
-        let (programs, ranks) = nearness::program_facts(&dir, split).context("pass --dataset")?;
-        Ok((programs, ranks, fov))
-    };
-    open().map_err(|e| eprintln!("[eval] no tables by the target's nearness and heading: {e:#}")).ok()
+        open().map_err(|e| eprintln!("[eval] no tables by the target's nearness and heading: {e:#}")).ok()
+    }
+
+    /// Every program an evaluation names must be one of the split's: an evaluation of another
+    /// dataset (or split) is named rather than read against the wrong programs.
+    fn ensure_holds(&self, label: &str, split: &str, programs: impl IntoIterator<Item = u64>) -> anyhow::Result<()> {
+        match programs.into_iter().find(|&p| p as usize >= self.programs.len()) {
+            Some(p) => anyhow::bail!(
+                "{label}: program {p} is not among the {} {split} programs of {} — the evaluation ran on another \
+                 dataset; pass that one with --dataset",
+                self.programs.len(),
+                self.dataset.display()
+            ),
+            None => Ok(()),
+        }
+    }
 }
 
 /// The last `k` components of `dir`, joined by "/".
@@ -506,7 +536,7 @@ fn folder_name(dir: &Path, k: usize) -> String {
 
 fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
     let found = a.compare.iter().map(|p| normal_episodes(p, &a.split)).collect::<anyhow::Result<Vec<_>>>()?;
-    let facts = compared_programs(a, &found[0].2);
+    let facts = ComparedSplit::open(a, &found[0].2);
     let passes: Vec<PathBuf> = found.iter().map(|(_, _, pass)| pass.clone()).collect();
     let mut evaluations: Vec<(String, Vec<EpisodeResult>)> = found.into_iter().map(|(l, e, _)| (l, e)).collect();
     // one method evaluated twice (another gesture, another checkpoint, another seed): name each
@@ -529,12 +559,18 @@ fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
         md.push('\n');
         md.push_str(&paired(&refs));
     }
-    if let Some((programs, ranks, fov)) = &facts {
-        md += &nearness::markdown(&refs, ranks);
+    if let Some(split) = &facts {
+        for (label, eps) in &evaluations {
+            split.ensure_holds(label, &a.split, eps.iter().map(|e| e.program))?;
+        }
+        md += &nearness::markdown(&refs, &split.ranks);
         let mut headings = Vec::new();
         for ((label, _), pass) in evaluations.iter().zip(&passes) {
             let trajectories = pass_trajectories(pass.parent().unwrap_or(pass), EvalMode::ALL)?;
-            headings.extend(first_headings(label, &trajectories, programs, *fov));
+            for (_, trajs) in &trajectories {
+                split.ensure_holds(label, &a.split, trajs.iter().map(|t| t.program))?;
+            }
+            headings.extend(first_headings(label, &trajectories, &split.programs, split.fov_deg));
         }
         md += &FirstHeading::markdown(&headings);
     }

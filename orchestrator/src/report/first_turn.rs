@@ -25,6 +25,13 @@ pub fn start_bearing(p: &Program) -> f32 {
     bearing(p, &p.robot_start())
 }
 
+/// The start bearing of a program whose target is out of view at the start (more than half the
+/// field of view off the heading); `None` where it is in view.
+fn out_of_view_at_start(p: &Program, half_fov: f32) -> Option<f32> {
+    let b = start_bearing(p);
+    (b.abs() > half_fov).then_some(b)
+}
+
 /// The target's bearing from a robot at `pose` (degrees, + to the right).
 fn bearing(p: &Program, pose: &RobotPose) -> f32 {
     let t = p.target_center();
@@ -43,11 +50,12 @@ pub struct FirstHeading {
 }
 
 impl FirstHeading {
+    /// `programs`: the split the trajectories ran on, indexed by their program.
     pub fn of(trajectories: &[Trajectory], programs: &[Program], fov_deg: f32) -> FirstHeading {
         let mut h = FirstHeading { half_fov: fov_deg / 2.0, ..FirstHeading::default() };
         for t in trajectories {
             let p = &programs[t.program as usize];
-            if start_bearing(p).abs() <= h.half_fov {
+            if out_of_view_at_start(p, h.half_fov).is_none() {
                 continue;
             }
             h.out_of_view += 1;
@@ -92,13 +100,13 @@ impl FirstHeading {
 }
 
 impl FirstTurns {
+    /// `programs`: the split the trajectories ran on, indexed by their program.
     pub fn of(trajectories: &[Trajectory], programs: &[Program], fov_deg: f32) -> FirstTurns {
         let mut f = FirstTurns::default();
         for t in trajectories {
-            let bearing = start_bearing(&programs[t.program as usize]);
-            if bearing.abs() <= fov_deg / 2.0 {
+            let Some(bearing) = out_of_view_at_start(&programs[t.program as usize], fov_deg / 2.0) else {
                 continue;
-            }
+            };
             let first = t.steps.iter().map(|s| s.action).find(|&a| a != Action::Stop as u8 && a <= Action::Stop as u8);
             let side = if bearing > 0.0 { &mut f.right } else { &mut f.left };
             match first {
