@@ -621,6 +621,11 @@ fn eval_of_the_expert_scores_full_success_and_random_does_not() {
         !o.status.success() && err.contains(&format!("program {} is not among the {n} val programs", n + 7)),
         "{err}"
     );
+    // nor is one of another split (`--split` is test unless given)
+    let o =
+        std::process::Command::new(bin("orchestrator")).args(["eval", "--compare"]).arg(&expert_dir).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("an evaluation on val, compared on --split test"), "{err}");
 }
 
 /// `orchestrator bench train` on a few hundred frames: the table, and a profile in the run's

@@ -455,7 +455,8 @@ fn first_headings(
 }
 
 /// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>. Returns its
-/// label, its episodes and the pass's folder.
+/// label, its episodes and the pass's folder. An evaluation of another split is refused: its
+/// programs are not the split's.
 fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<EpisodeResult>, PathBuf)> {
     let candidates = [p.join("normal/episodes.jsonl"), p.join("eval").join(split).join("normal/episodes.jsonl")];
     let f = candidates
@@ -463,17 +464,19 @@ fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<Episode
         .find(|c| c.is_file())
         .with_context(|| format!("{}: no evaluation found (looked for {})", p.display(), candidates[0].display()))?;
     let pass_dir = f.parent().unwrap_or(p).to_path_buf();
-    let eval_dir = pass_dir.parent().unwrap_or(p);
-    let label = std::fs::read_to_string(eval_dir.join("tables.md"))
-        .ok()
-        .and_then(|t| {
-            t.lines()
-                .next()
-                .map(|l| l.trim_start_matches("# Evaluation: ").split(" on ").next().unwrap_or("").to_string())
-        })
-        .filter(|l| !l.is_empty())
-        .unwrap_or_else(|| p.display().to_string());
+    let tables = pass_dir.parent().unwrap_or(p).join("tables.md");
+    let heading = std::fs::read_to_string(&tables).ok().and_then(|t| t.lines().next().and_then(evaluation_heading));
+    if let Some((_, ran_on)) = heading.as_ref().filter(|(_, ran_on)| ran_on != split) {
+        anyhow::bail!("{}: an evaluation on {ran_on}, compared on --split {split}", tables.display());
+    }
+    let label = heading.map(|(label, _)| label).filter(|l| !l.is_empty()).unwrap_or_else(|| p.display().to_string());
     Ok((label, read_episodes(f)?, pass_dir))
+}
+
+/// The label and split of a `tables.md`'s first line, `# Evaluation: LABEL on SPLIT (N episodes)`.
+fn evaluation_heading(line: &str) -> Option<(String, String)> {
+    let (label, split) = line.strip_prefix("# Evaluation: ")?.rsplit_once(" (")?.0.rsplit_once(" on ")?;
+    Some((label.to_string(), split.to_string()))
 }
 
 /// The compared split's programs (from `--dataset` or the dataset the first evaluation ran on),
@@ -599,6 +602,14 @@ mod tests {
         assert_eq!(found.len(), 1);
         assert_eq!((found[0].0, found[0].1[0].program), (EvalMode::Normal, 3));
         assert_eq!(pass_trajectories(d.path(), EvalMode::ALL).unwrap().len(), 2);
+    }
+
+    #[test]
+    fn an_evaluations_heading_names_its_label_and_split() {
+        let h = evaluation_heading;
+        assert_eq!(h("# Evaluation: +Both on test (1000 episodes)"), Some(("+Both".into(), "test".into())));
+        assert_eq!(h("# Evaluation: Vision Only on val (500 episodes)"), Some(("Vision Only".into(), "val".into())));
+        assert_eq!(h("# Comparison on test"), None);
     }
 
     #[test]
