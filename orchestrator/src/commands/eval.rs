@@ -455,8 +455,8 @@ fn first_headings(
 }
 
 /// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>. Returns its
-/// label, its episodes and the pass's folder. An evaluation of another split is refused: its
-/// programs are not the split's.
+/// label, its episodes and the pass's folder. An evaluation of another split (its config's
+/// `run.split`) is refused: its programs are not the split's.
 fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<EpisodeResult>, PathBuf)> {
     let candidates = [p.join("normal/episodes.jsonl"), p.join("eval").join(split).join("normal/episodes.jsonl")];
     let f = candidates
@@ -464,19 +464,30 @@ fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<Episode
         .find(|c| c.is_file())
         .with_context(|| format!("{}: no evaluation found (looked for {})", p.display(), candidates[0].display()))?;
     let pass_dir = f.parent().unwrap_or(p).to_path_buf();
-    let tables = pass_dir.parent().unwrap_or(p).join("tables.md");
-    let heading = std::fs::read_to_string(&tables).ok().and_then(|t| t.lines().next().and_then(evaluation_heading));
-    if let Some((_, ran_on)) = heading.as_ref().filter(|(_, ran_on)| ran_on != split) {
-        anyhow::bail!("{}: an evaluation on {ran_on}, compared on --split {split}", tables.display());
+    let config = pass_dir.join("config.toml");
+    if config.is_file() {
+        let ran_on = RunConfig::load(&config)
+            .with_context(|| format!("{}: the evaluation's config", config.display()))?
+            .run
+            .split
+            .name();
+        if ran_on != split {
+            anyhow::bail!("{}: run.split: an evaluation on {ran_on}, compared on --split {split}", config.display());
+        }
     }
-    let label = heading.map(|(label, _)| label).filter(|l| !l.is_empty()).unwrap_or_else(|| p.display().to_string());
+    let tables = pass_dir.parent().unwrap_or(p).join("tables.md");
+    let label = std::fs::read_to_string(&tables)
+        .ok()
+        .and_then(|t| t.lines().next().and_then(evaluation_label))
+        .filter(|l| !l.is_empty())
+        .unwrap_or_else(|| p.display().to_string());
     Ok((label, read_episodes(f)?, pass_dir))
 }
 
-/// The label and split of a `tables.md`'s first line, `# Evaluation: LABEL on SPLIT (N episodes)`.
-fn evaluation_heading(line: &str) -> Option<(String, String)> {
-    let (label, split) = line.strip_prefix("# Evaluation: ")?.rsplit_once(" (")?.0.rsplit_once(" on ")?;
-    Some((label.to_string(), split.to_string()))
+/// The label of a `tables.md`'s first line, `# Evaluation: LABEL on SPLIT (N episodes)`.
+fn evaluation_label(line: &str) -> Option<String> {
+    let (label, _split) = line.strip_prefix("# Evaluation: ")?.rsplit_once(" (")?.0.rsplit_once(" on ")?;
+    Some(label.to_string())
 }
 
 /// The compared split's programs (from `--dataset` or the dataset the first evaluation ran on),
@@ -605,10 +616,10 @@ mod tests {
     }
 
     #[test]
-    fn an_evaluations_heading_names_its_label_and_split() {
-        let h = evaluation_heading;
-        assert_eq!(h("# Evaluation: +Both on test (1000 episodes)"), Some(("+Both".into(), "test".into())));
-        assert_eq!(h("# Evaluation: Vision Only on val (500 episodes)"), Some(("Vision Only".into(), "val".into())));
+    fn an_evaluations_heading_names_its_label() {
+        let h = evaluation_label;
+        assert_eq!(h("# Evaluation: +Both on test (1000 episodes)"), Some("+Both".into()));
+        assert_eq!(h("# Evaluation: Vision Only on val (500 episodes)"), Some("Vision Only".into()));
         assert_eq!(h("# Comparison on test"), None);
     }
 
