@@ -67,6 +67,9 @@ step train faithful-gpu 16x32, two groups, frames on the device && {
   grep -h "imported\|frames on the device\|Error\|error" /tmp/bench-512-device/run/logs/learner.log \
     /tmp/bench-512-device/run/logs/worker-0.log 2>/dev/null | head -5 | tee "$out/device-frames.txt"
 }
+# the update learned on a thread while the next rollout is collected (policy lag 1): its ratio to
+# the first run says whether ppo.overlap_update pays on this card
+step train faithful-gpu 16x32, two groups, update overlapped && train 512-overlap --set ppo.overlap_update=true
 # acting and the update stage by stage: the learner waits for the GPU after each stage, so this
 # run is slower than the first; its last table says which stage of the inference share to cut
 step train faithful-gpu 16x32, two groups, by stage && train 512-stages --stages

@@ -670,6 +670,44 @@ fn bench_train_reports_throughput_and_where_the_time_went() {
     }
 }
 
+/// `ppo.overlap_update` (issue 52): a run whose updates learn on a thread while the next rollout
+/// is collected says so in its log (a policy lag of 1 after the first update) and, stopped at its
+/// frame budget, learns the rollouts still queued or in flight: its final checkpoint holds as
+/// many frames as the same run's in place.
+#[test]
+fn an_overlapped_run_learns_every_rollout_it_collected() {
+    let _g = serial();
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = small_ppo_config(tmp.path(), "");
+    // three rollouts of 16 steps × 2 workers × 2 envs: the third is not complete at the stop
+    let budget = (3 * 16 * 2 * 2).to_string();
+    let run = |name: &str, set: &str| {
+        let dir = tmp.path().join(name);
+        let o = std::process::Command::new(bin("orchestrator"))
+            .args(["up", "--workers", "2", "--frames", &budget, "--set", set, "--config"])
+            .arg(&cfg)
+            .arg("--run-dir")
+            .arg(&dir)
+            .output()
+            .unwrap();
+        let log = std::fs::read_to_string(dir.join("logs/learner.log")).unwrap_or_default();
+        assert!(o.status.success(), "{}\n{log}", String::from_utf8_lossy(&o.stderr));
+        let lags: Vec<u64> = std::fs::read_to_string(dir.join("metrics.jsonl"))
+            .unwrap()
+            .lines()
+            .map(|l| u(&serde_json::from_str(l).unwrap(), "policy_lag"))
+            .collect();
+        let ckpt = farm::checkpoints::latest(&farm::checkpoints::dir_of(&dir)).expect("a checkpoint");
+        (farm::checkpoints::frames(&ckpt).unwrap(), lags, log)
+    };
+    let (in_place, lags, _) = run("in-place", "ppo.overlap_update=false");
+    assert_eq!(lags, vec![0, 0]);
+    let (overlapped, lags, log) = run("overlapped", "ppo.overlap_update=true");
+    assert_eq!(lags, vec![0, 1], "{log}");
+    assert!(log.contains("policy lag 1") && log.contains("(learned at the stop)"), "{log}");
+    assert_eq!(overlapped, in_place, "{log}");
+}
+
 /// `env.frames = "device"` (issue 52): the workers draw into GPU memory they hand the learner
 /// once over the run's frame socket (here lavapipe's, imported through Vulkan), and no frame
 /// passes through shared memory. A run trains that way, and its checkpoint, evaluated greedily,

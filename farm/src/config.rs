@@ -369,6 +369,10 @@ pub struct PpoConfig {
     /// actions and what is learned are those of one round for all; a rollout's last step is
     /// still one round for all, as the update needs every env's next observation.
     pub env_groups: usize,
+    /// Learn each rollout on a thread, on a copy of the network, while the next one is collected
+    /// with the weights before it (policy lag 1) — a GPU setting, for where the update and acting
+    /// each leave the other room; on two cores they share the cores and it costs.
+    pub overlap_update: bool,
 }
 
 impl Default for PpoConfig {
@@ -387,6 +391,7 @@ impl Default for PpoConfig {
             clip_value_loss: true,
             mixed_precision: true,
             env_groups: 1,
+            overlap_update: false,
         }
     }
 }

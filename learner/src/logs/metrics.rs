@@ -48,6 +48,10 @@ pub struct UpdateMetrics {
     /// A stop (Ctrl-C) arrived during the update and ended its epochs early.
     #[serde(default)]
     pub cut_short: bool,
+    /// Updates between the weights that collected the rollout and those it was learned from
+    /// (`ppo.overlap_update`: 1 after the first; 0 otherwise).
+    #[serde(default)]
+    pub policy_lag: u64,
 }
 
 /// The episodes finished between two updates (a window of the run), summed until the update
@@ -250,6 +254,7 @@ fn tensorboard_scalars(m: &UpdateMetrics) -> Vec<(&'static str, f64)> {
         ("rollout/bootstrapped", m.bootstrapped as f64),
         ("rollout/truncated_without_final", m.truncated_without_final as f64),
         ("rollout/lost_messages", m.lost_messages as f64),
+        ("rollout/policy_lag", m.policy_lag as f64),
         ("perf/fps", m.fps),
         ("perf/update_seconds", m.update_seconds),
     ];

@@ -239,6 +239,10 @@ impl PolicyNet {
     pub(crate) fn frozen(&self) -> Option<&FrozenTrunk> {
         self.frozen.as_ref()
     }
+
+    pub(crate) fn spec(&self) -> &NetSpec {
+        &self.spec
+    }
 }
 
 #[cfg(test)]

@@ -78,6 +78,24 @@ impl Adam {
         });
     }
 
+    /// Makes this optimizer and the variables it steps those of `other`, built for the same
+    /// network in another VarStore: weights, moments, step and lr, so either goes on where the
+    /// other stopped.
+    pub fn copy_from(&mut self, other: &Adam) {
+        assert!(
+            self.params.iter().map(|p| &p.0).eq(other.params.iter().map(|p| &p.0)),
+            "Adam::copy_from: another network's variables"
+        );
+        tch::no_grad(|| {
+            for (i, (_, p)) in self.params.iter_mut().enumerate() {
+                p.copy_(&other.params[i].1);
+                self.exp_avg[i].copy_(&other.exp_avg[i]);
+                self.exp_avg_sq[i].copy_(&other.exp_avg_sq[i]);
+            }
+        });
+        (self.step, self.lr) = (other.step, other.lr);
+    }
+
     /// Named state tensors: `exp_avg.<var>` and `exp_avg_sq.<var>`.
     pub fn state(&self) -> Vec<(String, Tensor)> {
         let mut out = Vec::with_capacity(2 * self.params.len());

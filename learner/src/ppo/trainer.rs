@@ -6,10 +6,15 @@
 //! 3. **GAE** — advantages and returns ([`gae`]);
 //! 4. **learn** — for each epoch, for each minibatch of whole envs (the GRU is re-run over their
 //!    full sequences from the stored initial memory): probability ratio, clipped policy loss,
-//!    value loss, entropy bonus, Adam step with the gradient norm clipped ([`Trainer::update`]).
+//!    value loss, entropy bonus, Adam step with the gradient norm clipped ([`learn`]).
 //!
 //! The learning rate decays linearly from 3e-4 to 0 over the run's frames (§4.3.2).
+//!
+//! With `ppo.overlap_update` the update of a full rollout runs on a thread, on a copy of the
+//! network ([`Overlap`]), while the agent collects the next rollout with the weights before it;
+//! the copy's weights come back when that rollout is full (a policy lag of one update).
 
+use std::thread::JoinHandle;
 use std::time::Instant;
 
 use farm::config::{PpoConfig, RunConfig};
@@ -19,6 +24,7 @@ use tch::{Device, Kind, Tensor};
 
 use crate::logs::metrics::{EpisodeWindow, UpdateMetrics};
 use crate::net::agent::{ActMode, Actions, Agent, AgentError};
+use crate::net::network::PolicyNet;
 use crate::obs::{EnvBatch, EnvStep, ObsError};
 use crate::ppo::optim::Adam;
 use crate::ppo::rollout::{FeedbackCounts, Rollout, flags};
@@ -62,9 +68,64 @@ pub struct Trainer {
     last_real: Vec<bool>,
     counts: FeedbackCounts,
     last_update_at: Instant,
+    /// Updates done when the rollout being collected began: the weights that collect it.
+    collected_by: u64,
+    /// Seconds steps spent learning: whole updates in place, waits for them overlapped.
+    learning_s: f64,
+    /// `ppo.overlap_update`: the copy that learns beside acting, and its work.
+    overlap: Option<Overlap>,
     /// Asked before every minibatch: true ends the update's epochs there (a stop signal), so a
     /// stop never waits for a whole update.
     pub interrupted: fn() -> bool,
+}
+
+/// `ppo.overlap_update`: a full rollout is queued at the step that completes it and handed to a
+/// thread at the next step, with a copy of the network, Adam and the minibatch order as they are
+/// then; the copy's weights, moments and order come back into the trainer when the next rollout is
+/// full. Between steps the trainer's own state is always that after its last joined update, so a
+/// checkpoint written at any step is consistent (the rollouts queued or in flight are not in it).
+#[derive(Debug)]
+struct Overlap {
+    /// The learning copy (built like the agent; its frozen parts copied once), `None` while in flight.
+    copy: Option<Learner>,
+    queued: Option<Queued>,
+    in_flight: Option<JoinHandle<Learned>>,
+    /// The rollout of the last joined update, collected into next.
+    spare: Option<Rollout>,
+}
+
+/// A network with Adam over its trainable variables.
+#[derive(Debug)]
+struct Learner {
+    agent: Agent,
+    opt: Adam,
+    /// The frozen variables (never stepped) have been copied from the acting agent.
+    frozen_copied: bool,
+}
+
+/// A full rollout waiting for its update: V(o_T) per env and the update that collected it.
+#[derive(Debug)]
+struct Queued {
+    rollout: Rollout,
+    bootstrap: Vec<f32>,
+    collected_by: u64,
+}
+
+/// What an overlapped update hands back.
+#[derive(Debug)]
+struct Learned {
+    copy: Learner,
+    rng: ChaCha8Rng,
+    rollout: Rollout,
+    metrics: UpdateMetrics,
+}
+
+/// What an update reads besides the rollout and the state it changes.
+#[derive(Clone, Debug)]
+struct UpdateSettings {
+    hp: PpoConfig,
+    lr: f64,
+    interrupted: fn() -> bool,
 }
 
 impl Trainer {
@@ -89,6 +150,17 @@ impl Trainer {
         }
         let opt = Adam::new(&agent.vs, hp.lr, ADAM_EPS);
         let rollout = Rollout::new(hp.rollout, n_envs, agent.hidden());
+        let overlap = match hp.overlap_update {
+            false => None,
+            true => {
+                // built without its weight files: every variable is copied from the agent at the
+                // first update, after a checkpoint has been loaded into it
+                let copy = Agent::build(cfg, 1, device, false)?;
+                let opt = Adam::new(&copy.vs, hp.lr, ADAM_EPS);
+                let copy = Learner { agent: copy, opt, frozen_copied: false };
+                Some(Overlap { copy: Some(copy), queued: None, in_flight: None, spare: None })
+            }
+        };
         Ok(Trainer {
             rng: farm::seed::rng(cfg.run.seed, &[0x7070_6f5f]),
             cfg: cfg.clone(),
@@ -104,6 +176,9 @@ impl Trainer {
             last_real: vec![false; n_envs],
             counts: FeedbackCounts::default(),
             last_update_at: Instant::now(),
+            collected_by: 0,
+            learning_s: 0.0,
+            overlap,
             interrupted: || false,
         })
     }
@@ -119,6 +194,7 @@ impl Trainer {
     /// a step is stored once every group has acted, and the step that completes a rollout must
     /// be a round for all (the update needs every env's next observation; [`Trainer::wants_all`]).
     pub fn step_at(&mut self, at: usize, obs: &EnvBatch) -> Result<StepOutput, ObsError> {
+        self.launch_queued();
         self.agent.stages.start(true);
         let (x, starts) = self.agent.prepare_at(at, obs)?;
         let n = starts.len();
@@ -139,12 +215,17 @@ impl Trainer {
         self.agent.stages.lap(Stage::ActStore);
 
         // 2.–4. A full rollout: bootstrap from V(o_T) (the old policy's), learn, and act on o_T
-        //       with the new policy from the same memory.
+        //       with the new policy from the same memory. Overlapped: the last rollout's update
+        //       is joined and this one queued.
         let mut update = None;
         if self.rollout.is_full() {
             let bootstrap = fwd.values.clone();
-            update = Some(self.update(&bootstrap));
+            update = match self.overlap.is_some() {
+                false => Some(self.update(&bootstrap)),
+                true => self.join_and_queue(bootstrap),
+            };
             self.rollout.begin(self.agent.hidden());
+            self.collected_by = self.updates;
             fwd = self.agent.forward(&x, starts);
         }
 
@@ -199,127 +280,224 @@ impl Trainer {
         }
     }
 
-    /// The PPO update on the full rollout; `bootstrap` is V(o_T) per env.
+    /// The PPO update on the full rollout, on the agent's own network; `bootstrap` is V(o_T) per
+    /// env.
     pub(crate) fn update(&mut self, bootstrap: &[f32]) -> UpdateMetrics {
         let started = Instant::now();
-        let stages = &self.agent.stages;
-        stages.start(false);
-        let hp = self.hp.clone();
-        let r = &self.rollout;
-        let (t_len, n) = (r.steps, r.envs);
+        self.agent.stages.start(false);
+        let how = self.update_settings();
+        let mut m =
+            learn(&self.agent.net, &mut self.opt, &mut self.rng, &self.rollout, bootstrap, &how, &self.agent.stages);
+        m.update_seconds = started.elapsed().as_secs_f64();
+        let m = self.count_update(m);
+        self.agent.stages.lap(Stage::UpdatePrepare);
+        self.learning_s += started.elapsed().as_secs_f64();
+        m
+    }
 
+    /// Seconds the steps so far spent learning rather than acting: every update in place; with
+    /// `ppo.overlap_update`, the waits for an update still running when the next rollout is full.
+    pub fn learning_seconds(&self) -> f64 {
+        self.learning_s
+    }
+
+    fn update_settings(&self) -> UpdateSettings {
         // Annealing the learning rate: 3e-4 → 0 linearly over the run's frames.
-        let lr = lr_at(&hp, self.cfg.run.total_frames, self.frames);
-        self.opt.lr = lr;
-        let mut m = UpdateMetrics { lr, ..Default::default() };
-        let valid_count = r.valid.iter().filter(|v| **v).count();
-        m.valid_fraction = valid_count as f64 / (t_len * n) as f64;
+        let lr = lr_at(&self.hp, self.cfg.run.total_frames, self.frames);
+        UpdateSettings { hp: self.hp.clone(), lr, interrupted: self.interrupted }
+    }
 
-        if !self.agent.spec.random() && valid_count > 0 {
-            // GAE (Eq. 4.3–4.5), on the host: T×N scalars.
-            let (advantages, returns) =
-                gae(&r.rewards, &r.values, &r.ends, bootstrap, n, hp.gamma as f32, hp.gae_lambda as f32);
-            m.explained_variance = explained_variance(&r.values, &returns, &r.valid);
-
-            let b_adv = r.to_device(&advantages);
-            let b_ret = r.to_device(&returns);
-            let b_logp = r.to_device(&r.log_probs);
-            let b_val = r.to_device(&r.values);
-            let b_act = r.to_device(&r.actions);
-            let b_valid = flags(r, &r.valid);
-            let per_mb = n.div_ceil(hp.minibatches);
-            let mut envs: Vec<i64> = (0..n as i64).collect();
-            let mut sums = [0.0f64; 6];
-            let mut batches = 0.0;
-
-            'epochs: for _epoch in 0..hp.epochs {
-                envs.shuffle(&mut self.rng);
-                for mb in envs.chunks(per_mb) {
-                    if (self.interrupted)() {
-                        m.cut_short = true;
-                        break 'epochs;
-                    }
-                    let idx = Tensor::from_slice(mb).to_device(r.device());
-                    let sel = |t: &Tensor| t.index_select(1, &idx);
-                    let starts: Vec<bool> =
-                        (0..t_len).flat_map(|t| mb.iter().map(move |&k| r.starts[t * n + k as usize])).collect();
-                    let valid = sel(&b_valid);
-                    let x = r.minibatch(&idx).expect("a full rollout has inputs");
-                    stages.lap(Stage::UpdatePrepare);
-
-                    // Re-run the network over the minibatch's whole sequences.
-                    let (logits, values) = self.agent.net.evaluate(&x, &r.h0.index_select(1, &idx), &starts);
-                    let logp_all = logits.log_softmax(-1, Kind::Float);
-                    let new_logp = logp_all.gather(-1, &sel(&b_act).unsqueeze(-1), false).squeeze_dim(-1);
-                    let entropy = -(logp_all.exp() * &logp_all).sum_dim_intlist(-1, false, Kind::Float);
-
-                    // Probability ratio r_t of Eq. 4.2, and how far the policy moved.
-                    let log_ratio = new_logp - sel(&b_logp);
-                    let ratio = log_ratio.exp();
-                    let (approx_kl, clip_fraction) = tch::no_grad(|| {
-                        let kl = masked_mean(&((&ratio - 1.0) - &log_ratio), &valid).double_value(&[]);
-                        let clipped = (&ratio - 1.0).abs().gt(hp.clip).to_kind(Kind::Float);
-                        (kl, masked_mean(&clipped, &valid).double_value(&[]))
-                    });
-
-                    // Advantages normalised over the minibatch's learnable steps.
-                    let adv = normalize_masked(&sel(&b_adv), &valid);
-                    let pg_loss = clipped_policy_loss(&ratio, &adv, &valid, hp.clip);
-                    let v_loss =
-                        value_loss(&values, &sel(&b_val), &sel(&b_ret), &valid, hp.clip_value_loss.then_some(hp.clip));
-                    let ent = masked_mean(&entropy, &valid);
-                    let loss = &pg_loss - hp.entropy_coef * &ent + hp.value_coef * &v_loss;
-
-                    self.opt.zero_grad();
-                    loss.backward();
-                    stages.lap(Stage::UpdateBackward);
-                    let grad_norm = self.opt.clip_grad_norm(hp.max_grad_norm);
-                    if grad_norm.is_finite() {
-                        self.opt.step();
-                        stages.lap(Stage::UpdateStep);
-                    } else {
-                        // one bad minibatch must not poison every weight with NaN
-                        m.skipped_steps += 1;
-                        continue;
-                    }
-
-                    for (s, v) in sums.iter_mut().zip([
-                        pg_loss.double_value(&[]),
-                        v_loss.double_value(&[]),
-                        ent.double_value(&[]),
-                        approx_kl,
-                        clip_fraction,
-                        grad_norm,
-                    ]) {
-                        *s += v;
-                    }
-                    batches += 1.0;
-                }
-            }
-            let batches = f64::max(batches, 1.0);
-            m.policy_loss = sums[0] / batches;
-            m.value_loss = sums[1] / batches;
-            m.entropy = sums[2] / batches;
-            m.approx_kl = sums[3] / batches;
-            m.clip_fraction = sums[4] / batches;
-            m.grad_norm = sums[5] / batches;
-        }
-
-        self.frames += (t_len * n) as u64;
+    /// The counters an update moves, in the order a reader follows the run: frames learned,
+    /// updates, the rate since the last update, the episodes and feedback counts since then.
+    fn count_update(&mut self, mut m: UpdateMetrics) -> UpdateMetrics {
+        let frames = (self.rollout.steps * self.rollout.envs) as u64;
+        self.frames += frames;
         self.updates += 1;
         m.update = self.updates;
         m.frames = self.frames;
         let now = Instant::now();
-        m.update_seconds = now.duration_since(started).as_secs_f64();
-        m.fps = (t_len * n) as f64 / now.duration_since(self.last_update_at).as_secs_f64().max(1e-9);
+        m.fps = frames as f64 / now.duration_since(self.last_update_at).as_secs_f64().max(1e-9);
         self.last_update_at = now;
         self.episodes.drain_into(&mut m);
         m.bootstrapped = std::mem::take(&mut self.counts.bootstrapped) as u64;
         m.truncated_without_final = std::mem::take(&mut self.counts.truncated_without_final) as u64;
         m.lost_messages = std::mem::take(&mut self.counts.lost) as u64;
-        self.agent.stages.lap(Stage::UpdatePrepare);
         m
     }
+
+    /// Overlapped, at a full rollout: the update in flight joined (its weights act from now on),
+    /// and the full rollout queued for the next step, which hands it to a thread.
+    fn join_and_queue(&mut self, bootstrap: Vec<f32>) -> Option<UpdateMetrics> {
+        let m = self.join();
+        let ov = self.overlap.as_mut().expect("overlapped");
+        let spare =
+            ov.spare.take().unwrap_or_else(|| Rollout::new(self.hp.rollout, self.rollout.envs, &self.rollout.h0));
+        let rollout = std::mem::replace(&mut self.rollout, spare);
+        ov.queued = Some(Queued { rollout, bootstrap, collected_by: self.collected_by });
+        m
+    }
+
+    /// Overlapped: hands the queued rollout to a thread that learns it on the copy, from the
+    /// trainer's weights, moments and minibatch order as they are now.
+    fn launch_queued(&mut self) {
+        let how = self.update_settings();
+        let Some(ov) = self.overlap.as_mut() else { return };
+        let Some(q) = ov.queued.take() else { return };
+        let mut copy = ov.copy.take().expect("the copy is back before a rollout is queued");
+        if !copy.frozen_copied {
+            copy.agent.vs.copy(&self.agent.vs).expect("the copy is built like the agent");
+            if let Some(f) = copy.agent.net.frozen() {
+                f.refresh(&copy.agent.vs);
+            }
+            copy.frozen_copied = true;
+        }
+        copy.opt.copy_from(&self.opt);
+        let mut rng = self.rng.clone();
+        let policy_lag = self.updates - q.collected_by;
+        ov.in_flight = Some(std::thread::spawn(move || {
+            let started = Instant::now();
+            // its stages are not timed: they run beside acting's
+            let stages = StageClock::default();
+            let mut metrics = learn(&copy.agent.net, &mut copy.opt, &mut rng, &q.rollout, &q.bootstrap, &how, &stages);
+            metrics.update_seconds = started.elapsed().as_secs_f64();
+            metrics.policy_lag = policy_lag;
+            Learned { copy, rng, rollout: q.rollout, metrics }
+        }));
+    }
+
+    /// Overlapped: waits for the update in flight, if any, and takes its weights, moments and
+    /// minibatch order.
+    fn join(&mut self) -> Option<UpdateMetrics> {
+        let ov = self.overlap.as_mut()?;
+        let handle = ov.in_flight.take()?;
+        let waited = Instant::now();
+        let l = handle.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        self.learning_s += waited.elapsed().as_secs_f64();
+        self.opt.copy_from(&l.copy.opt);
+        self.rng = l.rng;
+        ov.copy = Some(l.copy);
+        ov.spare = Some(l.rollout);
+        Some(self.count_update(l.metrics))
+    }
+
+    /// Learns every rollout still queued or in flight (`ppo.overlap_update`; nothing otherwise),
+    /// so that a final checkpoint holds all the frames collected. Their metrics, in order.
+    pub fn settle(&mut self) -> Vec<UpdateMetrics> {
+        let mut out: Vec<UpdateMetrics> = self.join().into_iter().collect();
+        self.launch_queued();
+        out.extend(self.join());
+        out
+    }
+}
+
+/// The PPO update of a full rollout on `net`, whose trainable variables `opt` steps: GAE, then
+/// the epochs of minibatches; the counters are the trainer's ([`Trainer::count_update`]).
+fn learn(
+    net: &PolicyNet,
+    opt: &mut Adam,
+    rng: &mut ChaCha8Rng,
+    r: &Rollout,
+    bootstrap: &[f32],
+    how: &UpdateSettings,
+    stages: &StageClock,
+) -> UpdateMetrics {
+    let hp = &how.hp;
+    let (t_len, n) = (r.steps, r.envs);
+    opt.lr = how.lr;
+    let mut m = UpdateMetrics { lr: how.lr, ..Default::default() };
+    let valid_count = r.valid.iter().filter(|v| **v).count();
+    m.valid_fraction = valid_count as f64 / (t_len * n) as f64;
+    if net.spec().random() || valid_count == 0 {
+        return m;
+    }
+
+    // GAE (Eq. 4.3–4.5), on the host: T×N scalars.
+    let (advantages, returns) =
+        gae(&r.rewards, &r.values, &r.ends, bootstrap, n, hp.gamma as f32, hp.gae_lambda as f32);
+    m.explained_variance = explained_variance(&r.values, &returns, &r.valid);
+
+    let b_adv = r.to_device(&advantages);
+    let b_ret = r.to_device(&returns);
+    let b_logp = r.to_device(&r.log_probs);
+    let b_val = r.to_device(&r.values);
+    let b_act = r.to_device(&r.actions);
+    let b_valid = flags(r, &r.valid);
+    let per_mb = n.div_ceil(hp.minibatches);
+    let mut envs: Vec<i64> = (0..n as i64).collect();
+    let mut sums = [0.0f64; 6];
+    let mut batches = 0.0;
+
+    'epochs: for _epoch in 0..hp.epochs {
+        envs.shuffle(rng);
+        for mb in envs.chunks(per_mb) {
+            if (how.interrupted)() {
+                m.cut_short = true;
+                break 'epochs;
+            }
+            let idx = Tensor::from_slice(mb).to_device(r.device());
+            let sel = |t: &Tensor| t.index_select(1, &idx);
+            let starts: Vec<bool> =
+                (0..t_len).flat_map(|t| mb.iter().map(move |&k| r.starts[t * n + k as usize])).collect();
+            let valid = sel(&b_valid);
+            let x = r.minibatch(&idx).expect("a full rollout has inputs");
+            stages.lap(Stage::UpdatePrepare);
+
+            // Re-run the network over the minibatch's whole sequences.
+            let (logits, values) = net.evaluate(&x, &r.h0.index_select(1, &idx), &starts);
+            let logp_all = logits.log_softmax(-1, Kind::Float);
+            let new_logp = logp_all.gather(-1, &sel(&b_act).unsqueeze(-1), false).squeeze_dim(-1);
+            let entropy = -(logp_all.exp() * &logp_all).sum_dim_intlist(-1, false, Kind::Float);
+
+            // Probability ratio r_t of Eq. 4.2, and how far the policy moved.
+            let log_ratio = new_logp - sel(&b_logp);
+            let ratio = log_ratio.exp();
+            let (approx_kl, clip_fraction) = tch::no_grad(|| {
+                let kl = masked_mean(&((&ratio - 1.0) - &log_ratio), &valid).double_value(&[]);
+                let clipped = (&ratio - 1.0).abs().gt(hp.clip).to_kind(Kind::Float);
+                (kl, masked_mean(&clipped, &valid).double_value(&[]))
+            });
+
+            // Advantages normalised over the minibatch's learnable steps.
+            let adv = normalize_masked(&sel(&b_adv), &valid);
+            let pg_loss = clipped_policy_loss(&ratio, &adv, &valid, hp.clip);
+            let v_loss = value_loss(&values, &sel(&b_val), &sel(&b_ret), &valid, hp.clip_value_loss.then_some(hp.clip));
+            let ent = masked_mean(&entropy, &valid);
+            let loss = &pg_loss - hp.entropy_coef * &ent + hp.value_coef * &v_loss;
+
+            opt.zero_grad();
+            loss.backward();
+            stages.lap(Stage::UpdateBackward);
+            let grad_norm = opt.clip_grad_norm(hp.max_grad_norm);
+            if grad_norm.is_finite() {
+                opt.step();
+                stages.lap(Stage::UpdateStep);
+            } else {
+                // one bad minibatch must not poison every weight with NaN
+                m.skipped_steps += 1;
+                continue;
+            }
+
+            for (s, v) in sums.iter_mut().zip([
+                pg_loss.double_value(&[]),
+                v_loss.double_value(&[]),
+                ent.double_value(&[]),
+                approx_kl,
+                clip_fraction,
+                grad_norm,
+            ]) {
+                *s += v;
+            }
+            batches += 1.0;
+        }
+    }
+    let batches = f64::max(batches, 1.0);
+    m.policy_loss = sums[0] / batches;
+    m.value_loss = sums[1] / batches;
+    m.entropy = sums[2] / batches;
+    m.approx_kl = sums[3] / batches;
+    m.clip_fraction = sums[4] / batches;
+    m.grad_norm = sums[5] / batches;
+    m
 }
 
 /// Generalised advantage estimation over `[T, N]` host arrays (index `t * N + n`):
@@ -595,6 +773,68 @@ mod tests {
                 assert!(*v > 0.0, "{:?}: {name} not charged: {s:?}", cfg.model.encoder);
             }
         }
+    }
+
+    /// `ppo.overlap_update`: a rollout is learned while the next is collected with the weights
+    /// before it. Its first update, joined when the second rollout is full, gives the weights,
+    /// moments and minibatch order of the in-place update of the same rollout; every later one
+    /// reports a policy lag of 1. A checkpoint written while an update is in flight holds the
+    /// trainer as it was after the last joined one, and a stop learns every rollout collected.
+    #[test]
+    fn an_overlapped_update_learns_the_in_place_one_a_rollout_later() {
+        let mut cfg = crate::bench::tiny_config();
+        (cfg.ppo.rollout, cfg.ppo.minibatches) = (4, 2);
+        let t_len = cfg.ppo.rollout;
+        let n = 2;
+        let mut in_place = Trainer::new(&cfg, n, Device::Cpu).unwrap();
+        cfg.ppo.overlap_update = true;
+        let mut overlapped = Trainer::new(&cfg, n, Device::Cpu).unwrap();
+        let weights = |t: &Trainer| t.agent.vs.trainable_variables().iter().map(|v| v.copy()).collect::<Vec<_>>();
+        let mut first = None;
+        let mut obs = crate::bench::random_obs(n, 64, 1);
+        let dir = tempfile::tempdir().unwrap();
+        for step in 0..=3 * t_len {
+            if step > 0 {
+                let next = crate::bench::random_obs(n, 64, step as u64 + 1);
+                (obs.rgb, obs.depth) = (next.rgb, next.depth);
+                obs.envs.iter_mut().enumerate().for_each(|(i, e)| e.reward = 0.1 * (i + step % 3) as f32);
+            }
+            let a = in_place.step(&obs.batch()).unwrap();
+            let b = overlapped.step(&obs.batch()).unwrap();
+            assert_eq!(a.update.as_ref().map(|m| m.policy_lag), (step % t_len == 0 && step > 0).then_some(0));
+            if step == t_len {
+                assert!(b.update.is_none(), "nothing was learned yet");
+                first = Some((weights(&in_place), in_place.opt.step, in_place.rng.clone()));
+            }
+            if step == 2 * t_len {
+                let m = b.update.as_ref().expect("the first rollout's update, joined");
+                assert_eq!((m.update, m.frames, m.policy_lag), (1, (t_len * n) as u64, 0));
+                let (w, adam_step, rng) = first.take().unwrap();
+                assert!(weights(&overlapped).iter().zip(&w).all(|(a, b)| a.allclose(b, 1e-6, 1e-7, false)));
+                assert_eq!((overlapped.opt.step, &overlapped.rng), (adam_step, &rng));
+            }
+            if step == 2 * t_len + 1 {
+                // the second rollout's update is in flight: a checkpoint is the trainer after the first
+                let path = dir.path().join("in-flight.safetensors");
+                crate::ppo::checkpoint::save_trainer(&path, &overlapped).unwrap();
+                let mut resumed = Trainer::new(&cfg, n, Device::Cpu).unwrap();
+                crate::ppo::checkpoint::load_trainer(&path, &mut resumed).unwrap();
+                assert_eq!(
+                    (resumed.updates, resumed.frames, resumed.opt.step),
+                    (1, (t_len * n) as u64, (cfg.ppo.epochs * 2) as i64)
+                );
+                assert!(weights(&resumed).iter().zip(&weights(&overlapped)).all(|(a, b)| a.equal(b)));
+            }
+            if step == 3 * t_len {
+                let m = b.update.as_ref().expect("the second rollout's update");
+                assert_eq!((m.update, m.policy_lag), (2, 1));
+            }
+        }
+        // the third rollout is queued: a stop learns it
+        let last = overlapped.settle();
+        assert_eq!(last.iter().map(|m| (m.update, m.policy_lag)).collect::<Vec<_>>(), vec![(3, 1)]);
+        assert_eq!((overlapped.updates, overlapped.frames), (in_place.updates, in_place.frames));
+        assert!(overlapped.settle().is_empty() && in_place.settle().is_empty());
     }
 
     #[test]

@@ -288,23 +288,29 @@ impl Policy for PpoPolicy {
         let obs = EnvBatch { height: batch.height, width: batch.width, frames, envs: &self.steps[envs.clone()] };
         let actions = match &mut self.mode {
             Mode::Train { trainer, log, .. } => {
+                let learned_before = trainer.learning_seconds();
                 let out = trainer.step_at(envs.start, &obs)?;
+                self.learning += trainer.learning_seconds() - learned_before;
                 let books = std::time::Instant::now();
                 if let Some(m) = &out.update {
-                    self.learning += m.update_seconds;
                     log.append(m)?;
                     if let Some(p) = self.farm_progress.take() {
                         log.farm(m.frames, &p)?;
                     }
                     tracing::info!(
-                        "update {} frames {} fps {:.0} success {} loss π {:.3} v {:.3} entropy {:.3}",
+                        "update {} frames {} fps {:.0} success {} loss π {:.3} v {:.3} entropy {:.3}{}",
                         m.update,
                         m.frames,
                         m.fps,
                         m.success_rate.map_or("-".into(), |s| format!("{:.2}", s)),
                         m.policy_loss,
                         m.value_loss,
-                        m.entropy
+                        m.entropy,
+                        if self.cfg.ppo.overlap_update {
+                            format!(" policy lag {}", m.policy_lag)
+                        } else {
+                            String::new()
+                        }
                     );
                 }
                 let save = out.update.is_some() && trainer.updates % self.cfg.checkpoint.every_updates.max(1) == 0;
@@ -343,6 +349,18 @@ impl Policy for PpoPolicy {
     }
 
     fn finish(&mut self, checkpoint: bool) -> anyhow::Result<()> {
+        // the rollouts an overlapped update has not learned yet, so the checkpoint holds them
+        if checkpoint && let Mode::Train { trainer, log, .. } = &mut self.mode {
+            for m in trainer.settle() {
+                tracing::info!(
+                    "update {} frames {} policy lag {} (learned at the stop)",
+                    m.update,
+                    m.frames,
+                    m.policy_lag
+                );
+                log.append(&m)?;
+            }
+        }
         // The checkpoint first: a plot that fails (a full disk) must not cost the training.
         if checkpoint && let Mode::Train { checkpoints, .. } = &self.mode {
             // While this marker exists the orchestrator waits instead of escalating.
