@@ -9,6 +9,7 @@ mod encoder;
 // `farm` is the crate of the same name
 #[path = "farm.rs"]
 mod farm_runs;
+mod gpu_settings;
 mod live;
 mod live_program;
 mod multihost;

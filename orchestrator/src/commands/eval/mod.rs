@@ -18,16 +18,22 @@ use anyhow::Context;
 use clap::Args;
 
 use farm::config::{Method, RunConfig};
-use farm::metrics::{EpisodeResult, Trajectory, scores};
+use farm::metrics::EpisodeResult;
 use worker::program::Program;
 use worker::scene::Split;
 
 use crate::report::first_turn::FirstHeading;
 use crate::report::nearness;
 use crate::report::progress::Bar;
-use crate::report::tables::{EvalMode, Evaluation, compare, paired};
+use crate::report::tables::{EvalMode, Evaluation};
 use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg};
 use crate::supervise::launch::{prepare_run, resolve_dataset, sweep_dead_runs};
+
+mod compare;
+mod passes;
+
+pub use passes::read_episodes;
+use passes::{first_headings, pass_trajectories};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
@@ -85,11 +91,6 @@ pub struct EvalArgs {
     /// each after the first is also compared with it episode by episode (McNemar's test).
     #[arg(long, num_args = 1..)]
     pub compare: Vec<PathBuf>,
-}
-
-/// The `episodes.jsonl` of an evaluation pass.
-pub fn read_episodes(path: &Path) -> anyhow::Result<Vec<EpisodeResult>> {
-    farm::files::read_jsonl(path)
 }
 
 /// Resolves `--checkpoint` into (checkpoint file, run directory holding its config).
@@ -187,7 +188,13 @@ fn modes_for(cfg: &RunConfig, baseline: bool, asked: &[String]) -> anyhow::Resul
 
 pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     if !a.compare.is_empty() {
-        return run_compare(&a);
+        return compare::run(&compare::Comparison {
+            dirs: a.compare.clone(),
+            split: a.split.clone(),
+            dataset: a.dataset.clone(),
+            dts_threshold: a.dts_threshold,
+            out: a.out.clone(),
+        });
     }
     let split =
         Split::from_name(&a.split).with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
@@ -426,209 +433,9 @@ fn write_tensorboard(tb: &Path, step: u64, ev: &Evaluation, md: &str, maps: &[Pa
     Ok(())
 }
 
-/// The trajectories of each of `modes` whose pass in the evaluation folder `dir` kept them.
-fn pass_trajectories(
-    dir: &Path,
-    modes: impl IntoIterator<Item = EvalMode>,
-) -> anyhow::Result<Vec<(EvalMode, Vec<Trajectory>)>> {
-    let mut found = Vec::new();
-    for mode in modes {
-        let f = dir.join(mode.name()).join("trajectories.jsonl");
-        if f.is_file() {
-            found.push((mode, crate::report::trajectory::read(&f)?));
-        }
-    }
-    Ok(found)
-}
-
-/// Where the policy heads at its first move ahead, a row per pass.
-fn first_headings(
-    label: &str,
-    passes: &[(EvalMode, Vec<Trajectory>)],
-    programs: &[Program],
-    fov_deg: f32,
-) -> Vec<(String, &'static str, FirstHeading)> {
-    passes
-        .iter()
-        .map(|(mode, trajs)| (label.to_string(), mode.name(), FirstHeading::of(trajs, programs, fov_deg)))
-        .collect()
-}
-
-/// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>. Returns its
-/// label, its episodes and the pass's folder. An evaluation of another split (its config's
-/// `run.split`) is refused: its programs are not the split's.
-fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<EpisodeResult>, PathBuf)> {
-    let candidates = [p.join("normal/episodes.jsonl"), p.join("eval").join(split).join("normal/episodes.jsonl")];
-    let f = candidates
-        .iter()
-        .find(|c| c.is_file())
-        .with_context(|| format!("{}: no evaluation found (looked for {})", p.display(), candidates[0].display()))?;
-    let pass_dir = f.parent().unwrap_or(p).to_path_buf();
-    let config = pass_dir.join("config.toml");
-    if config.is_file() {
-        let ran_on = RunConfig::load(&config)
-            .with_context(|| format!("{}: the evaluation's config", config.display()))?
-            .run
-            .split
-            .name();
-        if ran_on != split {
-            anyhow::bail!("{}: run.split: an evaluation on {ran_on}, compared on --split {split}", config.display());
-        }
-    }
-    let tables = pass_dir.parent().unwrap_or(p).join("tables.md");
-    let label = std::fs::read_to_string(&tables)
-        .ok()
-        .and_then(|t| t.lines().next().and_then(evaluation_label))
-        .filter(|l| !l.is_empty())
-        .unwrap_or_else(|| p.display().to_string());
-    Ok((label, read_episodes(f)?, pass_dir))
-}
-
-/// The label of a `tables.md`'s first line, `# Evaluation: LABEL on SPLIT (N episodes)`.
-fn evaluation_label(line: &str) -> Option<String> {
-    let (label, _split) = line.strip_prefix("# Evaluation: ")?.rsplit_once(" (")?.0.rsplit_once(" on ")?;
-    Some(label.to_string())
-}
-
-/// The compared split's programs (from `--dataset` or the dataset the first evaluation ran on),
-/// each one's target nearness rank, and the field of view the first evaluation ran with.
-struct ComparedSplit {
-    dataset: PathBuf,
-    programs: Vec<Program>,
-    ranks: Vec<usize>,
-    fov_deg: f32,
-}
-
-impl ComparedSplit {
-    /// `None`, with a note, when the dataset is gone: the comparison goes on without the tables
-    /// that need it.
-    fn open(a: &EvalArgs, first_pass: &Path) -> Option<ComparedSplit> {
-        let open = || -> anyhow::Result<ComparedSplit> {
-            let split = Split::from_name(&a.split)
-                .with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
-            let config = first_pass.join("config.toml");
-            let cfg =
-                RunConfig::load(&config).with_context(|| format!("{}: the evaluation's config", config.display()));
-            let (dataset, fov_deg) = match (&a.dataset, cfg) {
-                (Some(d), Ok(c)) => (d.clone(), c.env.fov_deg),
-                (Some(d), Err(e)) => {
-                    let fov = farm::config::EnvConfig::default().fov_deg;
-                    eprintln!("[eval] {e:#}: headings read with the default field of view, {fov}°");
-                    (d.clone(), fov)
-                }
-                (None, cfg) => {
-                    let c = cfg?;
-                    (c.run.dataset, c.env.fov_deg)
-                }
-            };
-            let (programs, ranks) = nearness::program_facts(&dataset, split).context("pass --dataset")?;
-            Ok(ComparedSplit { dataset, programs, ranks, fov_deg })
-        };
-        open().map_err(|e| eprintln!("[eval] no tables by the target's nearness and heading: {e:#}")).ok()
-    }
-
-    /// Every program an evaluation names must be one of the split's: an evaluation of another
-    /// dataset (or split) is named rather than read against the wrong programs.
-    fn ensure_holds(&self, label: &str, split: &str, programs: impl IntoIterator<Item = u64>) -> anyhow::Result<()> {
-        match programs.into_iter().find(|&p| p as usize >= self.programs.len()) {
-            Some(p) => anyhow::bail!(
-                "{label}: program {p} is not among the {} {split} programs of {} — the evaluation ran on another \
-                 dataset; pass that one with --dataset",
-                self.programs.len(),
-                self.dataset.display()
-            ),
-            None => Ok(()),
-        }
-    }
-}
-
-/// The last `k` components of `dir`, joined by "/".
-fn folder_name(dir: &Path, k: usize) -> String {
-    let parts: Vec<String> = dir.components().rev().take(k).map(|c| c.as_os_str().to_string_lossy().into()).collect();
-    parts.into_iter().rev().collect::<Vec<_>>().join("/")
-}
-
-fn run_compare(a: &EvalArgs) -> anyhow::Result<()> {
-    let found = a.compare.iter().map(|p| normal_episodes(p, &a.split)).collect::<anyhow::Result<Vec<_>>>()?;
-    let facts = ComparedSplit::open(a, &found[0].2);
-    let passes: Vec<PathBuf> = found.iter().map(|(_, _, pass)| pass.clone()).collect();
-    let mut evaluations: Vec<(String, Vec<EpisodeResult>)> = found.into_iter().map(|(l, e, _)| (l, e)).collect();
-    // one method evaluated twice (another gesture, another checkpoint, another seed): name each
-    // by its folder, and by its parent's too where the folders share a name (RUN/test)
-    let labels: Vec<String> = evaluations.iter().map(|(l, _)| l.clone()).collect();
-    let names: Vec<String> = a.compare.iter().map(|d| folder_name(d, 1)).collect();
-    for (((label, _), dir), name) in evaluations.iter_mut().zip(&a.compare).zip(&names) {
-        if labels.iter().filter(|l| *l == label).count() > 1 {
-            let shared = names.iter().filter(|n| *n == name).count() > 1;
-            *label = format!("{label} ({})", if shared { folder_name(dir, 2) } else { name.clone() });
-        }
-    }
-    let rows: Vec<_> = evaluations
-        .iter()
-        .map(|(label, eps)| (label.clone(), scores(eps, Some(1), a.dts_threshold), scores(eps, None, a.dts_threshold)))
-        .collect();
-    let mut md = format!("# Comparison on {} (first stop; ∞ = unlimited stops)\n\n{}", a.split, compare(&rows));
-    let refs: Vec<(String, &[EpisodeResult])> = evaluations.iter().map(|(l, e)| (l.clone(), e.as_slice())).collect();
-    if evaluations.len() > 1 {
-        md.push('\n');
-        md.push_str(&paired(&refs));
-    }
-    if let Some(split) = &facts {
-        for (label, eps) in &evaluations {
-            split.ensure_holds(label, &a.split, eps.iter().map(|e| e.program))?;
-        }
-        md += &nearness::markdown(&refs, &split.ranks);
-        let mut headings = Vec::new();
-        for ((label, _), pass) in evaluations.iter().zip(&passes) {
-            let trajectories = pass_trajectories(pass.parent().unwrap_or(pass), EvalMode::ALL)?;
-            for (_, trajs) in &trajectories {
-                split.ensure_holds(label, &a.split, trajs.iter().map(|t| t.program))?;
-            }
-            headings.extend(first_headings(label, &trajectories, &split.programs, split.fov_deg));
-        }
-        md += &FirstHeading::markdown(&headings);
-    }
-    if let Some(out) = &a.out {
-        std::fs::create_dir_all(out)?;
-        farm::files::write_atomic(&out.join("compare.md"), md.as_bytes())?;
-    }
-    println!("{md}");
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// An explicit --out may hold passes of an earlier evaluation: only the asked ones are read.
-    #[test]
-    fn trajectories_are_read_for_the_asked_passes_only() {
-        let d = tempfile::tempdir().unwrap();
-        for (mode, program) in [(EvalMode::Normal, 3), (EvalMode::Blind, 4)] {
-            std::fs::create_dir_all(d.path().join(mode.name())).unwrap();
-            let line = serde_json::to_string(&Trajectory { program, ..Trajectory::default() }).unwrap();
-            std::fs::write(d.path().join(mode.name()).join("trajectories.jsonl"), line + "\n").unwrap();
-        }
-        let found = pass_trajectories(d.path(), [EvalMode::Normal, EvalMode::OtherGesture]).unwrap();
-        assert_eq!(found.len(), 1);
-        assert_eq!((found[0].0, found[0].1[0].program), (EvalMode::Normal, 3));
-        assert_eq!(pass_trajectories(d.path(), EvalMode::ALL).unwrap().len(), 2);
-    }
-
-    #[test]
-    fn an_evaluations_heading_names_its_label() {
-        let h = evaluation_label;
-        assert_eq!(h("# Evaluation: +Both on test (1000 episodes)"), Some("+Both".into()));
-        assert_eq!(h("# Evaluation: Vision Only on val (500 episodes)"), Some("Vision Only".into()));
-        assert_eq!(h("# Comparison on test"), None);
-    }
-
-    #[test]
-    fn compared_folders_are_named_by_as_much_of_their_path_as_tells_them_apart() {
-        let p = Path::new("/root/runs/both-seed2/test");
-        assert_eq!((folder_name(p, 1), folder_name(p, 2)), ("test".to_string(), "both-seed2/test".to_string()));
-        assert_eq!(folder_name(Path::new("test"), 2), "test");
-    }
 
     #[test]
     fn a_default_output_folder_is_never_reused() {
