@@ -371,7 +371,7 @@ pub struct PpoConfig {
     pub env_groups: usize,
     /// Learn each rollout on a thread, on a copy of the network, while the next one is collected
     /// with the weights before it (policy lag 1) — a GPU setting, for where the update and acting
-    /// each leave the other room; on two cores they share the cores and it costs.
+    /// each leave the other room; on two CPU cores they share the cores and it gains nothing.
     pub overlap_update: bool,
 }
 
