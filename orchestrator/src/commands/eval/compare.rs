@@ -25,26 +25,32 @@ pub(super) struct Comparison {
     pub out: Option<PathBuf>,
 }
 
-/// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>. Returns its
-/// label, its episodes and the pass's folder. An evaluation of another split (its config's
-/// `run.split`) is refused: its programs are not the split's.
-fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<EpisodeResult>, PathBuf)> {
+/// The normal pass of an earlier evaluation.
+struct NormalPass {
+    label: String,
+    episodes: Vec<EpisodeResult>,
+    dir: PathBuf,
+    /// Its `config.toml`, when the pass has one.
+    config: Option<RunConfig>,
+}
+
+/// Finds the normal pass of an earlier evaluation: its folder, or RUN/eval/<split>. An
+/// evaluation of another split (its config's `run.split`) is refused: its programs are not the
+/// split's.
+fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<NormalPass> {
     let candidates = [p.join("normal/episodes.jsonl"), p.join("eval").join(split).join("normal/episodes.jsonl")];
     let f = candidates
         .iter()
         .find(|c| c.is_file())
         .with_context(|| format!("{}: no evaluation found (looked for {})", p.display(), candidates[0].display()))?;
     let pass_dir = f.parent().unwrap_or(p).to_path_buf();
-    let config = pass_dir.join("config.toml");
-    if config.is_file() {
-        let ran_on = RunConfig::load(&config)
-            .with_context(|| format!("{}: the evaluation's config", config.display()))?
-            .run
-            .split
-            .name();
-        if ran_on != split {
-            anyhow::bail!("{}: run.split: an evaluation on {ran_on}, compared on --split {split}", config.display());
-        }
+    let file = pass_dir.join("config.toml");
+    let config = match file.is_file() {
+        true => Some(RunConfig::load(&file).with_context(|| format!("{}: the evaluation's config", file.display()))?),
+        false => None,
+    };
+    if let Some(ran_on) = config.as_ref().map(|c| c.run.split.name()).filter(|s| *s != split) {
+        anyhow::bail!("{}: run.split: an evaluation on {ran_on}, compared on --split {split}", file.display());
     }
     let tables = pass_dir.parent().unwrap_or(p).join("tables.md");
     let label = std::fs::read_to_string(&tables)
@@ -52,7 +58,7 @@ fn normal_episodes(p: &Path, split: &str) -> anyhow::Result<(String, Vec<Episode
         .and_then(|t| t.lines().next().and_then(evaluation_label))
         .filter(|l| !l.is_empty())
         .unwrap_or_else(|| p.display().to_string());
-    Ok((label, read_episodes(f)?, pass_dir))
+    Ok(NormalPass { label, episodes: read_episodes(f)?, dir: pass_dir, config })
 }
 
 /// The label of a `tables.md`'s first line, `# Evaluation: LABEL on SPLIT (N episodes)`.
@@ -72,25 +78,21 @@ struct ComparedSplit {
 
 impl ComparedSplit {
     /// `None`, with a note, when the dataset is gone: the comparison goes on without the tables
-    /// that need it.
-    fn open(a: &Comparison, first_pass: &Path) -> Option<ComparedSplit> {
+    /// that need it. `first` is the first evaluation's normal pass.
+    fn open(a: &Comparison, first: &NormalPass) -> Option<ComparedSplit> {
         let open = || -> anyhow::Result<ComparedSplit> {
             let split = Split::from_name(&a.split)
                 .with_context(|| format!("--split: `{}` is not one of train, val, test", a.split))?;
-            let config = first_pass.join("config.toml");
-            let cfg =
-                RunConfig::load(&config).with_context(|| format!("{}: the evaluation's config", config.display()));
-            let (dataset, fov_deg) = match (&a.dataset, cfg) {
-                (Some(d), Ok(c)) => (d.clone(), c.env.fov_deg),
-                (Some(d), Err(e)) => {
+            let no_config = || format!("{}: no config.toml", first.dir.display());
+            let (dataset, fov_deg) = match (&a.dataset, &first.config) {
+                (Some(d), Some(c)) => (d.clone(), c.env.fov_deg),
+                (Some(d), None) => {
                     let fov = farm::config::EnvConfig::default().fov_deg;
-                    eprintln!("[eval] {e:#}: headings read with the default field of view, {fov}°");
+                    eprintln!("[eval] {}: headings read with the default field of view, {fov}°", no_config());
                     (d.clone(), fov)
                 }
-                (None, cfg) => {
-                    let c = cfg?;
-                    (c.run.dataset, c.env.fov_deg)
-                }
+                (None, Some(c)) => (c.run.dataset.clone(), c.env.fov_deg),
+                (None, None) => anyhow::bail!("{}: pass --dataset", no_config()),
             };
             let (programs, ranks) = nearness::program_facts(&dataset, split).context("pass --dataset")?;
             Ok(ComparedSplit { dataset, programs, ranks, fov_deg })
@@ -121,9 +123,9 @@ fn folder_name(dir: &Path, k: usize) -> String {
 
 pub(super) fn run(a: &Comparison) -> anyhow::Result<()> {
     let found = a.dirs.iter().map(|p| normal_episodes(p, &a.split)).collect::<anyhow::Result<Vec<_>>>()?;
-    let facts = ComparedSplit::open(a, &found[0].2);
-    let passes: Vec<PathBuf> = found.iter().map(|(_, _, pass)| pass.clone()).collect();
-    let mut evaluations: Vec<(String, Vec<EpisodeResult>)> = found.into_iter().map(|(l, e, _)| (l, e)).collect();
+    let facts = ComparedSplit::open(a, &found[0]);
+    let passes: Vec<PathBuf> = found.iter().map(|n| n.dir.clone()).collect();
+    let mut evaluations: Vec<(String, Vec<EpisodeResult>)> = found.into_iter().map(|n| (n.label, n.episodes)).collect();
     // one method evaluated twice (another gesture, another checkpoint, another seed): name each
     // by its folder, and by its parent's too where the folders share a name (RUN/test)
     let labels: Vec<String> = evaluations.iter().map(|(l, _)| l.clone()).collect();
