@@ -579,11 +579,12 @@ mod tests {
         }
         let table = r.gestures().unwrap();
         assert_eq!(table.len(), 1 + 6, "env 0: one gesture; env 1: six");
-        // both envs: 12 rows of 7 gestures (encoded, then gathered); env 1 alone: 6 rows of 7
-        // (gathered, then encoded)
-        for envs in [&[1i64, 0][..], &[1]] {
+        // both envs: 12 rows of the 7 gestures; env 1 alone: 6 rows of its own 6 (env 0's is
+        // left out of its minibatch)
+        for (envs, shown) in [(&[1i64, 0][..], 7), (&[1], 6)] {
             let idx = Tensor::from_slice(envs);
             let distinct = r.minibatch(&idx).unwrap();
+            assert_eq!(distinct.gesture.as_ref().unwrap().size()[0], shown, "{envs:?}");
             let rows = distinct
                 .gesture
                 .as_ref()

@@ -3,8 +3,8 @@
 //! An env's gesture changes only when an episode starts and when intervention switches on or
 //! off; between those it is the same 100 × 95 motion at every step. The table compares each
 //! env's new gesture with the one it showed at the previous step (exactly, element by element):
-//! the same one keeps its row, a new one gets a row. PPO then encodes the table's rows once per
-//! minibatch and gathers (`Inputs::gesture_index`), instead of running the 9,500-wide gesture
+//! the same one keeps its row, a new one gets a row. PPO then encodes, per minibatch, the rows its
+//! envs showed and gathers (`Inputs::gesture_index`), instead of running the 9,500-wide gesture
 //! layer over every stored step.
 
 use tch::{Device, Kind, Tensor};

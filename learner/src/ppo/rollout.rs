@@ -115,13 +115,18 @@ impl Rollout {
     }
 
     /// The stored inputs of envs `idx` (a minibatch), `[T, B, ..]`: every per-row field selected,
-    /// and the gestures as the table of distinct ones with each row's index into it.
+    /// and the gestures as a table of the distinct ones these envs showed, with each row's index
+    /// into it.
     pub fn minibatch(&self, idx: &Tensor) -> Option<Inputs> {
         let sel = |t: &Tensor| t.index_select(1, idx);
         let mut x = self.inputs.as_ref()?.map(sel);
         if let Some(g) = &self.gestures {
-            x.gesture = Some(g.rows());
-            x.gesture_index = Some(sel(g.ids()));
+            // only this minibatch's rows: the per-frame network reads each of them once, and
+            // none that another minibatch's envs showed
+            let ids = sel(g.ids());
+            let (used, inverse, _) = ids.flatten(0, -1).internal_unique2(true, true, false);
+            x.gesture = Some(g.rows().index_select(0, &used));
+            x.gesture_index = Some(inverse.view_as(&ids));
         }
         Some(x)
     }
