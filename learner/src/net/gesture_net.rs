@@ -89,12 +89,6 @@ impl GestureNet {
     /// person's pose where a gesture is shown (an unshown gesture is all zero, and reads no pose).
     pub(crate) fn read(&self, g: &Tensor, rows: Option<&Tensor>, pose: Option<&Tensor>) -> Tensor {
         let g = g.to_kind(Kind::Float);
-        // fewer rows than distinct gestures (one that changes at every step, as keypoints seen
-        // from a moving robot): gathered, then read row by row
-        let (g, rows) = match rows {
-            Some(i) if g.size()[0] > i.numel() as i64 => (g.index_select(0, i), None),
-            r => (g, r),
-        };
         match (self, pose) {
             (GestureNet::PerFrame(f), Some(pose)) if f.pose_dims > 0 => f.read(&g, rows, pose),
             (GestureNet::FlatAndPerFrame(l, f), Some(pose)) if f.pose_dims > 0 => {
@@ -352,7 +346,7 @@ mod tests {
                 assert!(a.allclose(b, 1e-4, 1e-6, false), "{name}: gradients differ");
             }
         }
-        // fewer rows than distinct gestures: gathered first, the same features
+        // fewer rows than distinct gestures: the same features
         let one = Tensor::from_slice(&[1i64]);
         let few = tch::no_grad(|| net.read(&distinct, Some(&one), Some(&pose.narrow(0, 2, 1))));
         assert!(few.allclose(&want.narrow(0, 2, 1), 1e-5, 1e-6, false));
