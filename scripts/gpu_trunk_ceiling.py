@@ -2,7 +2,7 @@
 images (RGB and depth of `batch` envs) in bf16 and channels-last, eager and replayed from a CUDA
 graph (what tch 0.24 cannot reach); and of one round's frames to the GPU (224² RGB u8 and
 16-bit depth), from pageable and from pinned memory. Ceilings to read the learner's own figures
-against (BENCHMARKS.md, "On the H100"); run by scripts/gpu_bench.sh.
+against (docs/bench/log.md, "On the H100"); run by scripts/gpu_bench.sh.
 
     python3 scripts/gpu_trunk_ceiling.py [BATCH ...]
 """

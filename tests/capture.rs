@@ -10,7 +10,7 @@ use gesthor_tests::{bin, capture_ready, dataset, repo_root};
 use serde_json::Value;
 
 /// Median error bound (degrees) of the recovered shoulder→wrist line during the hold. Measured
-/// (BENCHMARKS.md, "Gesture capture"): a median of 16.5° over 12 filmed dataset gestures (4.5–34°
+/// (docs/bench/log.md, "Gesture capture"): a median of 16.5° over 12 filmed dataset gestures (4.5–34°
 /// each; 13.8° from the landmarks alone: most of it is the landmark model's depth) and 16.2° on
 /// the GOND recording; the test dataset's first 4 gestures: 11.9, 16.0, 22.1, 22.9° (median
 /// 19.1°). 25° leaves room for that spread without admitting a lost or wrong arm (≥ 40°).

@@ -1,11 +1,11 @@
-//! The GPU settings (issue 52), run on the CPU as CI has them: the frames kept on the device
+//! The GPU settings, run on the CPU as CI has them: the frames kept on the device
 //! (lavapipe's memory, imported through Vulkan) and the update overlapped with collection. Each
 //! trains a small model with `orchestrator up` and checks what the setting must not change.
 
 use gesthor_tests::*;
 use serde_json::Value;
 
-/// `ppo.overlap_update` (issue 52): a run whose updates learn on a thread while the next rollout
+/// `ppo.overlap_update`: a run whose updates learn on a thread while the next rollout
 /// is collected says so in its log (a policy lag of 1 after the first update) and, stopped at its
 /// frame budget, learns the rollouts still queued or in flight: its final checkpoint holds as
 /// many frames as the same run's in place.
@@ -43,7 +43,7 @@ fn an_overlapped_run_learns_every_rollout_it_collected() {
     assert_eq!(overlapped, in_place, "{log}");
 }
 
-/// `env.frames = "device"` (issue 52): the workers draw into GPU memory they hand the learner
+/// `env.frames = "device"`: the workers draw into GPU memory they hand the learner
 /// once over the run's frame socket (here lavapipe's, imported through Vulkan), and no frame
 /// passes through shared memory. A run trains that way, and its checkpoint, evaluated greedily,
 /// takes every step exactly as with the frames read back through shared memory.

@@ -1,4 +1,4 @@
-//! The handoff of a worker's exported frame memory (`env.frames = "device"`, issue 52): once per
+//! The handoff of a worker's exported frame memory (`env.frames = "device"`): once per
 //! worker, a [`FrameHandoff`] and the memory's file descriptor travel to the learner over a Unix
 //! socket (`SCM_RIGHTS`). From then on no frame bytes travel at all: the learner reads each env's
 //! slot in place, as [`DeviceFrameLayout`] says.

@@ -126,7 +126,7 @@ pub fn select(choice: DeviceChoice) -> Result<Device, NoCuda> {
 /// torch's CPU threads when the network runs on a GPU, unless `OMP_NUM_THREADS` says otherwise.
 /// The host's share of the work is small there, and torch's pool spins between its parallel
 /// sections on cores the workers render with: on an H100 with 16 workers, 16 threads made PPO
-/// updates 1.9× slower than 2 (BENCHMARKS.md, "On the H100").
+/// updates 1.9× slower than 2 (docs/bench/log.md, "On the H100").
 pub const GPU_CPU_THREADS: i32 = 2;
 
 /// Prepares a device for work: on CUDA, cuDNN autotuning (our shapes are fixed per run) and
@@ -168,7 +168,7 @@ pub fn flush_denormals() {
 /// over 128 KiB with their own mapping and unmaps them when freed (its threshold adapts only up
 /// to the largest block freed so far), so steps page-fault and zero them in again. Raising the
 /// mapping threshold to glibc's maximum (32 MiB) and the trim threshold keeps them in the heap;
-/// the learner's resident memory then stays near its peak. (BENCHMARKS.md, "Training speed".)
+/// the learner's resident memory then stays near its peak. (docs/bench/log.md, "Training speed".)
 pub fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only sets allocator parameters; called at start, before other threads.

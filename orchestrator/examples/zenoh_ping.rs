@@ -1,5 +1,5 @@
-//! Zenoh's round trip between two processes on loopback, for BENCHMARKS.md ("More than one
-//! machine"): `zenoh_ping pong PORT [--hint]` answers each message with 100 bytes;
+//! Zenoh's round trip between two processes on loopback, for docs/bench/log.md ("More than
+//! one machine"): `zenoh_ping pong PORT [--hint]` answers each message with 100 bytes;
 //! `zenoh_ping ping PORT N BYTES [--hint]` sends N messages of BYTES, one at a time, and prints
 //! the round trip's mean and percentiles. `--hint` sets the bridges' latency hint on every
 //! thread of the process.

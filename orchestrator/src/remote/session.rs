@@ -92,7 +92,7 @@ pub fn config(listen: &[String], connect: &[String], security: &Security) -> any
 /// `sched_attr.sched_runtime`, Linux ≥ 6.12; no privilege needed; older kernels ignore it or
 /// refuse, and then nothing changes). A remote step is a chain of about ten wake-ups (the
 /// bridges and Zenoh's threads on both sides) against two for a local one, and on cores kept
-/// busy by long slices (a learner's PPO threads) each wake-up can wait one out (BENCHMARKS.md,
+/// busy by long slices (a learner's PPO threads) each wake-up can wait one out (docs/bench/log.md,
 /// "More than one machine"). These threads run for microseconds per message, so the hint costs
 /// the workers nothing. The nice value and the policy stay as they are.
 pub fn short_slices() {

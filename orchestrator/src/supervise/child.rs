@@ -19,7 +19,8 @@ use nix::unistd::{Pid, getpid, getppid};
 /// scheduled: one training beside a build made 24–42 frames/s spinning and 370–400 waiting
 /// passively. Sleeping at once pays a wake-up at each of the update's many small operations:
 /// 30,000 spins first made the default 12% faster idle at 4 workers, and beside two busy
-/// processes about as fast as passive waiting (299 against 316 frames/s; BENCHMARKS.md, issue 53).
+/// processes about as fast as passive waiting (299 against 316 frames/s;
+/// docs/bench/log.md, "OpenMP's bounded spin").
 pub fn learner_env() -> Vec<(&'static str, String)> {
     omp_waiting(|name| std::env::var_os(name).is_some())
 }

@@ -37,7 +37,8 @@ pub fn resolve_dataset(cfg: &mut RunConfig, synthetic: bool) -> anyhow::Result<O
 
 /// Checks every byte of a dataset against its manifest's checksums (and the JSON indexes
 /// against the records) once, before any worker reads it: a damaged file is one clear error
-/// naming it instead of episodes built from flipped bits. BENCHMARKS.md has the cost.
+/// naming it instead of episodes built from flipped bits. docs/bench/log.md
+/// ("Reliability") has the cost.
 pub fn verify_dataset(dir: &Path) -> anyhow::Result<Dataset> {
     let t = std::time::Instant::now();
     let ds = Dataset::open(dir, worker::dataset::Verify::Full)

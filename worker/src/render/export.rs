@@ -1,5 +1,5 @@
-//! Frames kept in GPU memory that another process imports (issue 52, "frames that stay on the
-//! GPU"): one Vulkan buffer per worker whose memory is exportable as an opaque file descriptor.
+//! Frames kept in GPU memory that another process imports (`env.frames = "device"`): one Vulkan
+//! buffer per worker whose memory is exportable as an opaque file descriptor.
 //! The renderer copies each view's colour and depth+id layers into the env's slot of it (the
 //! layout is [`DeviceFrameLayout`]); the learner imports the descriptor once — CUDA on a GPU,
 //! a plain mapping on lavapipe, whose exported memory is a memfd it maps itself — and reads
