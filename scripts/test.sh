@@ -3,7 +3,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-# structure first (a second): no import cycle between files of a crate, no oversized file
+# structure first (a second): the checker's own cases, then no import cycle between files of a
+# crate, no oversized file, no broken Markdown link
+selftest=$(python3 scripts/check_structure.py --self-test 2>&1) || { echo "$selftest"; exit 1; }
 python3 scripts/check_structure.py
 source "${GESTHOR_DEPS:-$HOME/.cache/gesthor}/env.sh"
 # `cargo test` reuses every dependency `cargo build` compiled only if their features agree

@@ -1,4 +1,4 @@
-//! Frames read in place from a worker's exported memory (`env.frames = "device"`, issue 52).
+//! Frames read in place from a worker's exported memory (`env.frames = "device"`).
 //!
 //! A worker renders its envs' frames into memory it exports once as a file descriptor
 //! ([`farm::frame_socket`]); the learner imports it here and reads the slots a batch needs. On a
@@ -296,10 +296,13 @@ mod tests {
     }
 
     #[test]
-    #[should_panic(expected = "slot 3 asked for")]
     fn a_slot_out_of_range_panics_with_its_number() {
-        let Some(export) = frames() else { panic!("slot 3 asked for (skipped: no Vulkan)") };
-        let _ = import(&export, Device::Cpu).unwrap().rgb(&[0, 3]);
+        // skipped (said) only where no Vulkan is installed; CI requires one
+        let Some(export) = frames() else { return };
+        let frames = import(&export, Device::Cpu).unwrap();
+        let panic = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| frames.rgb(&[0, 3]))).unwrap_err();
+        let said = panic.downcast_ref::<String>().map(String::as_str).or(panic.downcast_ref::<&str>().copied());
+        assert!(said.is_some_and(|m| m.contains("slot 3 asked for")), "{said:?}");
     }
 
     /// Where CUDA cannot run, asking for it is an error, never a panic. (The CUDA import itself

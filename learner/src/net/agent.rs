@@ -562,6 +562,8 @@ mod tests {
         let h0 = p.hidden().copy();
         let mut r = crate::ppo::rollout::Rollout::new(6, 2, &h0);
         let first = random_obs(2, 16, 40);
+        // each step's gestures as the envs showed them: the oracle, kept apart from the rollout
+        let mut shown = Vec::new();
         for t in 0..6u64 {
             let mut o = random_obs(2, 16, 50 + t);
             // env 0 keeps its gesture all along; env 1 shows a new one at every step
@@ -572,27 +574,24 @@ mod tests {
                 e.person_pose = [0.3 * t as f32, k as f32 - 0.5, 0.1 * t as f32];
             }
             let (x, st) = p.prepare(&o.batch()).unwrap();
+            shown.push(x.gesture.as_ref().unwrap().copy());
             let f = p.forward(&x, st);
             let acted = Actions { actions: vec![0; 2], log_probs: vec![0.0; 2], values: f.values.clone() };
             r.push(&x, &[t == 0, t == 0], &acted, &[true, true]);
             p.commit(f, &o.batch());
         }
+        let shown = Tensor::stack(&shown, 0);
         let table = r.gestures().unwrap();
         assert_eq!(table.len(), 1 + 6, "env 0: one gesture; env 1: six");
         // both envs: 12 rows of the 7 gestures; env 1 alone: 6 rows of its own 6 (env 0's is
         // left out of its minibatch)
-        for (envs, shown) in [(&[1i64, 0][..], 7), (&[1], 6)] {
+        for (envs, distinct_shown) in [(&[1i64, 0][..], 7), (&[1], 6)] {
             let idx = Tensor::from_slice(envs);
             let distinct = r.minibatch(&idx).unwrap();
-            assert_eq!(distinct.gesture.as_ref().unwrap().size()[0], shown, "{envs:?}");
-            let rows = distinct
-                .gesture
-                .as_ref()
-                .unwrap()
-                .index_select(0, &distinct.gesture_index.as_ref().unwrap().flatten(0, -1));
-            let shape = [6, envs.len() as i64, shm_schema::GESTURE_FRAMES as i64, shm_schema::GESTURE_DIMS as i64];
-            let plain =
-                Inputs { gesture: Some(rows.view(shape)), gesture_index: None, ..distinct.map(|t| t.shallow_clone()) };
+            assert_eq!(distinct.gesture.as_ref().unwrap().size()[0], distinct_shown, "{envs:?}");
+            // every row's gesture as its env showed it, read without the table
+            let rows = shown.index_select(1, &idx);
+            let plain = Inputs { gesture: Some(rows), gesture_index: None, ..distinct.map(|t| t.shallow_clone()) };
             let starts = vec![false; 6 * envs.len()];
             let run = |x: &Inputs| {
                 for mut v in p.vs.trainable_variables() {
