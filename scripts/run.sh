@@ -29,5 +29,9 @@ else
 fi
 # every pass the checkpoint allows, and the pointing check: each program again with another
 # room's referencing gesture (what of the arm's direction is read), beside the first turns
-"$ORCH" eval --checkpoint "$RUN" --split val --max-programs 500 \
+"$ORCH" eval --checkpoint "$RUN" --split val --max-programs 500 --out "$RUN/eval/val" \
   --modes normal,blind,rgb_only,depth_only,other_gesture
+# the shipped +Both (5M frames) on the same programs, and the two side by side
+"$ORCH" eval --checkpoint models/both --split val --max-programs 500 --dataset "$DATA" \
+  --out "$RUN/eval/val-shipped-both" --label "shipped +Both (5M)" --modes normal,blind,other_gesture >/dev/null
+"$ORCH" eval --compare "$RUN/eval/val" "$RUN/eval/val-shipped-both" --split val --dataset "$DATA"

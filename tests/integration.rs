@@ -12,6 +12,7 @@ mod farm_runs;
 mod gpu_settings;
 mod live;
 mod live_program;
+mod models;
 mod multihost;
 mod observability;
 mod python_package;

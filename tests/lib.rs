@@ -42,59 +42,68 @@ pub fn serial() -> MutexGuard<'static, ()> {
 /// (`target/release/gesthor-test-data/`), or `$GESTHOR_TEST_DATASET` when set.
 pub fn dataset() -> PathBuf {
     static DATA: OnceLock<PathBuf> = OnceLock::new();
-    DATA.get_or_init(|| {
-        if let Some(d) = std::env::var_os("GESTHOR_TEST_DATASET") {
-            return PathBuf::from(d);
-        }
-        // Keyed on the orchestrator build, so a changed dataset format is never read stale.
-        let orch = bin("orchestrator");
-        let meta = std::fs::metadata(&orch).unwrap();
-        let stamp = meta
-            .modified()
-            .ok()
-            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-            .map(|d| d.as_secs())
-            .unwrap_or(0);
-        let root = bin_dir().join("gesthor-test-data");
-        let dir = root.join(format!("gond-{stamp}-{}", meta.len()));
-        if dir.join("manifest.json").is_file() {
-            return dir;
-        }
-        let tmp = dir.with_extension(format!("partial{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&tmp);
-        let out = Command::new(&orch)
-            .args(["dataset", "build", "--out"])
-            .arg(&tmp)
-            .args(["--train", "40", "--val-per-room", "1", "--test-per-room", "1", "--seed", "3"])
-            .output()
-            .expect("running orchestrator dataset build");
-        assert!(
-            out.status.success() && tmp.join("manifest.json").is_file(),
-            "building the test dataset failed ({}):\n{}",
-            out.status,
-            String::from_utf8_lossy(&out.stderr)
-        );
-        match std::fs::rename(&tmp, &dir) {
-            Ok(()) => {
-                // datasets of older builds are of no use any more
-                for e in std::fs::read_dir(&root).into_iter().flatten().flatten() {
-                    if e.path() != dir
-                        && e.file_name().to_string_lossy().starts_with("gond-")
-                        && !e.file_name().to_string_lossy().contains("partial")
-                    {
-                        let _ = std::fs::remove_dir_all(e.path());
-                    }
-                }
-            }
-            // another test process got there first
-            Err(_) if dir.join("manifest.json").is_file() => {
-                let _ = std::fs::remove_dir_all(&tmp);
-            }
-            Err(e) => panic!("moving the test dataset into place: {e}"),
-        }
-        dir
+    DATA.get_or_init(|| match std::env::var_os("GESTHOR_TEST_DATASET") {
+        Some(d) => PathBuf::from(d),
+        None => built_dataset("gond", &["--train", "40", "--val-per-room", "1", "--test-per-room", "1", "--seed", "3"]),
     })
     .clone()
+}
+
+/// GOND as `dataset build` makes it by default (what the shipped models were evaluated on),
+/// built once per build of the orchestrator (about 5 seconds) beside the binaries.
+pub fn default_dataset() -> PathBuf {
+    static DATA: OnceLock<PathBuf> = OnceLock::new();
+    DATA.get_or_init(|| built_dataset("default", &[])).clone()
+}
+
+/// `orchestrator dataset build ARGS` into `gesthor-test-data/TAG-<build>`, unless there already.
+fn built_dataset(tag: &str, args: &[&str]) -> PathBuf {
+    // Keyed on the orchestrator build, so a changed dataset format is never read stale.
+    let orch = bin("orchestrator");
+    let meta = std::fs::metadata(&orch).unwrap();
+    let stamp = meta
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    let root = bin_dir().join("gesthor-test-data");
+    let dir = root.join(format!("{tag}-{stamp}-{}", meta.len()));
+    if dir.join("manifest.json").is_file() {
+        return dir;
+    }
+    let tmp = dir.with_extension(format!("partial{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
+    let out = Command::new(&orch)
+        .args(["dataset", "build", "--out"])
+        .arg(&tmp)
+        .args(args)
+        .output()
+        .expect("running orchestrator dataset build");
+    assert!(
+        out.status.success() && tmp.join("manifest.json").is_file(),
+        "building the test dataset failed ({}):\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    match std::fs::rename(&tmp, &dir) {
+        Ok(()) => {
+            // datasets of older builds are of no use any more
+            let prefix = format!("{tag}-");
+            for e in std::fs::read_dir(&root).into_iter().flatten().flatten() {
+                let name = e.file_name().to_string_lossy().into_owned();
+                if e.path() != dir && name.starts_with(&prefix) && !name.contains("partial") {
+                    let _ = std::fs::remove_dir_all(e.path());
+                }
+            }
+        }
+        // another test process got there first
+        Err(_) if dir.join("manifest.json").is_file() => {
+            let _ = std::fs::remove_dir_all(&tmp);
+        }
+        Err(e) => panic!("moving the test dataset into place: {e}"),
+    }
+    dir
 }
 
 /// Writes a small run config (64×64 frames, `envs` envs per worker) into `dir`.

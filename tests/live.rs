@@ -2,7 +2,11 @@
 //! chromedriver, driven by fantoccini) whose fake camera plays our own avatar performing a GOND
 //! referencing gesture (filmed by `gesture film`), two checkpoints side by side, a filmed wave
 //! that calls the intervention gesture; and at the socket: bad frames, a bad program, a closed
-//! tab; the listening rules (HTTPS with a pinned certificate), a bad checkpoint.
+//! tab; the listening rules (HTTPS with a pinned certificate), a bad checkpoint; and who may use
+//! the server (`live_security.rs`).
+
+#[path = "live_security.rs"]
+mod security;
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -58,23 +62,28 @@ fn trained_run() -> PathBuf {
     .clone()
 }
 
-/// A running `orchestrator live` on a free port; killed when dropped.
+/// A running `orchestrator live` on a free port; killed when dropped, its log (stderr) shown
+/// with the test's output.
 pub(crate) struct Server {
     child: Child,
     pub(crate) url: String,
     pub(crate) port: u16,
+    /// The token of the printed URL.
+    pub(crate) token: Option<String>,
     /// The certificate's SHA-256 as printed, when it serves HTTPS.
     fingerprint: Option<String>,
+    log: tempfile::NamedTempFile,
 }
 
 impl Server {
     pub(crate) fn start(out: &Path, extra: &[&str]) -> Server {
+        let log = tempfile::NamedTempFile::new().unwrap();
         let mut child = Command::new(bin("orchestrator"))
             .args(["live", "--checkpoint", &trained_run().display().to_string()])
             .args(["--dataset", &dataset().display().to_string(), "--out", &out.display().to_string()])
             .args(extra)
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(log.reopen().unwrap())
             .spawn()
             .unwrap();
         let mut said = BufReader::new(child.stdout.take().unwrap());
@@ -90,17 +99,31 @@ impl Server {
             assert!(line.contains("SHA-256 fingerprint"), "{line}");
             line.split_whitespace().last().unwrap().to_string()
         });
-        Server { child, url: url.to_string(), port, fingerprint }
+        let token = url.split_once("?token=").map(|(_, t)| t.to_string());
+        Server { child, url: url.to_string(), port, token, fingerprint, log }
+    }
+
+    /// `path` with the token the server printed, as its page asks.
+    pub(crate) fn at(&self, path: &str) -> String {
+        match &self.token {
+            Some(t) => format!("{path}{}token={t}", if path.contains('?') { '&' } else { '?' }),
+            None => path.to_string(),
+        }
+    }
+
+    /// What the server has written to stderr so far.
+    pub(crate) fn log(&self) -> String {
+        std::fs::read_to_string(self.log.path()).unwrap()
     }
 
     /// How many sessions have a simulator running.
-    fn open_sessions(&self) -> u64 {
-        let body = http_get(self.port, "/sessions");
+    pub(crate) fn open_sessions(&self) -> u64 {
+        let body = http_get(self.port, &self.at("/sessions"));
         serde_json::from_str::<Value>(&body).unwrap()["open"].as_u64().unwrap()
     }
 
     /// The server's `learner` children (one per checkpoint a session started).
-    fn learners(&self) -> usize {
+    pub(crate) fn learners(&self) -> usize {
         children(self.child.id()).iter().filter(|c| c.as_str() == "learner").count()
     }
 }
@@ -109,6 +132,8 @@ impl Drop for Server {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        // captured by the test harness: shown when the test fails
+        eprint!("{}", self.log());
     }
 }
 
@@ -134,10 +159,16 @@ fn http_get(port: u16, path: &str) -> String {
 
 /// What a request in plain HTTP on loopback is answered with (whatever came before an error).
 pub(crate) fn http_response(port: u16, method: &str, path: &str, body: &[u8]) -> String {
+    http_response_with(port, method, path, &[("Host", "localhost")], body)
+}
+
+/// [`http_response`] with these headers.
+pub(crate) fn http_response_with(port: u16, method: &str, path: &str, headers: &[(&str, &str)], body: &[u8]) -> String {
     let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    let headers: String = headers.iter().map(|(k, v)| format!("{k}: {v}\r\n")).collect();
     // a server that refuses the request (plain HTTP to an HTTPS listener) may close the
     // connection before the request is written: a broken pipe is its answer, not a failure
-    let sent = write!(s, "{method} {path} HTTP/1.0\r\nHost: localhost\r\nContent-Length: {}\r\n\r\n", body.len())
+    let sent = write!(s, "{method} {path} HTTP/1.0\r\n{headers}Content-Length: {}\r\n\r\n", body.len())
         .and_then(|()| s.write_all(body));
     if let Err(e) = sent {
         let refused = matches!(e.kind(), std::io::ErrorKind::BrokenPipe | std::io::ErrorKind::ConnectionReset);
@@ -578,10 +609,11 @@ fn bad_frames_and_programs_get_one_error_each_and_a_closed_tab_frees_its_session
     let _g = gesthor_tests::serial();
     let tmp = tempfile::tempdir().unwrap();
     let server = Server::start(&tmp.path().join("live"), &["--listen", "127.0.0.1:0"]);
-    assert!(http_get(server.port, "/").contains("GesTHOR live"));
+    assert!(http_get(server.port, &server.at("/")).contains("GesTHOR live"));
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
-        let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{}/ws", server.port)).await.unwrap();
+        let ws_url = format!("ws://127.0.0.1:{}{}", server.port, server.at("/ws"));
+        let (mut ws, _) = tokio_tungstenite::connect_async(ws_url).await.unwrap();
         let hello = next(&mut ws).await;
         assert_eq!(hello["type"], "hello", "{hello}");
         let error = |m: Value| {
@@ -640,9 +672,8 @@ fn listening_beyond_loopback_asks_for_a_token_over_https_and_bad_files_are_named
     let server = Server::start(&tmp.path().join("live"), &["--listen", "0.0.0.0:0"]);
     assert!(server.url.starts_with("https://") && server.url.contains("?token="), "{}", server.url);
     let fingerprint = server.fingerprint.clone().unwrap();
-    let token = server.url.split("?token=").nth(1).unwrap();
     rt.block_on(async {
-        let page = https_get(server.port, &fingerprint, &format!("/?token={token}")).await.unwrap();
+        let page = https_get(server.port, &fingerprint, &server.at("/")).await.unwrap();
         assert!(status(&page) == "200" && page.contains("GesTHOR live"), "{page}");
         for path in ["/", "/sessions", "/?token=0123"] {
             let refused = https_get(server.port, &fingerprint, path).await.unwrap();
@@ -652,7 +683,7 @@ fn listening_beyond_loopback_asks_for_a_token_over_https_and_bad_files_are_named
         assert!(https_get(server.port, &sha256_colons(b"another certificate"), "/").await.is_err());
     });
     // plain HTTP to the HTTPS port gets no page
-    assert!(!http_response(server.port, "GET", &format!("/?token={token}"), b"").contains("GesTHOR live"));
+    assert!(!http_response(server.port, "GET", &server.at("/"), b"").contains("GesTHOR live"));
     drop(server);
 
     // --insecure: plain HTTP beyond loopback, still with the token
@@ -661,11 +692,10 @@ fn listening_beyond_loopback_asks_for_a_token_over_https_and_bad_files_are_named
     assert!(server.fingerprint.is_none());
     assert!(http_get(server.port, "/").contains("token"));
     assert!(http_get(server.port, "/sessions").contains("token"));
-    let token = server.url.split("?token=").nth(1).unwrap();
-    assert!(http_get(server.port, &format!("/?token={token}")).contains("GesTHOR live"));
+    assert!(http_get(server.port, &server.at("/")).contains("GesTHOR live"));
     drop(server);
 
-    // a certificate and key of one's own, on loopback: HTTPS with them, no token
+    // a certificate and key of one's own, on loopback: HTTPS with them, the token as always
     let names = vec!["localhost".to_string()];
     let key = rcgen::KeyPair::generate().unwrap();
     let cert = rcgen::CertificateParams::new(names).unwrap().self_signed(&key).unwrap();
@@ -675,9 +705,9 @@ fn listening_beyond_loopback_asks_for_a_token_over_https_and_bad_files_are_named
     let (c, k) = (cert_pem.display().to_string(), key_pem.display().to_string());
     let server =
         Server::start(&tmp.path().join("live"), &["--listen", "127.0.0.1:0", "--tls-cert", &c, "--tls-key", &k]);
-    assert!(server.url.starts_with("https://localhost:") && !server.url.contains("token"), "{}", server.url);
+    assert!(server.url.starts_with("https://localhost:") && server.url.contains("?token="), "{}", server.url);
     assert_eq!(server.fingerprint.as_deref(), Some(sha256_colons(cert.der()).as_str()));
-    let page = rt.block_on(https_get(server.port, &sha256_colons(cert.der()), "/")).unwrap();
+    let page = rt.block_on(https_get(server.port, &sha256_colons(cert.der()), &server.at("/"))).unwrap();
     assert!(page.contains("GesTHOR live"), "{page}");
     drop(server);
 

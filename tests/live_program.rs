@@ -76,7 +76,8 @@ fn a_person_places_a_program_and_uploads_their_gesture() {
     let base = ds.program(Split::Val, 1).unwrap();
     let rt = tokio::runtime::Runtime::new().unwrap();
     let (placed_record, upload_record) = rt.block_on(async {
-        let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{}/ws", server.port)).await.unwrap();
+        let ws_url = format!("ws://127.0.0.1:{}{}", server.port, server.at("/ws"));
+        let (mut ws, _) = tokio_tungstenite::connect_async(ws_url).await.unwrap();
         let hello = next(&mut ws).await;
         let session = hello["session"].as_str().unwrap().to_string();
         let val_rooms = hello["rooms"].as_array().unwrap().iter().find(|r| r[0] == "val").unwrap()[1].clone();
@@ -111,7 +112,7 @@ fn a_person_places_a_program_and_uploads_their_gesture() {
         let wave = worker::gesture::intervention(1);
         let csv = tmp.path().join("wave.csv");
         worker::gesture::motion::write_csv(&csv, &wave).unwrap();
-        let upload = |name: &str| format!("/upload?session={session}&name={name}");
+        let upload = |name: &str| server.at(&format!("/upload?session={session}&name={name}"));
         let (status, body) = http_post(server.port, &upload("wave.csv"), &std::fs::read(&csv).unwrap());
         assert_eq!(status, 202, "{body}");
         let told = next(&mut ws).await;
@@ -125,7 +126,7 @@ fn a_person_places_a_program_and_uploads_their_gesture() {
         assert_eq!(status, 202);
         let e = next(&mut ws).await;
         assert!(e["type"] == "error" && e["message"].as_str().unwrap().contains("notes.csv"), "{e}");
-        assert_eq!(http_post(server.port, "/upload?session=session-999&name=x.csv", b"1").0, 404);
+        assert_eq!(http_post(server.port, &server.at("/upload?session=session-999&name=x.csv"), b"1").0, 404);
 
         // a video of the person gesturing (our avatar, filmed), read as `gesture capture` reads one
         if capture_ready() {

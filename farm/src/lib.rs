@@ -11,7 +11,8 @@
 //! - [`stepper`]: what a worker drives ([`stepper::Stepper`]) and a synthetic one for tests
 //! - [`frame_set`]: labelled RGB-D frames for pretraining the visual encoder
 //! - [`frame_socket`]: a worker's exported frame memory handed to the learner (device frames)
-//! - [`checkpoints`]: where a run's checkpoints live and how they are named
+//! - [`checkpoints`]: where a run's checkpoints live and how they are named; [`models`]: the
+//!   trained policies the repository ships, each in a folder with its card
 //! - [`metrics`]: SR, SPL, DTS at k stops, episode results and trajectories
 //! - [`profile`]: where a training run's time goes (learner timeline, worker loops)
 //! - [`tensorboard`]: TensorBoard event files (scalars, images, text) of a run
@@ -25,6 +26,7 @@ pub mod frame_set;
 pub mod frame_socket;
 pub mod learner_ports;
 pub mod metrics;
+pub mod models;
 pub mod process;
 pub mod profile;
 pub mod rooms;

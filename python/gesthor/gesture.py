@@ -57,7 +57,8 @@ def capture(source, out, program="val:0", dataset="data/gond", name=None, fps=No
 
 
 def follow(checkpoint, program, out, motion=None, dataset="data/gond"):
-    """Runs `checkpoint` on `program` with the gesture `motion` (a motion CSV; default: the
+    """Runs `checkpoint` (a checkpoint file, a run directory, or a shipped model such as
+    "models/both") on `program` with the gesture `motion` (a motion CSV; default: the
     program's own); returns `out/result.json`: success and SPL at the first stop, where it
     stopped, success with unlimited stops, steps, and the GIF's path."""
     args = ["follow", "--checkpoint", str(checkpoint), "--program", program, "--out", str(out), "--dataset", str(dataset)]

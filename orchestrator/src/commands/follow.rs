@@ -31,7 +31,8 @@ use crate::report::trajectory;
 
 #[derive(Args, Debug)]
 pub struct FollowArgs {
-    /// A checkpoint file, or a run directory (its newest complete checkpoint).
+    /// A checkpoint file, a run directory (its newest complete checkpoint), or a shipped model
+    /// (`models/both`).
     #[arg(long)]
     pub checkpoint: PathBuf,
     /// The program the gesture was recorded into (SPLIT:INDEX): its room, target, person and

@@ -1,5 +1,5 @@
 //! The subcommands of `orchestrator`, one module each (a subcommand with parts of its own is a
-//! folder: `bench`, `encoder`, `gesture`, `live`, `study`). Each holds its clap arguments and a `run` that
+//! folder: `bench`, `encoder`, `eval`, `gesture`, `live`, `study`). Each holds its clap arguments and a `run` that
 //! `main.rs` dispatches to; `values` checks the command-line values they share.
 
 pub mod bench;
@@ -10,6 +10,7 @@ pub mod follow;
 pub mod gesture;
 pub mod hosts;
 pub mod live;
+pub mod model;
 pub mod program;
 pub mod render;
 pub mod soak;

@@ -12,7 +12,7 @@ use worker::scene::Split;
 use super::passes::{first_headings, pass_trajectories, read_episodes};
 use crate::report::first_turn::FirstHeading;
 use crate::report::nearness;
-use crate::report::tables::{EvalMode, compare, paired};
+use crate::report::tables::{EvalMode, TableRow, compare, find, paired, read_rows};
 
 /// What `eval --compare` was given: the evaluation folders, the split they ran on, the dataset
 /// holding its programs (default: the first evaluation's), the DTS threshold and the output
@@ -115,6 +115,30 @@ impl ComparedSplit {
     }
 }
 
+/// SR at the first stop in every pass the evaluations ran (blind, another room's gesture, …),
+/// from each one's `tables.csv`; empty when they ran the normal pass alone.
+fn passes_table(labels: &[String], normal_passes: &[PathBuf]) -> anyhow::Result<String> {
+    let mut rows = Vec::with_capacity(labels.len());
+    for pass in normal_passes {
+        let csv = pass.parent().unwrap_or(pass).join("tables.csv");
+        rows.push(if csv.is_file() { read_rows(&csv)? } else { Vec::new() });
+    }
+    let sr1 = |rows: &[TableRow], mode: EvalMode| find(rows, mode.name(), "all", "all", "1").map(|r| r.sr);
+    let modes: Vec<EvalMode> =
+        EvalMode::ALL.into_iter().filter(|&m| rows.iter().any(|r| sr1(r, m).is_some())).collect();
+    if modes.iter().all(|&m| m == EvalMode::Normal) {
+        return Ok(String::new());
+    }
+    let names: Vec<&str> = modes.iter().map(|m| m.name()).collect();
+    let mut md = format!("\n## SR at the first stop, pass by pass (%)\n\n| method | {} |\n|---|", names.join(" | "));
+    md += &"---:|".repeat(modes.len());
+    for (label, r) in labels.iter().zip(&rows) {
+        let cell = |&m: &EvalMode| sr1(r, m).map_or("".to_string(), |sr| format!("{sr:.1}"));
+        md += &format!("\n| {label} | {} |", modes.iter().map(cell).collect::<Vec<_>>().join(" | "));
+    }
+    Ok(md + "\n")
+}
+
 /// The last `k` components of `dir`, joined by "/".
 fn folder_name(dir: &Path, k: usize) -> String {
     let parts: Vec<String> = dir.components().rev().take(k).map(|c| c.as_os_str().to_string_lossy().into()).collect();
@@ -141,6 +165,8 @@ pub(super) fn run(a: &Comparison) -> anyhow::Result<()> {
         .map(|(label, eps)| (label.clone(), scores(eps, Some(1), a.dts_threshold), scores(eps, None, a.dts_threshold)))
         .collect();
     let mut md = format!("# Comparison on {} (first stop; ∞ = unlimited stops)\n\n{}", a.split, compare(&rows));
+    let labels: Vec<String> = evaluations.iter().map(|(l, _)| l.clone()).collect();
+    md += &passes_table(&labels, &passes)?;
     let refs: Vec<(String, &[EpisodeResult])> = evaluations.iter().map(|(l, e)| (l.clone(), e.as_slice())).collect();
     if evaluations.len() > 1 {
         md.push('\n');

@@ -37,7 +37,8 @@ use passes::{first_headings, pass_trajectories};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
-    /// A checkpoint file, or a run directory (its latest complete checkpoint). Without it, the
+    /// A checkpoint file, a run directory (its latest complete checkpoint), or a shipped model
+    /// (`models/both`; its evaluations go to runs/eval-models/NAME). Without it, the
     /// Random baseline is evaluated.
     #[arg(long)]
     pub checkpoint: Option<PathBuf>,
@@ -93,8 +94,12 @@ pub struct EvalArgs {
     pub compare: Vec<PathBuf>,
 }
 
-/// Resolves `--checkpoint` into (checkpoint file, run directory holding its config).
+/// Resolves `--checkpoint` into (checkpoint file, run directory or shipped model's folder
+/// holding its config).
 pub(crate) fn locate(path: &Path) -> anyhow::Result<(PathBuf, PathBuf)> {
+    if farm::models::is_model(path) {
+        return Ok((path.join(farm::models::WEIGHTS), path.to_path_buf()));
+    }
     if path.is_dir() {
         let (ckpt, skipped) = farm::checkpoints::latest_verified(&farm::checkpoints::dir_of(path));
         if !skipped.is_empty() {
@@ -245,6 +250,10 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     // run and split goes beside the first (test-2, test-3, ...).
     let out = a.out.clone().unwrap_or_else(|| {
         unused_dir(match &run_dir {
+            // a shipped model's folder stays as shipped
+            Some(r) if farm::models::is_model(r) => {
+                PathBuf::from("runs/eval-models").join(r.file_name().unwrap_or_default()).join(split.name())
+            }
             Some(r) => r.join("eval").join(split.name()),
             None if a.expert => PathBuf::from("runs/eval-expert").join(split.name()),
             None => PathBuf::from("runs/eval-random").join(split.name()),
@@ -386,7 +395,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         Vec::new()
     };
     // Beside the training curves when the checkpoint belongs to a run, at its frame count.
-    let tb = run_dir.as_ref().unwrap_or(&out).join("tb");
+    let tb = run_dir.as_ref().filter(|r| !farm::models::is_model(r)).unwrap_or(&out).join("tb");
     let step = match &checkpoint {
         Some(c) => farm::checkpoints::frames(c).map_err(|e| anyhow::anyhow!("{}: {e}", c.display()))?,
         None => 0,

@@ -14,7 +14,7 @@
 //! - [`avatar`]: the person performing the gesture the robots perceive, filmed for the page;
 //! - [`picture`]: pictures as the page shows them;
 //! - [`session`]: one tab's simulator, policies, webcam and record;
-//! - [`server`]: the page's files, the socket, the sessions open;
+//! - [`server`]: the page's files, the socket, the sessions open, and who may use them;
 //! - [`tls`]: HTTPS, with the person's certificate or one made at start.
 
 pub mod avatar;
@@ -30,6 +30,7 @@ pub mod webcam;
 pub mod wire;
 
 use std::net::SocketAddr;
+use std::num::NonZeroUsize;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -45,17 +46,36 @@ use policy::{Checkpoint, Policy};
 pub struct LiveArgs {
     #[command(subcommand)]
     pub cmd: Option<LiveCmd>,
-    /// A checkpoint file or a run directory (its newest complete checkpoint); repeat it to
-    /// choose between several on the page.
+    /// A checkpoint file, a run directory (its newest complete checkpoint) or a shipped model;
+    /// repeat it to choose between several on the page. The shipped models are offered beside.
     #[arg(long = "checkpoint")]
     pub checkpoints: Vec<PathBuf>,
+    /// The shipped models' folder: each model in it is offered after the checkpoints named.
+    #[arg(long, default_value = farm::models::DIR)]
+    pub models: PathBuf,
     #[arg(long, default_value = "data/gond")]
     pub dataset: PathBuf,
-    /// Where to listen. Beyond loopback the page asks for a token printed at start and is
-    /// served over HTTPS: with --tls-cert/--tls-key, or else a self-signed certificate made at
-    /// start, whose SHA-256 fingerprint is printed to check the browser's warning against.
+    /// Where to listen. The page asks for a token printed at start (in the URL to open), and
+    /// answers only to the names of this address. Beyond loopback it is served over HTTPS: with
+    /// --tls-cert/--tls-key, or else a self-signed certificate made at start, whose SHA-256
+    /// fingerprint is printed to check the browser's warning against.
     #[arg(long, default_value = "127.0.0.1:8480")]
     pub listen: SocketAddr,
+    /// A name (or address) the server is reached by, besides those of --listen (repeat it): a
+    /// request naming another Host is refused, as a page of another site rebinding its name to
+    /// this machine would name its own.
+    #[arg(long = "allow-host", value_name = "NAME")]
+    pub allow_hosts: Vec<String>,
+    /// Ask no token (for tests, or a machine and network whose every program and person you
+    /// trust): any of them may then start sessions. Pages of other sites stay refused.
+    #[arg(long)]
+    pub no_token: bool,
+    /// Sessions (tabs) run at once, at most; a tab beyond them is told the server is full. A
+    /// session is its simulator in this process, a `learner act` a robot (two side by side) and,
+    /// with the camera on, the landmark model: 0.4 GB resident, 0.8 GB with the camera (a 64²
+    /// configs/tiny checkpoint), and up to a core while it runs; 4 suit two cores.
+    #[arg(long, default_value_t = NonZeroUsize::new(4).expect("not zero"))]
+    pub max_sessions: NonZeroUsize,
     /// Serve plain HTTP beyond loopback instead of HTTPS (behind a TLS proxy, or on a network
     /// you trust): the webcam's frames travel unencrypted.
     #[arg(long, conflicts_with = "tls_cert")]
@@ -92,7 +112,13 @@ pub fn run(a: LiveArgs) -> anyhow::Result<()> {
             Some((step, what)) => anyhow::bail!("{}: step {step} differs: {what}", episode.display()),
         };
     }
-    anyhow::ensure!(!a.checkpoints.is_empty(), "--checkpoint: name at least one checkpoint or run directory");
+    let mut offered = a.checkpoints.clone();
+    offered.extend(farm::models::list(&a.models).into_iter().filter(|m| !a.checkpoints.contains(m)));
+    anyhow::ensure!(
+        !offered.is_empty(),
+        "--checkpoint: name a checkpoint or run directory ({} holds no shipped model)",
+        a.models.display()
+    );
     let beyond = !a.listen.ip().is_loopback();
     // an unspecified address is reached by the machine's name
     let host = if a.listen.ip().is_unspecified() { crate::remote::hostname() } else { a.listen.ip().to_string() };
@@ -104,7 +130,7 @@ pub fn run(a: LiveArgs) -> anyhow::Result<()> {
     let dataset =
         Dataset::open(&a.dataset, Verify::Quick).with_context(|| format!("--dataset {}", a.dataset.display()))?;
     let mut checkpoints = Vec::new();
-    for c in &a.checkpoints {
+    for c in &offered {
         let ck = Checkpoint::open(c)?;
         // a checkpoint that does not load says so now, in one line, not in a tab later
         drop(Policy::start(&ck, &ck.config).with_context(|| format!("--checkpoint {}", c.display()))?);
@@ -112,9 +138,10 @@ pub fn run(a: LiveArgs) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     // A secret, not a simulation draw: from the operating system, not the run's seed.
-    let token = beyond.then(|| format!("{:032x}", rand::random::<u128>()));
+    let token = (!a.no_token).then(|| format!("{:032x}", rand::random::<u128>()));
+    let hosts = server::access::hosts(a.listen.ip(), &host, &a.allow_hosts);
     let shared = Arc::new(session::Shared::new(Arc::new(dataset), checkpoints, a.out.clone()));
-    let app = Arc::new(server::App::new(shared, token.clone()));
+    let app = Arc::new(server::App::new(shared, a.max_sessions.get()));
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     rt.block_on(async move {
         let listener =
@@ -126,7 +153,7 @@ pub fn run(a: LiveArgs) -> anyhow::Result<()> {
             _ => host,
         };
         let scheme = if tls.is_some() { "https" } else { "http" };
-        let query = token.map(|t| format!("?token={t}")).unwrap_or_default();
+        let query = token.as_ref().map(|t| format!("?token={t}")).unwrap_or_default();
         println!("GesTHOR live: open {scheme}://{host}:{port}/{query} (sessions are recorded in {})", a.out.display());
         match &tls {
             Some((id, true)) => println!(
@@ -139,7 +166,7 @@ pub fn run(a: LiveArgs) -> anyhow::Result<()> {
         }
         use std::io::Write;
         std::io::stdout().flush()?;
-        let app = server::router(app);
+        let app = server::router(app, server::access::Access::new(hosts, token, port, tls.is_some()));
         match tls {
             Some((id, _)) => axum::serve(tls::TlsListener::new(listener, id.config)?, app).await,
             None => axum::serve(listener, app).await,

@@ -24,8 +24,8 @@ pub struct Checkpoint {
 }
 
 impl Checkpoint {
-    /// A checkpoint file or a run directory (its newest complete checkpoint), with its run's
-    /// config; errors name what was given.
+    /// A checkpoint file, a run directory (its newest complete checkpoint) or a shipped model,
+    /// with its run's config; errors name what was given.
     pub fn open(given: &Path) -> anyhow::Result<Checkpoint> {
         let (file, run) = crate::commands::eval::locate(given)?;
         let config = run.join("config.toml");
@@ -33,7 +33,12 @@ impl Checkpoint {
             RunConfig::load(&config).with_context(|| format!("--checkpoint {}: its run's config", given.display()))?;
         let stem = file.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let run_name = run.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-        Ok(Checkpoint { name: format!("{run_name}/{stem}"), file, cfg, config })
+        // a shipped model by its folder (models/both), a run's checkpoint by run and update
+        let name = match farm::models::is_model(&run) {
+            true => format!("{}/{run_name}", farm::models::DIR),
+            false => format!("{run_name}/{stem}"),
+        };
+        Ok(Checkpoint { name, file, cfg, config })
     }
 }
 

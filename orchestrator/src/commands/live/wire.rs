@@ -135,6 +135,9 @@ pub enum ToPage {
     FrameRefused { message: String },
     /// Something the page asked could not be done; the session goes on.
     Error { message: String },
+    /// No session for this tab: the server runs as many as it may at once (`--max-sessions`).
+    /// The socket closes after it.
+    Full { message: String },
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -276,6 +279,7 @@ mod tests {
         let to_page = [
             ToPage::FrameSeen { person: true, waving: false, capturing: true },
             ToPage::Error { message: "no".into() },
+            ToPage::Full { message: "all 4 in use".into() },
             ToPage::FrameRefused { message: "not a JPEG".into() },
             ToPage::Uploaded {
                 name: "me.mp4".into(),

@@ -33,7 +33,7 @@ mod lanes;
 mod paired;
 mod progress;
 pub mod records;
-mod steps;
+pub mod steps;
 pub mod summary;
 
 use std::path::{Path, PathBuf};
@@ -385,7 +385,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
             let path = a.out.join("configs").join(format!("{name}.toml"));
             farm::files::write_atomic(&path, c.to_toml().as_bytes())?;
             let e = Eval {
-                what: ["--config".into(), s(&path)],
+                what: vec!["--config".into(), s(&path)],
                 split: Split::Test,
                 programs: a.test_programs,
                 modes: &["normal"],
@@ -442,7 +442,7 @@ fn model(
     lane.doing(&format!("selecting {name} on val"));
     for ckpt in run.candidates(a.workers) {
         let e = Eval {
-            what: ["--checkpoint".into(), s(&ckpt)],
+            what: vec!["--checkpoint".into(), s(&ckpt)],
             split: Split::Val,
             programs: a.val_programs,
             modes: &["normal"],
@@ -463,7 +463,7 @@ fn model(
 
     // the test and train evaluations are of the selected checkpoint: redone when val chose another
     let on = |split: Split, programs: usize, modes: &'static [&'static str], dir: &str| Eval {
-        what: ["--checkpoint".into(), s(&chosen)],
+        what: vec!["--checkpoint".into(), s(&chosen)],
         split,
         programs,
         modes,

@@ -107,6 +107,11 @@ pub fn all(publish: &Path) -> anyhow::Result<Vec<(RunResult, Option<PathBuf>)>> 
     Ok(out)
 }
 
+/// The model recorded in folder `dir` (PUBLISH/records/NAME), its config unchecked.
+pub fn one(dir: &Path) -> anyhow::Result<RunResult> {
+    Ok(rebased(load(&dir.join("record.json"))?.result, dir))
+}
+
 fn load(path: &Path) -> anyhow::Result<Record> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("{}: not a study record", path.display()))

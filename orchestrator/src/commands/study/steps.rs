@@ -63,8 +63,8 @@ pub fn stopped() -> anyhow::Result<()> {
 
 /// One `orchestrator eval` of the study.
 pub struct Eval<'a> {
-    /// `--checkpoint FILE` or `--config FILE`.
-    pub what: [String; 2],
+    /// `--checkpoint FILE` or `--config FILE`, and any other arguments of `eval`.
+    pub what: Vec<String>,
     pub split: Split,
     pub programs: usize,
     pub modes: &'a [&'a str],

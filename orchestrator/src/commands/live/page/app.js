@@ -11,13 +11,16 @@ const $ = (id) => document.getElementById(id);
 // What the page has seen, for people reading the console and for the browser test: the
 // episode, and per side (one robot, or two when two checkpoints are compared) its steps, its
 // path and its end; `ended` once every side has; of the webcam, the frames sent and read, and
-// how many of those were read as a wave.
+// how many of those were read as a wave; `full`, why no session came (the server runs as many
+// as it may).
 const live = (window.live = {
-  session: null, episode: null, sides: [], ended: false, episodes: [],
+  session: null, full: null, episode: null, sides: [], ended: false, episodes: [],
   framesSent: 0, framesSeen: 0, waving: false, wavingFrames: 0, captured: null, uploaded: null, errors: [],
   room: null, placed: { person: null, robot: null },
 });
 
+// the token printed at start, in the URL opened; a page opened without it (a reload of a bare
+// URL) is let in by the cookie the server set, which the socket and the uploads carry too
 const token = new URLSearchParams(location.search).get("token");
 const scheme = location.protocol === "https:" ? "wss" : "ws";
 const ws = new WebSocket(`${scheme}://${location.host}/ws${token ? "?token=" + encodeURIComponent(token) : ""}`);
@@ -25,7 +28,9 @@ ws.binaryType = "arraybuffer";
 const send = (m) => ws.readyState === WebSocket.OPEN && ws.send(JSON.stringify(m));
 
 ws.onopen = () => ($("status").textContent = "connected");
-ws.onclose = () => ($("status").textContent = "disconnected: reload the page");
+ws.onclose = () => {
+  if (!live.full) $("status").textContent = "disconnected: reload the page";
+};
 ws.onmessage = (ev) => {
   const m = JSON.parse(ev.data);
   const on = handlers[m.type];
@@ -129,6 +134,10 @@ const handlers = {
   },
   frame_refused(m) {
     handlers.error(m);
+  },
+  full(m) {
+    live.full = m.message;
+    $("status").textContent = m.message;
   },
   error(m) {
     live.errors.push(m.message);

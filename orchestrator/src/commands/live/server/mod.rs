@@ -1,7 +1,10 @@
 //! The HTTP side of `orchestrator live`: the page's three files (built into the binary), the
-//! WebSocket each tab opens, a tab's uploads, and how many sessions are open. Each socket gets a
-//! session on a thread of its own ([`super::session`]); the socket task only carries messages
-//! both ways, and an upload reaches the session by its name.
+//! WebSocket each tab opens, a tab's uploads, and how many sessions are open; every route behind
+//! [`access`]'s checks. Each socket gets a session on a thread of its own ([`super::session`]),
+//! as many at once as the server runs; the socket task only carries messages both ways, and an
+//! upload reaches the session by its name.
+
+pub mod access;
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -13,84 +16,63 @@ use axum::body::Bytes;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{DefaultBodyLimit, Query, State};
 use axum::http::{StatusCode, header};
+use axum::middleware::from_fn_with_state;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use serde::Deserialize;
+
+use access::Access;
 
 use super::gesture::MAX_UPLOAD_BYTES;
 use super::session::{self, Input, Shared};
 use super::wire::{CheckpointInfo, ToPage, ToServer};
 
-const INDEX: &str = include_str!("page/index.html");
-const APP: &str = include_str!("page/app.js");
-const STYLE: &str = include_str!("page/style.css");
+const INDEX: &str = include_str!("../page/index.html");
+const APP: &str = include_str!("../page/app.js");
+const STYLE: &str = include_str!("../page/style.css");
 
 /// What every request sees.
 pub struct App {
     pub shared: Arc<Shared>,
-    /// Asked of every request when the server listens beyond loopback.
-    pub token: Option<String>,
     /// Sessions whose simulator is still running.
     pub open: AtomicUsize,
+    /// Sessions run at once, at most (`--max-sessions`).
+    max_sessions: usize,
     started: AtomicUsize,
     /// Each open session's input, by name: where its tab's uploads go.
     inputs: Mutex<HashMap<String, std::sync::mpsc::Sender<Input>>>,
 }
 
 impl App {
-    pub fn new(shared: Arc<Shared>, token: Option<String>) -> App {
+    pub fn new(shared: Arc<Shared>, max_sessions: usize) -> App {
         App {
             shared,
-            token,
             open: AtomicUsize::new(0),
+            max_sessions,
             started: AtomicUsize::new(0),
             inputs: Mutex::new(HashMap::new()),
         }
     }
 }
 
-#[derive(Deserialize)]
-struct Access {
-    token: Option<String>,
-}
-
-pub fn router(app: Arc<App>) -> Router {
+pub fn router(app: Arc<App>, access: Access) -> Router {
     Router::new()
-        .route("/", get(index))
+        .route("/", get(|| async { ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], INDEX) }))
         .route("/app.js", get(|| async { ([(header::CONTENT_TYPE, "text/javascript")], APP) }))
         .route("/style.css", get(|| async { ([(header::CONTENT_TYPE, "text/css")], STYLE) }))
         .route("/sessions", get(sessions))
         .route("/ws", get(socket))
         .route("/upload", post(upload).layer(DefaultBodyLimit::max(MAX_UPLOAD_BYTES)))
+        .layer(from_fn_with_state(Arc::new(access), access::check))
         .with_state(app)
 }
 
-fn allowed(app: &App, q: &Access) -> bool {
-    app.token.as_ref().is_none_or(|t| q.token.as_ref() == Some(t))
-}
-
-fn refused() -> Response {
-    (StatusCode::FORBIDDEN, "this server asks for the token it printed at start: open the URL it printed\n")
-        .into_response()
-}
-
-async fn index(State(app): State<Arc<App>>, Query(q): Query<Access>) -> Response {
-    if !allowed(&app, &q) {
-        return refused();
-    }
-    ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], INDEX).into_response()
-}
-
-async fn sessions(State(app): State<Arc<App>>, Query(q): Query<Access>) -> Response {
-    if !allowed(&app, &q) {
-        return refused();
-    }
+async fn sessions(State(app): State<Arc<App>>) -> Response {
     format!("{{\"open\":{}}}", app.open.load(Ordering::SeqCst)).into_response()
 }
 
 #[derive(Deserialize)]
 struct UploadTo {
-    token: Option<String>,
     session: String,
     name: String,
 }
@@ -98,9 +80,6 @@ struct UploadTo {
 /// A file for a session's person's gesture (`POST /upload?session=S&name=N`, the file as the
 /// body): accepted here, read by the session, answered on its socket.
 async fn upload(State(app): State<Arc<App>>, Query(q): Query<UploadTo>, body: Bytes) -> Response {
-    if !allowed(&app, &Access { token: q.token }) {
-        return refused();
-    }
     let input = app.inputs.lock().expect("not poisoned").get(&q.session).cloned();
     let Some(input) = input else {
         return (StatusCode::NOT_FOUND, format!("no session {} is open\n", q.session)).into_response();
@@ -113,10 +92,7 @@ async fn upload(State(app): State<Arc<App>>, Query(q): Query<UploadTo>, body: By
     }
 }
 
-async fn socket(ws: WebSocketUpgrade, State(app): State<Arc<App>>, Query(q): Query<Access>) -> Response {
-    if !allowed(&app, &q) {
-        return refused();
-    }
+async fn socket(ws: WebSocketUpgrade, State(app): State<Arc<App>>) -> Response {
     ws.on_upgrade(move |s| carry(s, app))
 }
 
@@ -131,11 +107,24 @@ fn session_id(app: &App) -> String {
     }
 }
 
-/// Carries one tab's messages to its session and back, until either side closes.
-async fn carry(mut socket: WebSocket, app: Arc<App>) {
-    let id = session_id(&app);
-    let shared = &app.shared;
-    let hello = ToPage::Hello {
+/// Takes one of the sessions the server runs at once, if one is free.
+fn reserve(app: &App) -> bool {
+    app.open.fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| (n < app.max_sessions).then_some(n + 1)).is_ok()
+}
+
+/// Tells a tab that no session is free for it, and closes its socket.
+async fn full(mut socket: WebSocket, max: usize) {
+    eprintln!("live: a tab was refused a session: {max} are open, as many as --max-sessions allows");
+    let message =
+        format!("no session is free: the server runs {max} at once, all in use; close another tab of it or try later");
+    if send(&mut socket, &ToPage::Full { message }).await.is_ok() {
+        let _ = socket.send(Message::Close(None)).await;
+    }
+}
+
+/// What a tab may choose, for its session `id`.
+fn hello(shared: &Shared, id: &str) -> ToPage {
+    ToPage::Hello {
         checkpoints: shared
             .checkpoints
             .iter()
@@ -147,11 +136,19 @@ async fn carry(mut socket: WebSocket, app: Arc<App>) {
             .collect(),
         splits: shared.dataset.manifest.splits.iter().map(|(name, e)| (name.clone(), e.programs as usize)).collect(),
         rooms: shared.rooms.clone(),
-        session: id.clone(),
-    };
+        session: id.to_string(),
+    }
+}
+
+/// Carries one tab's messages to its session and back, until either side closes.
+async fn carry(mut socket: WebSocket, app: Arc<App>) {
+    if !reserve(&app) {
+        return full(socket, app.max_sessions).await;
+    }
+    let id = session_id(&app);
+    let hello = hello(&app.shared, &id);
     let (to_page, mut from_session) = tokio::sync::mpsc::unbounded_channel();
     let (to_session, from_page) = std::sync::mpsc::channel();
-    app.open.fetch_add(1, Ordering::SeqCst);
     app.inputs.lock().expect("not poisoned").insert(id.clone(), to_session.clone());
     let (s, a, name) = (app.shared.clone(), app.clone(), id.clone());
     let spawned = std::thread::Builder::new().name(id.clone()).spawn(move || {
