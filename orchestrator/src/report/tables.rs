@@ -260,7 +260,7 @@ impl Evaluation<'_> {
                         writeln!(
                             out,
                             "{},{},{},{},{},{},{},{:.3},{:.3},{:.4}",
-                            self.label,
+                            csv_field(&self.label),
                             self.split,
                             mode.name(),
                             t.map_or("all", |t| t.name()),
@@ -308,7 +308,7 @@ pub fn read_rows(csv: &std::path::Path) -> anyhow::Result<Vec<TableRow>> {
     let (mode, scene, inst, stops, episodes, sr, spl, dts) = (mode?, scene?, inst?, stops?, episodes?, sr?, spl?, dts?);
     let mut rows = Vec::new();
     for (n, line) in lines.enumerate() {
-        let f: Vec<&str> = line.split(',').collect();
+        let f = fields(line);
         anyhow::ensure!(
             f.len() == header.len(),
             "{}: line {} has {} fields, not {}",
@@ -333,6 +333,35 @@ pub fn read_rows(csv: &std::path::Path) -> anyhow::Result<Vec<TableRow>> {
         });
     }
     Ok(rows)
+}
+
+/// `text` as a CSV field: quoted, its quotes doubled, when it holds a comma or a quote (a
+/// label such as "+Both, greedy").
+fn csv_field(text: &str) -> std::borrow::Cow<'_, str> {
+    match text.contains([',', '"']) {
+        true => format!("\"{}\"", text.replace('"', "\"\"")).into(),
+        false => text.into(),
+    }
+}
+
+/// A `tables.csv` line's fields; the first (the label) may be quoted as [`csv_field`] writes it,
+/// and is returned as written between its quotes.
+fn fields(line: &str) -> Vec<&str> {
+    let Some(quoted) = line.strip_prefix('"') else { return line.split(',').collect() };
+    let bytes = quoted.as_bytes();
+    let mut i = 0;
+    while i < bytes.len() {
+        match (bytes[i], bytes.get(i + 1)) {
+            (b'"', Some(b'"')) => i += 2,
+            (b'"', _) => break,
+            _ => i += 1,
+        }
+    }
+    let mut f = vec![&quoted[..i.min(quoted.len())]];
+    if let Some(rest) = quoted.get(i + 1..).and_then(|r| r.strip_prefix(',')) {
+        f.extend(rest.split(','));
+    }
+    f
 }
 
 /// The row of `mode`, scene type, instance bucket and stops among `rows`.
@@ -510,5 +539,16 @@ pub(crate) mod tests {
         std::fs::write(&path, csv.replacen(",3,0.000", ",3,zero", 1)).unwrap();
         let e = read_rows(&path).unwrap_err().to_string();
         assert!(e.contains("tables.csv") && e.contains("sr `zero`"), "{e}");
+    }
+
+    #[test]
+    fn a_label_with_a_comma_is_quoted_and_read_back() {
+        assert_eq!(csv_field("+Both"), "+Both");
+        assert_eq!(csv_field("+Both, greedy"), "\"+Both, greedy\"");
+        let line = format!("{},val,normal,all,all,1,500,43.800,30.197,0.0386", csv_field("a \"b\", c"));
+        let f = fields(&line);
+        assert_eq!(f.len(), 10, "{f:?}");
+        assert_eq!((f[0], f[2], f[7]), ("a \"\"b\"\", c", "normal", "43.800"));
+        assert_eq!(fields("+Both,val,normal").len(), 3);
     }
 }
