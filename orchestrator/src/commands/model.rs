@@ -39,7 +39,7 @@ pub struct ShipArgs {
     /// The command that trains it again, for the card.
     #[arg(long)]
     pub retrain: String,
-    /// The model's folder (e.g. models/both); replaced.
+    /// The model's folder (e.g. models/both); replaced once the new model is whole.
     #[arg(long)]
     pub out: PathBuf,
     /// The check's split and number of programs (spread evenly over the split).
@@ -88,14 +88,16 @@ fn ship(a: &ShipArgs) -> anyhow::Result<()> {
     let config =
         meta.get("config").with_context(|| format!("{}: no `config` in its metadata", a.checkpoint.display()))?;
     let cfg = RunConfig::from_toml(config, &format!("{} (metadata `config`)", a.checkpoint.display()))?;
-    if a.out.exists() {
-        std::fs::remove_dir_all(&a.out).with_context(|| format!("clearing {}", a.out.display()))?;
-    }
-    farm::files::write_atomic(&a.out.join(models::CONFIG), config.as_bytes())?;
-    farm::files::write_atomic(&a.out.join(models::WEIGHTS), &slim)?;
     let split = Split::from_name(&a.split).with_context(|| format!("--split: `{}` is not a split", a.split))?;
+    // made beside, moved into place whole: a model already there stays until the new one is done
+    let made = a.out.with_extension("partial");
+    if made.exists() {
+        std::fs::remove_dir_all(&made).with_context(|| format!("clearing {}", made.display()))?;
+    }
+    farm::files::write_atomic(&made.join(models::CONFIG), config.as_bytes())?;
+    farm::files::write_atomic(&made.join(models::WEIGHTS), &slim)?;
     let scratch = Path::new("runs/eval-models").join(a.out.file_name().unwrap_or_default()).join("ship");
-    let episodes = evaluate(&a.out, &a.dataset, split, a.programs, &scratch)?;
+    let episodes = evaluate(&made, &a.dataset, split, a.programs, &scratch)?;
     std::fs::remove_dir_all(&scratch).ok();
     let check = Check {
         split: a.split.clone(),
@@ -104,9 +106,13 @@ fn ship(a: &ShipArgs) -> anyhow::Result<()> {
         tolerance: a.tolerance,
         tolerance_why: a.tolerance_why.clone(),
     };
-    farm::files::write_atomic(&a.out.join(models::CHECK), serde_json::to_string_pretty(&check)?.as_bytes())?;
+    farm::files::write_atomic(&made.join(models::CHECK), serde_json::to_string_pretty(&check)?.as_bytes())?;
     let card = Card { a, cfg: &cfg, meta: &meta, result: &result, check: &check, bytes: slim.len() };
-    farm::files::write_atomic(&a.out.join(models::CARD), card.markdown()?.as_bytes())?;
+    farm::files::write_atomic(&made.join(models::CARD), card.markdown()?.as_bytes())?;
+    if a.out.exists() {
+        std::fs::remove_dir_all(&a.out).with_context(|| format!("replacing {}", a.out.display()))?;
+    }
+    std::fs::rename(&made, &a.out).with_context(|| format!("moving {} into place", made.display()))?;
     println!(
         "{}: {} MB, the check {} of {} at the first stop",
         a.out.display(),
@@ -171,6 +177,7 @@ fn evaluate(model: &Path, dataset: &Path, split: Split, programs: usize, out: &P
         rooms: Vec::new(),
         out: out.to_path_buf(),
     };
+    // `Eval::run` would take an earlier complete evaluation there as this one
     if out.exists() {
         std::fs::remove_dir_all(out).with_context(|| format!("clearing {}", out.display()))?;
     }

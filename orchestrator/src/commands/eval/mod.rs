@@ -218,6 +218,8 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         (None, None) => super::up::load_config(None)?,
     };
     let mut cfg = cfg.with_overrides(&a.set)?;
+    // a shipped model's folder stays as shipped: its evaluations go elsewhere
+    let shipped = run_dir.as_ref().is_some_and(|r| farm::models::is_model(r));
     let baseline = checkpoint.is_none();
     if baseline && !a.expert {
         cfg.run.method = Method::Random;
@@ -250,8 +252,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
     // run and split goes beside the first (test-2, test-3, ...).
     let out = a.out.clone().unwrap_or_else(|| {
         unused_dir(match &run_dir {
-            // a shipped model's folder stays as shipped
-            Some(r) if farm::models::is_model(r) => {
+            Some(r) if shipped => {
                 PathBuf::from("runs/eval-models").join(r.file_name().unwrap_or_default()).join(split.name())
             }
             Some(r) => r.join("eval").join(split.name()),
@@ -395,7 +396,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<()> {
         Vec::new()
     };
     // Beside the training curves when the checkpoint belongs to a run, at its frame count.
-    let tb = run_dir.as_ref().filter(|r| !farm::models::is_model(r)).unwrap_or(&out).join("tb");
+    let tb = run_dir.as_ref().filter(|_| !shipped).unwrap_or(&out).join("tb");
     let step = match &checkpoint {
         Some(c) => farm::checkpoints::frames(c).map_err(|e| anyhow::anyhow!("{}: {e}", c.display()))?,
         None => 0,
