@@ -2,7 +2,7 @@
 # Installs what GesTHOR-RS needs on a fresh Debian/Ubuntu machine; safe to run again.
 #   - Mesa lavapipe + Vulkan loader: wgpu renders headless on the CPU
 #   - libtorch 2.11.0 (from the PyPI wheel, no Python needed at run time) for tch 0.24
-#   - numpy, iceoryx2 0.10.0, tensorboard 2.21.0, gymnasium 1.4.0 for the Python tests (tests/python)
+#   - numpy, iceoryx2 0.10.0, tensorboard 2.21.0, gymnasium 1.4.0, cyclonedds 11.0.1 for the Python tests (tests/python)
 #   - MediaPipe 0.10.14 (with its landmark models) for `orchestrator gesture capture`
 #   - Chromium and its WebDriver, for the browser test of `orchestrator live`
 # Prints the environment to source as its last lines; `source scripts/env.sh` does that for you.
@@ -46,7 +46,7 @@ fi
 
 PYDIR="$DEPS/python"
 # The marker holds the requirements it was made from: a changed list installs afresh.
-PY_REQS="numpy iceoryx2==0.10.0 tensorboard==2.21.0 gymnasium==1.4.0"
+PY_REQS="numpy iceoryx2==0.10.0 tensorboard==2.21.0 gymnasium==1.4.0 cyclonedds==11.0.1"
 if [ "$(cat "$PYDIR/.complete" 2>/dev/null)" != "$PY_REQS" ]; then
   log "installing $PY_REQS (Python) into $PYDIR"
   rm -rf "$PYDIR"

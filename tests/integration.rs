@@ -16,4 +16,5 @@ mod models;
 mod multihost;
 mod observability;
 mod python_package;
+mod robot;
 mod study;

@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 use tracing_subscriber::Layer;
 
 use orchestrator::commands::{
-    bench, dataset, encoder, eval, follow, gesture, hosts, live, model, program, render, soak, study, up, workers,
+    bench, dataset, encoder, eval, follow, gesture, hosts, live, model, program, render, robot, soak, study, up, workers,
 };
 
 #[derive(Parser)]
@@ -41,6 +41,9 @@ enum Command {
     /// A person in the scene with a trained robot, in the browser: a local web server running
     /// the simulator for each tab, the person's gesture from a program or their webcam.
     Live(live::LiveArgs),
+    /// The trained robot as a ROS 2 node on a real robot's topics (`robot sim`: GesTHOR
+    /// published as such a robot, to run it against).
+    Robot(robot::RobotArgs),
     /// Shipped models: make a checkpoint one (weights, config, card, check), or check one.
     #[command(subcommand)]
     Model(model::ModelCmd),
@@ -89,6 +92,7 @@ fn main() -> ExitCode {
         Command::Follow(a) => follow::run(a).map(|_| 0),
         Command::Live(a) => live::run(a).map(|_| 0),
         Command::Model(c) => model::run(c).map(|_| 0),
+        Command::Robot(a) => robot::run(a).map(|_| 0),
         Command::Up(a) => up::run(a),
         Command::Eval(a) => eval::run(a).map(|_| 0),
         Command::Encoder(c) => encoder::run(c).map(|_| 0),

@@ -13,6 +13,7 @@ pub mod live;
 pub mod model;
 pub mod program;
 pub mod render;
+pub mod robot;
 pub mod soak;
 pub mod study;
 pub mod up;

@@ -283,19 +283,41 @@ impl Env {
     pub fn step(&mut self, action: Action) -> StepResult {
         let before = self.geodesic();
         let m = robot::apply(&mut self.pose, action, &self.cfg.env, &self.physics);
+        let travelled = if m.moved { self.cfg.env.move_step } else { 0.0 };
+        self.settle(action, before, travelled, m.collided)
+    }
+
+    /// Drives the robot continuously (`orchestrator robot sim`): `forward` metres along the
+    /// heading, then `turn_deg` clockwise. A move the body cannot make is not made; true when it
+    /// was blocked. Scoring waits for [`Env::settle`].
+    pub fn drive(&mut self, forward: f32, turn_deg: f32) -> bool {
+        let delta = self.pose.heading() * forward;
+        let blocked = forward != 0.0 && !self.physics.move_is_free(self.pose.xz(), delta);
+        if !blocked {
+            self.pose.x += delta.x;
+            self.pose.z += delta.y;
+        }
+        self.pose.yaw = crate::geometry::wrap_deg(self.pose.yaw + turn_deg);
+        blocked
+    }
+
+    /// Scores an action that has ended where the robot is now: `before` is the geodesic distance
+    /// when it began, `travelled` the metres it moved. [`Env::step`] for the discrete moves; the
+    /// ROS 2 robot for moves driven by velocity commands.
+    pub fn settle(&mut self, action: Action, before: f32, travelled: f32, collided: bool) -> StepResult {
         let after = self.geodesic();
         let facts = StepFacts {
             action,
-            moved: m.moved,
-            collided: m.collided,
-            travelled: if m.moved { self.cfg.env.move_step } else { 0.0 },
+            moved: travelled > 0.0,
+            collided,
+            travelled,
             distance: self.goal.distance_2d(self.pose.xz()),
             visible_pixels: self.visible_pixels,
             progress: if before.is_finite() && after.is_finite() { before - after } else { 0.0 },
         };
         self.last = self.task.step(&facts);
         self.last_action = Some(action);
-        self.collided = m.collided;
+        self.collided = collided;
         self.frame += FRAMES_PER_STEP;
         if self.gesture_kind() == gesture_kind::INTERVENTION {
             self.intervention_steps += 1;

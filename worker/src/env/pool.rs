@@ -220,6 +220,20 @@ impl EnvPool {
         }
     }
 
+    /// Env `i` to drive and score by hand (`orchestrator robot sim`).
+    pub fn env_mut(&mut self, i: usize) -> Option<&mut Env> {
+        match &mut self.envs[i] {
+            Slot::Running(e) => Some(e),
+            Slot::Idle => None,
+        }
+    }
+
+    /// Starts env `i`'s next program whatever its episode's state; false when none is left.
+    pub fn next_episode(&mut self, i: usize) -> anyhow::Result<bool> {
+        self.start_episode(i)?;
+        Ok(matches!(self.envs[i], Slot::Running(_)))
+    }
+
     fn next_program(&mut self) -> Option<u64> {
         match &self.spec.programs {
             ProgramSource::Sample => Some(self.eligible[self.rng.random_range(0..self.eligible.len())]),
@@ -307,7 +321,7 @@ impl EnvPool {
 
     /// Renders every running env's view in one call, straight into the payload, then fills
     /// records and gestures.
-    fn observe(&mut self, payload: &mut [u8]) -> anyhow::Result<()> {
+    pub fn observe(&mut self, payload: &mut [u8]) -> anyhow::Result<()> {
         if self.frames_link.is_some() {
             return self.observe_on_device(payload);
         }

@@ -1,0 +1,488 @@
+//! `orchestrator robot`: a trained policy as a ROS 2 node. It reads the robot's camera (colour,
+//! aligned depth, camera_info), its odometry and the person's gesture; at each step it asks the
+//! policy for an action and drives it on `cmd_vel`, closed on odometry. On stale or bad input
+//! it holds still (a zero twist), says why in one line, and decides afresh once input is good.
+//!
+//! An episode starts with a goal (`~/goal`, a target category such as `Television`) and ends at
+//! the policy's first Stop or at the step limit.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use anyhow::Context as _;
+use ros2_client::dds::{Node, Publisher, Subscription};
+
+use shm_schema::action;
+use worker::robot::Action;
+use worker::scene::Category;
+
+use super::camera::{PolicyView, Sampling};
+use super::dds::{self, drain, seconds};
+use super::drive::{Drive, Ended, Limits, Pose2};
+use super::msgs::{CameraInfo, Clock, Decision, Gesture, Header, Image, Odometry, Text, Twist, TwistStamped};
+use super::observation::{Facts, Frame, Observation, person_relative};
+use super::args::NodeArgs;
+use super::names::{self, Names, Resolved};
+use crate::commands::live::policy::{Answer, Checkpoint, Policy};
+
+/// Frames kept while waiting for their pair (colour and depth arrive apart).
+const KEEP: usize = 4;
+
+/// The node's topics, resolved.
+struct Io {
+    node: Node,
+    colour: Subscription<Image>,
+    depth: Subscription<Image>,
+    info: Subscription<CameraInfo>,
+    odom: Subscription<Odometry>,
+    goal: Subscription<Text>,
+    gesture: Subscription<Gesture>,
+    clock: Option<Subscription<Clock>>,
+    cmd: Cmd,
+    decision: Publisher<Decision>,
+    names: Resolved,
+}
+
+enum Cmd {
+    Plain(Publisher<Twist>),
+    Stamped(Publisher<TwistStamped>),
+}
+
+/// The newest of what the topics said, and when (wall clock) each was last heard.
+#[derive(Default)]
+struct Heard {
+    sampling: Option<Result<Sampling, String>>,
+    colour: VecDeque<Image>,
+    depth: VecDeque<Image>,
+    frame: Option<Frame>,
+    /// The newest colour or depth image could not be read: why.
+    frame_problem: Option<String>,
+    odom: Option<(Pose2, f64, String)>,
+    gesture: Option<Gesture>,
+    clock: Option<f64>,
+    odom_at: Option<Instant>,
+    frame_at: Option<Instant>,
+    /// A message of the wrong type on one of the topics, and when.
+    garbled: Option<(String, Instant)>,
+}
+
+enum Phase {
+    /// Waiting for a frame taken at or after this time (s).
+    Deciding { after: f64 },
+    Acting,
+}
+
+struct Episode {
+    number: u32,
+    target: u32,
+    step: u32,
+    last_action: u8,
+    phase: Phase,
+}
+
+pub struct Robot {
+    io: Io,
+    args: NodeArgs,
+    view: PolicyView,
+    max_steps: u32,
+    /// The policy reads the person (a gesture, their pose): wait for them on the gesture topic.
+    needs_person: bool,
+    policy: Policy,
+    obs: Observation,
+    heard: Heard,
+    drive: Drive,
+    episode: Option<Episode>,
+    episodes: u32,
+    holding: Option<String>,
+    last_zero: Instant,
+}
+
+/// Runs the node until Ctrl-C (or SIGTERM): then it stops the base and leaves.
+pub fn run(args: NodeArgs) -> anyhow::Result<()> {
+    farm::process::install_termination_handler()?;
+    let mut robot = Robot::start(args)?;
+    robot.spin()
+}
+
+impl Robot {
+    pub fn start(args: NodeArgs) -> anyhow::Result<Robot> {
+        let ck = Checkpoint::open(&args.checkpoint)?;
+        let cfg = &ck.cfg;
+        anyhow::ensure!(cfg.env.width == cfg.env.height, "{}: frames of {}×{}; square ones expected", ck.name, cfg.env.width, cfg.env.height);
+        let view = PolicyView { size: cfg.env.width, fov_deg: cfg.env.fov_deg };
+        let limits = Limits {
+            move_step: cfg.env.move_step as f64,
+            turn_deg: cfg.env.turn_deg as f64,
+            speed: args.max_speed,
+            turn_rate: args.max_turn_rate,
+            stall: args.stall_seconds,
+        };
+        let needs_person = cfg.run.method.schedule() != farm::config::GestureSchedule::None || cfg.model.person_pose;
+        let policy = Policy::start(&ck, &ck.config)?;
+        let io = Io::open(&args)?;
+        say!(
+            "{} on ROS 2 domain {} as {}: colour {}, depth {}, odometry {}, commands {}, goals {}",
+            ck.name,
+            args.bus.domain,
+            io.node.fully_qualified_name(),
+            io.names.colour,
+            io.names.depth,
+            io.names.odom,
+            io.names.cmd_vel,
+            io.names.goal
+        );
+        Ok(Robot {
+            io,
+            view,
+            max_steps: cfg.task.max_steps,
+            needs_person,
+            policy,
+            obs: Observation::new(view.size),
+            heard: Heard::default(),
+            drive: Drive::new(limits, Pose2::default()),
+            episode: None,
+            episodes: 0,
+            holding: None,
+            last_zero: Instant::now(),
+            args,
+        })
+    }
+
+    fn spin(&mut self) -> anyhow::Result<()> {
+        if let Some(t) = self.args.target.clone() {
+            self.begin(&t);
+        }
+        while !farm::process::stop_requested() {
+            let odom = self.listen();
+            match self.problem() {
+                Some(p) => self.hold(p, odom),
+                None => {
+                    if let Some(was) = self.holding.take() {
+                        say!("input good again (was: {was})");
+                    }
+                    self.advance(odom)?;
+                }
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        self.hold("stopped by a signal".into(), true);
+        for _ in 0..3 {
+            self.publish_twist(0.0, 0.0);
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Ok(())
+    }
+
+    /// ROS time now: the simulator's clock with `--use-sim-time`, the system's otherwise.
+    fn now(&self) -> f64 {
+        match self.args.bus.use_sim_time {
+            true => self.heard.clock.unwrap_or(0.0),
+            false => seconds(ros2_client::builtin_interfaces::Time::now()),
+        }
+    }
+}
+
+impl Io {
+    fn open(args: &NodeArgs) -> anyhow::Result<Io> {
+        let names = Names::new(&args.bus.namespace, names::NODE, &args.bus.remap)?;
+        let r = Resolved::new(&names);
+        let mut node = dds::node(args.bus.domain, names.namespace(), names::NODE)?;
+        let n = &mut node;
+        let cmd = match args.stamped {
+            true => Cmd::Stamped(dds::publisher(n, &r.cmd_vel, dds::reliable())?),
+            false => Cmd::Plain(dds::publisher(n, &r.cmd_vel, dds::reliable())?),
+        };
+        Ok(Io {
+            colour: dds::subscription(n, &r.colour, dds::sensor())?,
+            depth: dds::subscription(n, &r.depth, dds::sensor())?,
+            info: dds::subscription(n, &r.info, dds::sensor())?,
+            odom: dds::subscription(n, &r.odom, dds::sensor())?,
+            goal: dds::subscription(n, &r.goal, dds::reliable())?,
+            gesture: dds::subscription(n, &r.gesture, dds::sensor())?,
+            clock: match args.bus.use_sim_time {
+                true => Some(dds::subscription(n, &r.clock, dds::sensor())?),
+                false => None,
+            },
+            decision: dds::publisher(n, &r.decision, dds::reliable())?,
+            cmd,
+            names: r,
+            node,
+        })
+    }
+}
+
+impl Robot {
+    /// Reads every topic; true when odometry arrived (the control loop runs at its rate).
+    fn listen(&mut self) -> bool {
+        let h = &mut self.heard;
+        let mut garbled = Vec::new();
+        let mut note = |what: &str, e: Option<String>| {
+            if let Some(e) = e {
+                garbled.push(format!("{what}: a message that is not of its type ({e})"));
+            }
+        };
+        if let Some(c) = &self.io.clock {
+            let (m, e) = drain(c);
+            note(&self.io.names.clock, e);
+            if let Some(c) = m.last() {
+                h.clock = Some(seconds(c.clock));
+            }
+        }
+        let (infos, e) = drain(&self.io.info);
+        note(&self.io.names.info, e);
+        if let Some(info) = infos.last() {
+            if h.sampling.as_ref().is_none_or(|s| s.as_ref().map_or(true, |s| (s.width, s.height) != (info.width, info.height))) {
+                h.sampling = Some(Sampling::new(info, self.view));
+            }
+        }
+        let (odoms, e) = drain(&self.io.odom);
+        note(&self.io.names.odom, e);
+        let odom = !odoms.is_empty();
+        if let Some(o) = odoms.last() {
+            let (x, y, yaw) = o.pose.pose.to_planar();
+            h.odom = Some((Pose2 { x, y, yaw }, seconds(o.header.stamp), o.header.frame_id.clone()));
+            h.odom_at = Some(Instant::now());
+        }
+        let (goals, e) = drain(&self.io.goal);
+        note(&self.io.names.goal, e);
+        let (gestures, e) = drain(&self.io.gesture);
+        note(&self.io.names.gesture, e);
+        if let Some(g) = gestures.into_iter().last() {
+            h.gesture = Some(g);
+        }
+        let (colour, e) = drain(&self.io.colour);
+        note(&self.io.names.colour, e);
+        let (depth, e) = drain(&self.io.depth);
+        note(&self.io.names.depth, e);
+        h.colour.extend(colour);
+        h.depth.extend(depth);
+        if let Some(g) = garbled.into_iter().next() {
+            h.garbled = Some((g, Instant::now()));
+        }
+        self.pair_frames();
+        for g in goals {
+            self.begin(&g.data);
+        }
+        odom
+    }
+
+    /// Samples the newest colour image that has its depth (same stamp) to the policy's view.
+    fn pair_frames(&mut self) {
+        let h = &mut self.heard;
+        while h.colour.len() > KEEP {
+            h.colour.pop_front();
+        }
+        while h.depth.len() > KEEP {
+            h.depth.pop_front();
+        }
+        let Some(Ok(sampling)) = &h.sampling else { return };
+        let pair = h.colour.iter().rev().find_map(|c| h.depth.iter().find(|d| d.header.stamp == c.header.stamp).map(|d| (c, d)));
+        let Some((c, d)) = pair else { return };
+        let stamp = seconds(c.header.stamp);
+        if h.frame.as_ref().is_some_and(|f| f.stamp >= stamp) {
+            return;
+        }
+        h.frame_at = Some(Instant::now());
+        match Frame::sample(sampling, c, d, self.view.size) {
+            Ok(f) => {
+                h.frame = Some(f);
+                h.frame_problem = None;
+            }
+            Err(e) => h.frame_problem = Some(e),
+        }
+        h.colour.retain(|x| seconds(x.header.stamp) > stamp);
+        h.depth.retain(|x| seconds(x.header.stamp) > stamp);
+    }
+
+    /// Why the robot must hold still now, if it must.
+    fn problem(&self) -> Option<String> {
+        let (h, n, limit) = (&self.heard, &self.io.names, Duration::from_secs_f64(self.args.input_timeout));
+        let silent = |at: Option<Instant>| at.is_none_or(|t| t.elapsed() > limit);
+        if let Some((g, _)) = h.garbled.as_ref().filter(|(_, at)| !silent(Some(*at))) {
+            return Some(g.clone());
+        }
+        if silent(h.odom_at) {
+            return Some(format!("no odometry on {} for {:.1} s", n.odom, limit.as_secs_f64()));
+        }
+        match &h.sampling {
+            None => return Some(format!("no camera_info on {}", n.info)),
+            Some(Err(e)) => return Some(format!("{}: {e}", n.info)),
+            Some(Ok(_)) => {}
+        }
+        if silent(h.frame_at) {
+            return Some(format!("no colour image with its depth on {} and {} for {:.1} s", n.colour, n.depth, limit.as_secs_f64()));
+        }
+        if let Some(p) = &h.frame_problem {
+            return Some(p.clone());
+        }
+        let age = self.now() - h.frame.as_ref().map_or(f64::NEG_INFINITY, |f| f.stamp);
+        if self.episode.is_some() && age > self.args.max_age {
+            return Some(format!("the newest camera frame is {age:.2} s old (limit {} s)", self.args.max_age));
+        }
+        self.person_problem()
+    }
+
+    /// The gesture topic's problem, when the policy reads the person and an episode runs.
+    fn person_problem(&self) -> Option<String> {
+        let (h, n) = (&self.heard, &self.io.names);
+        if !self.needs_person || self.episode.is_none() {
+            return None;
+        }
+        let odom_frame = h.odom.as_ref().map(|o| o.2.as_str()).unwrap_or("");
+        match &h.gesture {
+            None => Some(format!("no gesture on {}", n.gesture)),
+            Some(g) if self.now() - seconds(g.header.stamp) > self.args.max_age.max(1.0) => {
+                Some(format!("the newest gesture on {} is {:.2} s old", n.gesture, self.now() - seconds(g.header.stamp)))
+            }
+            Some(g) if g.header.frame_id != odom_frame => Some(format!(
+                "gesture: the person's pose is in frame `{}`; odometry's frame `{odom_frame}` expected",
+                g.header.frame_id
+            )),
+            Some(_) => None,
+        }
+    }
+}
+
+impl Robot {
+    /// A goal: an episode starts (one under way ends, unfinished).
+    fn begin(&mut self, goal: &str) {
+        let name = goal.trim();
+        let Some(target) = Category::from_name(name).and_then(|c| c.target_index()) else {
+            let all: Vec<&str> = Category::targets().map(|c| c.name()).collect();
+            say!("goal `{name}`: not a target category ({})", all.join(", "));
+            return;
+        };
+        if let Some(e) = &self.episode {
+            say!("episode {} ends unfinished: a new goal came", e.number);
+        }
+        self.episodes += 1;
+        let at = self.heard.odom.as_ref().map_or(Pose2::default(), |o| o.0);
+        self.drive.restart(at);
+        // a frame taken after the goal: none seen before it
+        let after = self.heard.frame.as_ref().map_or(self.now(), |f| self.now().max(f.stamp + 1e-6));
+        self.episode = Some(Episode { number: self.episodes, target, step: 0, last_action: action::NONE, phase: Phase::Deciding { after } });
+        say!("episode {}: to the {name}", self.episodes);
+    }
+
+    /// Holds still: a zero twist at every odometry message (or 10 times a second without
+    /// any); the action under way ends, to be decided afresh from good input.
+    fn hold(&mut self, why: String, odom: bool) {
+        if self.holding.as_ref() != Some(&why) {
+            say!("holding still: {why}");
+            self.publish_decision(None, false, &why);
+            self.holding = Some(why);
+        }
+        if let Some(e) = self.episode.as_mut().filter(|e| matches!(e.phase, Phase::Acting)) {
+            let at = self.heard.odom.as_ref().map_or(Pose2::default(), |o| o.0);
+            self.drive.restart(at);
+            e.phase = Phase::Deciding { after: f64::NEG_INFINITY };
+        }
+        if odom || self.last_zero.elapsed() > Duration::from_millis(100) {
+            self.publish_twist(0.0, 0.0);
+        }
+    }
+
+    /// One turn of the loop with good input: the action under way moves on odometry; a frame
+    /// taken after it ended gets the policy's next decision.
+    fn advance(&mut self, odom: bool) -> anyhow::Result<()> {
+        let Some(e) = &mut self.episode else { return Ok(()) };
+        let (pose, t, _) = self.heard.odom.clone().context("checked: odometry was heard")?;
+        match e.phase {
+            Phase::Acting if odom => match self.drive.command(pose, t) {
+                Ok((v, w)) => self.publish_twist(v, w),
+                Err(end) => {
+                    if end == Ended::Blocked {
+                        say!("episode {} step {}: the move was blocked", e.number, e.step);
+                    }
+                    e.phase = Phase::Deciding { after: t };
+                    self.publish_twist(0.0, 0.0);
+                }
+            },
+            Phase::Acting => {}
+            Phase::Deciding { after } => {
+                if odom {
+                    self.publish_twist(0.0, 0.0);
+                }
+                let fresh = self.heard.frame.as_ref().is_some_and(|f| f.stamp >= after);
+                let seen = !self.needs_person || self.heard.gesture.as_ref().is_some_and(|g| seconds(g.header.stamp) >= after);
+                if fresh && seen {
+                    self.decide(pose)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The policy's decision on the newest frame, published and started.
+    fn decide(&mut self, pose: Pose2) -> anyhow::Result<()> {
+        let e = self.episode.as_mut().expect("an episode is under way");
+        let frame = self.heard.frame.as_ref().expect("a fresh frame");
+        let gesture = self.heard.gesture.as_ref().filter(|_| self.needs_person);
+        let person = gesture.map_or([0.0; 3], |g| {
+            let (x, y, yaw) = g.person.to_planar();
+            person_relative(pose, Pose2 { x, y, yaw })
+        });
+        let facts = Facts { start: e.step == 0, step: e.step, last_action: e.last_action, target: e.target };
+        if let Err(why) = self.obs.write(facts, frame, gesture, person) {
+            self.heard.gesture = None;
+            self.hold(why, false);
+            return Ok(());
+        }
+        let a = self.policy.act(self.obs.payload())?;
+        e.step += 1;
+        e.last_action = a.action;
+        let done = a.action == action::STOP || e.step >= self.max_steps;
+        let t = self.now();
+        self.publish_decision(Some(&a), done, "");
+        let e = self.episode.as_mut().expect("an episode is under way");
+        if done {
+            say!("episode {} ended after {} steps ({})", e.number, e.step, Action::from_index(a.action).map_or("?", |a| a.name()));
+            self.episode = None;
+            self.publish_twist(0.0, 0.0);
+        } else {
+            self.drive.start(a.action, pose, t);
+            e.phase = Phase::Acting;
+        }
+        Ok(())
+    }
+
+    fn publish_twist(&mut self, v: f64, w: f64) {
+        let twist = Twist::planar(v, w);
+        let sent = match &self.io.cmd {
+            Cmd::Plain(p) => p.publish(twist).map_err(|e| format!("{e:?}")),
+            Cmd::Stamped(p) => {
+                let header = Header::new(dds::time(self.now()), "base_link");
+                p.publish(TwistStamped { header, twist }).map_err(|e| format!("{e:?}"))
+            }
+        };
+        if let Err(e) = sent {
+            say!("{}: {e}", self.io.names.cmd_vel);
+        }
+        if v == 0.0 && w == 0.0 {
+            self.last_zero = Instant::now();
+        }
+    }
+
+    /// What was decided (or why the robot holds still) on `~/decision`.
+    fn publish_decision(&mut self, a: Option<&Answer>, done: bool, holding: &str) {
+        let e = self.episode.as_ref();
+        let g = self.heard.gesture.as_ref().filter(|_| self.needs_person);
+        let action = a.map_or(action::NONE, |a| a.action);
+        let d = Decision {
+            header: Header::new(dds::time(self.now()), "base_link"),
+            episode: e.map_or(0, |e| e.number),
+            step: e.map_or(0, |e| e.step),
+            action,
+            action_name: Action::from_index(action).map_or("", |a| a.name()).into(),
+            probs: a.map_or(Vec::new(), |a| a.probs.clone()),
+            value: a.map_or(0.0, |a| a.value),
+            gesture_kind: g.map_or(0, |g| g.kind),
+            gesture_source: if g.is_some() { "topic".into() } else { String::new() },
+            done,
+            holding: holding.into(),
+        };
+        if let Err(e) = self.io.decision.publish(d) {
+            say!("{}: {e:?}", self.io.names.decision);
+        }
+    }
+}

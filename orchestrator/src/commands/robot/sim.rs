@@ -1,0 +1,532 @@
+//! `orchestrator robot sim`: GesTHOR published as a ROS 2 robot. Each program of a list puts
+//! the robot and the person in their room; the simulator publishes a 640×480 RGB-D camera (with
+//! `camera_info`), odometry, `/clock` and the person's gesture, integrates `cmd_vel` at a fixed
+//! rate with the simulator's collisions, judges each episode by the task's rules from the
+//! node's decisions, and records it as the live page does.
+//!
+//! Time is simulated: each tick publishes odometry and waits for the node's command before it
+//! moves on, so a run goes as fast as the node answers (`--realtime` paces it to the wall).
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::Context as _;
+use clap::Args;
+use ros2_client::dds::{Node, Publisher, Subscription};
+
+use farm::config::RunConfig;
+use farm::metrics::{EpisodeResult, scores};
+use farm::stepper::PayloadBuf;
+use shm_schema::{ObsShape, ObsView, action};
+use worker::camera::decode_depth;
+use worker::dataset::{Dataset, Verify, write_subset};
+use worker::env::{EnvPool, PoolSpec, ProgramSource};
+use worker::robot::Action;
+use worker::scene::Split;
+
+use super::args::Bus;
+use super::camera::pinhole;
+use super::dds::{self, drain};
+use super::msgs::{CameraInfo, Clock, Decision, Gesture, Header, Image, Odometry, Pose, Text, Twist};
+use super::names::{self, Names, Resolved};
+use crate::commands::live::record::{EpisodeRecord, Recorder, episode_config};
+use crate::commands::live::wire::{GestureSource, Interventions, Outcome, StepRecord};
+
+#[derive(Args, Debug)]
+pub struct SimArgs {
+    /// The model (or run, or checkpoint) whose run config sets the task's rules, the camera's
+    /// vertical field of view and which gestures the person shows.
+    #[arg(long, default_value = "models/both")]
+    pub checkpoint: PathBuf,
+    #[arg(long, default_value = "data/gond")]
+    pub dataset: PathBuf,
+    /// The programs: SPLIT:FIRST-LAST, or SPLIT:INDEX.
+    #[arg(long, default_value = "val:0-9")]
+    pub programs: String,
+    /// Instead of a range: this many programs of the split, spread as `eval --max-programs`
+    /// spreads them (the same programs `eval` runs).
+    #[arg(long, value_name = "N")]
+    pub spread: Option<usize>,
+    /// The camera's image size; its vertical field of view is the policy's.
+    #[arg(long, default_value_t = 640)]
+    pub width: u32,
+    #[arg(long, default_value_t = 480)]
+    pub height: u32,
+    /// Odometry and physics ticks a second, and camera frames a second (simulated time).
+    #[arg(long, default_value_t = 30.0)]
+    pub rate: f64,
+    #[arg(long, default_value_t = 5.0)]
+    pub camera_rate: f64,
+    /// Pace simulated time to the wall clock.
+    #[arg(long)]
+    pub realtime: bool,
+    /// How long to wait (s, wall clock) for the node to appear, and to decide anything.
+    #[arg(long, default_value_t = 60.0)]
+    pub wait: f64,
+    #[command(flatten)]
+    pub bus: Bus,
+    /// Where the episodes are recorded (a folder each), with summary.json.
+    #[arg(long, default_value = "runs/robot-sim")]
+    pub out: PathBuf,
+}
+
+/// What the simulator's robot publishes and hears.
+struct Io {
+    node: Node,
+    colour: Publisher<Image>,
+    depth: Publisher<Image>,
+    info: Publisher<CameraInfo>,
+    odom: Publisher<Odometry>,
+    clock: Publisher<Clock>,
+    gesture: Publisher<Gesture>,
+    goal: Publisher<Text>,
+    cmd_vel: Subscription<Twist>,
+    decision: Subscription<Decision>,
+    names: Resolved,
+}
+
+impl Io {
+    fn open(bus: &Bus) -> anyhow::Result<Io> {
+        let names = Names::new(&bus.namespace, names::NODE, &bus.remap)?;
+        let r = Resolved::new(&names);
+        let mut node = dds::node(bus.domain, names.namespace(), "gesthor_sim")?;
+        let n = &mut node;
+        Ok(Io {
+            colour: dds::publisher(n, &r.colour, dds::reliable())?,
+            depth: dds::publisher(n, &r.depth, dds::reliable())?,
+            info: dds::publisher(n, &r.info, dds::reliable())?,
+            odom: dds::publisher(n, &r.odom, dds::reliable())?,
+            clock: dds::publisher(n, &r.clock, dds::reliable())?,
+            gesture: dds::publisher(n, &r.gesture, dds::reliable())?,
+            goal: dds::publisher(n, &r.goal, dds::reliable())?,
+            cmd_vel: dds::subscription(n, &r.cmd_vel, dds::reliable())?,
+            decision: dds::subscription(n, &r.decision, dds::reliable())?,
+            names: r,
+            node,
+        })
+    }
+}
+
+/// The action under way, as the simulator judges it once the next decision comes.
+struct Track {
+    action: Action,
+    /// Geodesic distance when it began, metres moved since.
+    before: f32,
+    travelled: f32,
+    collided: bool,
+}
+
+/// The episode under way.
+struct Episode {
+    program: String,
+    /// The node's number for it (from its first decision).
+    node_episode: Option<u32>,
+    rec: Recorder,
+    last_heard: Instant,
+}
+
+pub struct Sim {
+    args: SimArgs,
+    io: Io,
+    cfg: RunConfig,
+    checkpoint: PathBuf,
+    pool: EnvPool,
+    buf: PayloadBuf,
+    shape: ObsShape,
+    /// Simulated time (s), and when the next camera frame is due.
+    t: f64,
+    next_frame: f64,
+    command: (f64, f64),
+    track: Option<Track>,
+    holding: String,
+}
+
+/// The programs `--programs`/`--spread` name, in their split.
+fn programs(a: &SimArgs, ds: &Dataset) -> anyhow::Result<(Split, Vec<u64>)> {
+    let bad = || format!("--programs `{}`: SPLIT:FIRST-LAST or SPLIT:INDEX expected (val:0-199)", a.programs);
+    let (split, range) = a.programs.split_once(':').with_context(bad)?;
+    let split = Split::from_name(split).with_context(bad)?;
+    let total = ds.index(split)?.len();
+    let list: Vec<u64> = match (a.spread, range.split_once('-')) {
+        (Some(n), _) => crate::commands::eval::choose_programs(total, Some(n)),
+        (None, Some((f, l))) => (f.parse().with_context(bad)?..=l.parse().with_context(bad)?).collect(),
+        (None, None) => vec![range.parse().with_context(bad)?],
+    };
+    anyhow::ensure!(
+        list.iter().all(|&i| (i as usize) < total),
+        "--programs `{}`: {} holds {total} programs of {}",
+        a.programs,
+        ds.dir.display(),
+        split.name()
+    );
+    Ok((split, list))
+}
+
+pub fn run(a: SimArgs) -> anyhow::Result<()> {
+    farm::process::install_termination_handler()?;
+    let ds = Dataset::open(&a.dataset, Verify::Quick)?;
+    let (split, list) = programs(&a, &ds)?;
+    let mut sim = Sim::new(a, split, list.clone())?;
+    let mut outcomes = Vec::new();
+    for (n, &p) in list.iter().enumerate() {
+        if farm::process::stop_requested() {
+            break;
+        }
+        let program = format!("{}:{p}", split.name());
+        let outcome = sim.episode(&ds, split, p, n + 1)?;
+        say!(
+            "{program}: {} after {} steps (SPL {:.2}) [{}/{}]",
+            if outcome.success { "success" } else { "failure" },
+            outcome.steps,
+            outcome.spl,
+            n + 1,
+            list.len()
+        );
+        outcomes.push((program, outcome));
+    }
+    sim.summary(&outcomes)
+}
+
+impl Sim {
+    fn new(args: SimArgs, split: Split, list: Vec<u64>) -> anyhow::Result<Sim> {
+        let (checkpoint, run) = crate::commands::eval::locate(&args.checkpoint)?;
+        let mut cfg = RunConfig::load(&run.join("config.toml"))
+            .with_context(|| format!("--checkpoint {}: its run's config", args.checkpoint.display()))?;
+        cfg = episode_config(&cfg, &args.dataset, split);
+        // the node ends an episode at its first Stop: so does the judge
+        cfg.task.max_stops = 1;
+        cfg.env.width = args.width;
+        cfg.env.height = args.height;
+        cfg.env.frames = farm::config::FramePath::SharedMemory;
+        let spec = PoolSpec { worker_id: 0, generation: 0, programs: ProgramSource::Sequence(list), expert_hints: false };
+        let pool = EnvPool::new(&cfg, spec)?;
+        let shape = ObsShape::new(1, args.width, args.height);
+        let io = Io::open(&args.bus)?;
+        say!(
+            "GesTHOR as a ROS 2 robot on domain {}: camera {} ({}×{}, {}° vertical), odometry {}, commands {}",
+            args.bus.domain,
+            io.names.colour,
+            args.width,
+            args.height,
+            cfg.env.fov_deg,
+            io.names.odom,
+            io.names.cmd_vel
+        );
+        Ok(Sim {
+            buf: PayloadBuf::new(&pool.layout()),
+            pool,
+            shape,
+            io,
+            cfg,
+            checkpoint,
+            t: 0.0,
+            next_frame: 0.0,
+            command: (0.0, 0.0),
+            track: None,
+            holding: String::new(),
+            args,
+        })
+    }
+
+    /// One program, from its start to the node's Stop (or the step limit).
+    fn episode(&mut self, ds: &Dataset, split: Split, index: u64, number: usize) -> anyhow::Result<Outcome> {
+        let program = &format!("{}:{index}", split.name());
+        let started = match number {
+            1 => {
+                self.pool.reset(self.buf.bytes_mut())?;
+                true
+            }
+            _ => self.pool.next_episode(0)?,
+        };
+        anyhow::ensure!(started, "{program}: the simulator has no program left");
+        let env = self.pool.env(0).context("the episode's env")?;
+        let dir = self.args.out.join(format!("episode-{number:03}"));
+        let (p, motion) = crate::commands::program::dataset_program(ds, split, index as usize)?;
+        write_subset(&dir.join("dataset"), ds, split, &[(p, motion.as_flat().to_vec())])
+            .with_context(|| format!("writing {}", dir.display()))?;
+        let mut cfg = episode_config(&self.cfg, &dir.join("dataset"), split);
+        cfg.task.max_stops = 1;
+        let target = env.program.target.name();
+        let mut e = Episode {
+            program: program.to_string(),
+            node_episode: None,
+            rec: Recorder::new(&dir, &cfg)?,
+            last_heard: Instant::now(),
+        };
+        self.command = (0.0, 0.0);
+        self.track = None;
+        self.tick(true)?;
+        self.apply((0.0, 0.0))?;
+        if number == 1 {
+            self.await_node()?;
+        }
+        self.io.goal.publish(Text { data: target.to_string() }).map_err(|e| anyhow::anyhow!("{}: {e:?}", self.io.names.goal))?;
+        loop {
+            // the node decides before it drives: its decision is judged where the robot stood
+            let command = self.tick(false)?;
+            let ended = self.hear(&mut e)?;
+            self.apply(command)?;
+            if let Some(outcome) = ended {
+                e.rec.finish(&EpisodeRecord {
+                    program: e.program.clone(),
+                    checkpoint: self.checkpoint.clone(),
+                    gesture: GestureSource::Program,
+                    interventions: Interventions::Rule,
+                    beside: None,
+                    outcome: outcome.clone(),
+                })?;
+                return Ok(outcome);
+            }
+            anyhow::ensure!(
+                e.last_heard.elapsed().as_secs_f64() < self.args.wait,
+                "{program}: the robot node decided nothing for {:.0} s (is `orchestrator robot` running on domain {}?)",
+                self.args.wait,
+                self.args.bus.domain
+            );
+            anyhow::ensure!(!farm::process::stop_requested(), "stopped by a signal");
+        }
+    }
+
+    /// Waits for the node's goal subscription (samples sent before it would be lost), the
+    /// sensors ticking meanwhile.
+    fn await_node(&mut self) -> anyhow::Result<()> {
+        let start = Instant::now();
+        while self.io.node.subscription_count(&self.io.names.goal) == 0 || self.io.node.publisher_count(&self.io.names.cmd_vel) == 0 {
+            anyhow::ensure!(
+                start.elapsed().as_secs_f64() < self.args.wait,
+                "no robot node subscribed to {} within {:.0} s (start `orchestrator robot --domain {}`)",
+                self.io.names.goal,
+                self.args.wait,
+                self.args.bus.domain
+            );
+            anyhow::ensure!(!farm::process::stop_requested(), "stopped by a signal");
+            std::thread::sleep(Duration::from_secs_f64(1.0 / self.args.rate));
+            self.tick(true)?;
+        }
+        // the node's other subscriptions match about now: let the camera reach it once more
+        std::thread::sleep(Duration::from_millis(300));
+        self.tick(true).map(|_| ())
+    }
+}
+
+impl Sim {
+    /// One tick of simulated time: the clock and odometry, a camera frame when one is due (or
+    /// `frame`); the node's command for the tick.
+    fn tick(&mut self, frame: bool) -> anyhow::Result<(f64, f64)> {
+        let dt = 1.0 / self.args.rate;
+        self.t += dt;
+        let stamp = dds::time(self.t);
+        publish(&self.io.clock, Clock { clock: stamp }, &self.io.names.clock)?;
+        publish(&self.io.odom, self.odometry(), &self.io.names.odom)?;
+        if frame || self.t >= self.next_frame - 1e-9 {
+            self.publish_frame()?;
+            self.next_frame = self.t + 1.0 / self.args.camera_rate;
+        }
+        let wall = Instant::now();
+        let command = self.answer().unwrap_or((0.0, 0.0));
+        if self.args.realtime {
+            std::thread::sleep(Duration::from_secs_f64(dt).saturating_sub(wall.elapsed()));
+        }
+        Ok(command)
+    }
+
+    /// Moves the robot by a tick of `command` (m/s, rad/s), the collisions stopping it.
+    fn apply(&mut self, (v, w): (f64, f64)) -> anyhow::Result<()> {
+        let dt = 1.0 / self.args.rate;
+        self.command = (v, w);
+        let env = self.pool.env_mut(0).context("the episode's env")?;
+        let from = env.pose.xz();
+        let blocked = env.drive((v * dt) as f32, -(w * dt).to_degrees() as f32);
+        if let Some(track) = &mut self.track {
+            track.travelled += (env.pose.xz() - from).norm();
+            track.collided |= blocked;
+        }
+        Ok(())
+    }
+
+    /// The node's command for this tick: the first to arrive within a moment (it answers every
+    /// odometry message while an episode runs); none, and the base stops.
+    fn answer(&mut self) -> Option<(f64, f64)> {
+        let until = Instant::now() + Duration::from_millis(250);
+        loop {
+            let (twists, _) = drain(&self.io.cmd_vel);
+            if let Some(t) = twists.last() {
+                return Some((t.linear.x, t.angular.z));
+            }
+            if Instant::now() > until {
+                return None;
+            }
+            std::thread::sleep(Duration::from_micros(200));
+        }
+    }
+
+    fn odometry(&self) -> Odometry {
+        let p = self.pool.env(0).map(|e| e.pose).unwrap_or(worker::robot::RobotPose { x: 0.0, z: 0.0, yaw: 0.0 });
+        let mut o = Odometry {
+            header: Header::new(dds::time(self.t), "odom"),
+            child_frame_id: "base_link".into(),
+            pose: Default::default(),
+            twist: Default::default(),
+        };
+        o.pose.pose = floor_pose(p.x, p.z, p.yaw);
+        o.twist.twist = Twist::planar(self.command.0, self.command.1);
+        o
+    }
+}
+
+/// The simulator's floor (x right, z forward, yaw clockwise in degrees) as the odometry frame
+/// (x forward, y left, yaw counter-clockwise in radians).
+pub fn floor_pose(x: f32, z: f32, yaw_deg: f32) -> Pose {
+    Pose::planar(z as f64, -x as f64, -(yaw_deg as f64).to_radians())
+}
+
+fn publish<M: serde::Serialize + ros2_client::Message>(p: &Publisher<M>, m: M, topic: &str) -> anyhow::Result<()> {
+    p.publish(m).map_err(|e| anyhow::anyhow!("{topic}: {e}"))
+}
+
+impl Sim {
+    /// The camera: colour (rgb8), depth (16UC1, mm) and camera_info, and the person's gesture,
+    /// all stamped now.
+    fn publish_frame(&mut self) -> anyhow::Result<()> {
+        self.pool.observe(self.buf.bytes_mut())?;
+        let view = ObsView::new(self.shape, &self.buf.bytes()[..self.shape.layout.total_len as usize])
+            .expect("the pool's own layout");
+        let (w, h) = (self.args.width, self.args.height);
+        let header = Header::new(dds::time(self.t), "camera_color_optical_frame");
+        let colour = Image {
+            header: header.clone(),
+            height: h,
+            width: w,
+            encoding: "rgb8".into(),
+            is_bigendian: 0,
+            step: w * 3,
+            data: view.rgb(0).to_vec(),
+        };
+        let mm = |v: &u16| ((decode_depth(*v) * 1000.0).round() as u16).to_le_bytes();
+        let depth = Image {
+            header: header.clone(),
+            height: h,
+            width: w,
+            encoding: "16UC1".into(),
+            is_bigendian: 0,
+            step: w * 2,
+            data: view.depth(0).iter().flat_map(mm).collect(),
+        };
+        let info = pinhole(w, h, self.cfg.env.fov_deg as f64, header);
+        let gesture = self.gesture()?;
+        let n = &self.io.names;
+        publish(&self.io.info, info, &n.info)?;
+        publish(&self.io.depth, depth, &n.depth)?;
+        publish(&self.io.gesture, gesture, &n.gesture)?;
+        publish(&self.io.colour, colour, &n.colour)
+    }
+
+    /// The gesture the person shows now (the program's, or the intervention by the angle rule),
+    /// and where they stand, in the odometry frame.
+    fn gesture(&self) -> anyhow::Result<Gesture> {
+        let env = self.pool.env(0).context("the episode's env")?;
+        let p = &env.program;
+        let muscles = env.perceived().map_or_else(Vec::new, |m| m.as_flat().to_vec());
+        Ok(Gesture {
+            header: Header::new(dds::time(self.t), "odom"),
+            kind: env.gesture_kind(),
+            person: floor_pose(p.human_pos[0], p.human_pos[2], p.human_yaw),
+            frames: if muscles.is_empty() { 0 } else { shm_schema::GESTURE_FRAMES as u16 },
+            dims: if muscles.is_empty() { 0 } else { shm_schema::GESTURE_DIMS as u16 },
+            muscles,
+        })
+    }
+
+    /// The node's decisions since the last tick, judged; the outcome once the episode ended.
+    fn hear(&mut self, e: &mut Episode) -> anyhow::Result<Option<Outcome>> {
+        let (decisions, _) = drain(&self.io.decision);
+        for d in decisions {
+            if d.action == action::NONE {
+                if d.holding != self.holding && !d.holding.is_empty() {
+                    say!("{}: the node holds still: {}", e.program, d.holding);
+                }
+                self.holding = d.holding;
+                continue;
+            }
+            match e.node_episode {
+                None if d.step == 1 => e.node_episode = Some(d.episode),
+                Some(n) if n == d.episode => {}
+                _ => continue,
+            }
+            e.last_heard = Instant::now();
+            if let Some(outcome) = self.judge(e, &d)? {
+                return Ok(Some(outcome));
+            }
+        }
+        Ok(None)
+    }
+
+    /// One decision: the action before it is scored where it ended; a Stop (or the step limit)
+    /// is scored at once and ends the episode.
+    fn judge(&mut self, e: &mut Episode, d: &Decision) -> anyhow::Result<Option<Outcome>> {
+        let a = Action::from_index(d.action).with_context(|| format!("decision {}: action {}", d.step, d.action))?;
+        let env = self.pool.env_mut(0).context("the episode's env")?;
+        if let Some(t) = self.track.take() {
+            env.settle(t.action, t.before, t.travelled, t.collided);
+        }
+        let record = StepRecord {
+            step: d.step - 1,
+            robot: [env.pose.x, env.pose.z, env.pose.yaw],
+            shown: env.gesture_kind(),
+            rule: env.rule_kind(),
+            action: d.action,
+            probs: d.probs.clone(),
+            value: d.value,
+        };
+        e.rec.step(&record)?;
+        if a == Action::Stop || d.done {
+            // the frame the node saw was taken where it stands: is the target in it?
+            env.update_visibility_geometric();
+            env.settle(a, env.geodesic(), 0.0, false);
+        } else {
+            self.track = Some(Track { action: a, before: env.geodesic(), travelled: 0.0, collided: false });
+        }
+        if !env.is_done() && !d.done {
+            return Ok(None);
+        }
+        self.outcome().map(Some)
+    }
+
+    fn outcome(&mut self) -> anyhow::Result<Outcome> {
+        self.pool.observe(self.buf.bytes_mut())?;
+        let view = ObsView::new(self.shape, &self.buf.bytes()[..self.shape.layout.total_len as usize])
+            .expect("the pool's own layout");
+        let mut r = view.records()[0];
+        if r.terminated == 0 && r.truncated == 0 {
+            // the node ended before the judge did (a step limit of its own): as truncated here
+            r.summary = self.pool.env(0).context("the episode's env")?.summary();
+        }
+        let result = EpisodeResult::from_record(&r, 0, 0, 0);
+        let first = scores([&result], Some(1), self.cfg.task.dts_threshold as f64);
+        Ok(Outcome {
+            steps: result.steps,
+            success: first.sr > 0.0,
+            spl: first.spl / 100.0,
+            dts: first.dts,
+            success_any_stop: result.success,
+        })
+    }
+
+    /// summary.json: SR, SPL and DTS at the first stop over the episodes, as `eval` gives them.
+    fn summary(&self, outcomes: &[(String, Outcome)]) -> anyhow::Result<()> {
+        let n = outcomes.len().max(1) as f64;
+        let sr = outcomes.iter().filter(|(_, o)| o.success).count() as f64 / n * 100.0;
+        let spl = outcomes.iter().map(|(_, o)| o.spl).sum::<f64>() / n * 100.0;
+        let dts = outcomes.iter().map(|(_, o)| o.dts).sum::<f64>() / n;
+        let s = serde_json::json!({
+            "checkpoint": self.checkpoint,
+            "episodes": outcomes.len(),
+            "sr": sr, "spl": spl, "dts": dts,
+            "programs": outcomes.iter().map(|(p, o)| serde_json::json!({"program": p, "outcome": o})).collect::<Vec<_>>(),
+        });
+        let path = self.args.out.join("summary.json");
+        farm::files::write_atomic(&path, serde_json::to_string_pretty(&s)?.as_bytes())?;
+        say!("{} episodes: SR {sr:.1}, SPL {spl:.1}, DTS {dts:.2} at the first stop ({})", outcomes.len(), path.display());
+        Ok(())
+    }
+}
