@@ -241,6 +241,12 @@ impl Env {
         self.humanoid.parts(&pose)
     }
 
+    /// Poses the person at frame `f` of the gesture they perform (`robot sim` animates them in
+    /// its own time; the farm advances them a few frames a step).
+    pub fn set_person_frame(&mut self, f: usize) {
+        self.frame = f;
+    }
+
     /// Sets how many target pixels the robot's current frame shows (from the renderer).
     pub fn set_visible_pixels(&mut self, n: u32) {
         self.visible_pixels = n;

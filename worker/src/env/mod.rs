@@ -19,4 +19,4 @@ mod schedule;
 pub use episode::Env;
 pub use pool::{EnvPool, PoolSpec, ProgramSource, eligible_programs};
 pub use rooms::Rooms;
-pub use schedule::gesture_kind;
+pub use schedule::{gesture_kind, shown};

@@ -61,6 +61,9 @@ pub struct LandmarkFrame {
     /// at x's scale; only their directions are used.
     pub left_hand: Option<Vec<[f32; 3]>>,
     pub right_hand: Option<Vec<[f32; 3]>>,
+    /// The 33 pose landmarks in the image (pixels): where the person is in the frame.
+    #[serde(default)]
+    pub pose_image: Option<Vec<[f32; 2]>>,
 }
 
 impl LandmarkFrame {
@@ -549,7 +552,7 @@ pub fn landmarks_of(sk: &Skeleton, m: &[f32; MUSCLES], t: f32, camera: &Matrix3<
         let wrist = cam(pose.position(Bone::hand(side)));
         hand_points(&pose, side).iter().map(|p| ((wrist + camera * p) * 1000.0).into()).collect()
     };
-    LandmarkFrame { t, pose: Some(lm), left_hand: Some(hand(Side::Left)), right_hand: Some(hand(Side::Right)) }
+    LandmarkFrame { t, pose: Some(lm), left_hand: Some(hand(Side::Left)), right_hand: Some(hand(Side::Right)), pose_image: None }
 }
 
 #[cfg(test)]

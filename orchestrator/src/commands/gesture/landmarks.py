@@ -7,7 +7,8 @@ MediaPipe Holistic (its models ship in the mediapipe 0.10.14 wheel: no download 
 Writes one JSON object a line: first {"source", "fps", "width", "height"}, then per frame
 {"t": seconds, "pose": 33 x [x, y, z, visibility] (world metres, x right, y down, z away from
 the camera, origin between the hips) or null, "left_hand" / "right_hand": 21 x [x, y, z] of the
-person's own hand (pixels; z at x's scale) or null}. Progress goes to stderr; a source that
+person's own hand (pixels; z at x's scale) or null, "pose_image": the 33 pose landmarks in the
+image, [x, y] pixels, or null}. Progress goes to stderr; a source that
 cannot be read ends with one "[error] ..." line on stderr and exit status 2 (3: mediapipe
 missing).
 
@@ -69,14 +70,22 @@ def landmarks(holistic, cv2, img, t):
     """One frame's landmark row."""
     h, w = img.shape[:2]
     r = holistic.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
-    pose = None
+    pose = pose_image = None
     if r.pose_world_landmarks is not None:
         pose = [[l.x, l.y, l.z, l.visibility] for l in r.pose_world_landmarks.landmark]
+    if r.pose_landmarks is not None:
+        pose_image = [[l.x * w, l.y * h] for l in r.pose_landmarks.landmark]
 
     def hand(lms):
         return None if lms is None else [[l.x * w, l.y * h, l.z * w] for l in lms.landmark]
 
-    return {"t": t, "pose": pose, "left_hand": hand(r.left_hand_landmarks), "right_hand": hand(r.right_hand_landmarks)}
+    return {
+        "t": t,
+        "pose": pose,
+        "left_hand": hand(r.left_hand_landmarks),
+        "right_hand": hand(r.right_hand_landmarks),
+        "pose_image": pose_image,
+    }
 
 
 def stream(mp, cv2):

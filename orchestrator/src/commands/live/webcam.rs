@@ -170,7 +170,7 @@ mod tests {
         pose[12] = [-0.15, -0.45, 0.0, 1.0];
         pose[15] = [0.2, 0.0, 0.0, 1.0];
         pose[16] = [-0.15 + wrist_x, wrist_y, 0.0, 1.0];
-        LandmarkFrame { t, pose: Some(pose), left_hand: None, right_hand: None }
+        LandmarkFrame { t, pose: Some(pose), left_hand: None, right_hand: None, pose_image: None }
     }
 
     #[test]

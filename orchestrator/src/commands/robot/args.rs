@@ -48,6 +48,14 @@ pub struct NodeArgs {
     /// A topic silent this long (s, wall clock) is lost: odometry, the camera.
     #[arg(long, default_value_t = 1.0)]
     pub input_timeout: f64,
+    /// Where the person's gesture comes from: `topic` (gesthor/gesture: a tracker, or the
+    /// simulator's truth) or `camera` (the landmark model on the robot's colour frames).
+    #[arg(long, default_value = "topic", value_parser = ["topic", "camera"])]
+    pub gesture: String,
+    /// With `--gesture camera`: how long the person's gesture is watched at an episode's start
+    /// (s, ROS time; GOND's gestures last 3.3 s).
+    #[arg(long, default_value_t = 3.5)]
+    pub capture_seconds: f64,
     /// Publish geometry_msgs/TwistStamped on cmd_vel (ROS 2 Jazzy bases) instead of Twist.
     #[arg(long)]
     pub stamped: bool,

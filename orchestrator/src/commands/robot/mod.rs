@@ -26,6 +26,7 @@ pub mod msgs;
 pub mod names;
 pub mod node;
 pub mod observation;
+pub mod person;
 pub mod sim;
 
 use clap::{Args, Subcommand};

@@ -21,6 +21,7 @@ use super::dds::{self, drain, seconds};
 use super::drive::{Drive, Ended, Limits, Pose2};
 use super::msgs::{CameraInfo, Clock, Decision, Gesture, Header, Image, Odometry, Text, Twist, TwistStamped};
 use super::observation::{Facts, Frame, Observation, person_relative};
+use super::person::Person;
 use super::args::NodeArgs;
 use super::names::{self, Names, Resolved};
 use crate::commands::live::policy::{Answer, Checkpoint, Policy};
@@ -51,6 +52,7 @@ enum Cmd {
 /// The newest of what the topics said, and when (wall clock) each was last heard.
 #[derive(Default)]
 struct Heard {
+    info: Option<CameraInfo>,
     sampling: Option<Result<Sampling, String>>,
     colour: VecDeque<Image>,
     depth: VecDeque<Image>,
@@ -70,10 +72,17 @@ enum Phase {
     /// Waiting for a frame taken at or after this time (s).
     Deciding { after: f64 },
     Acting,
+    /// Turning to look for the person (`--gesture camera`).
+    Looking,
 }
+
+/// Turns of `turn_deg` the robot takes looking for the person before it goes on without them.
+const LOOK_TURNS: u32 = 24;
 
 struct Episode {
     number: u32,
+    /// Turns taken looking for the person.
+    turns: u32,
     target: u32,
     step: u32,
     last_action: u8,
@@ -87,6 +96,9 @@ pub struct Robot {
     max_steps: u32,
     /// The policy reads the person (a gesture, their pose): wait for them on the gesture topic.
     needs_person: bool,
+    schedule: farm::config::GestureSchedule,
+    /// `--gesture camera`: the person read from the colour frames.
+    person: Option<Person>,
     policy: Policy,
     obs: Observation,
     heard: Heard,
@@ -119,6 +131,10 @@ impl Robot {
         };
         let needs_person = cfg.run.method.schedule() != farm::config::GestureSchedule::None || cfg.model.person_pose;
         let policy = Policy::start(&ck, &ck.config)?;
+        let person = match args.gesture.as_str() {
+            "camera" if needs_person => Some(Person::start(args.capture_seconds)?),
+            _ => None,
+        };
         let io = Io::open(&args)?;
         say!(
             "{} on ROS 2 domain {} as {}: colour {}, depth {}, odometry {}, commands {}, goals {}",
@@ -136,6 +152,8 @@ impl Robot {
             view,
             max_steps: cfg.task.max_steps,
             needs_person,
+            schedule: cfg.run.method.schedule(),
+            person,
             policy,
             obs: Observation::new(view.size),
             heard: Heard::default(),
@@ -234,6 +252,7 @@ impl Robot {
             if h.sampling.as_ref().is_none_or(|s| s.as_ref().map_or(true, |s| (s.width, s.height) != (info.width, info.height))) {
                 h.sampling = Some(Sampling::new(info, self.view));
             }
+            h.info = Some(info.clone());
         }
         let (odoms, e) = drain(&self.io.odom);
         note(&self.io.names.odom, e);
@@ -247,7 +266,7 @@ impl Robot {
         note(&self.io.names.goal, e);
         let (gestures, e) = drain(&self.io.gesture);
         note(&self.io.names.gesture, e);
-        if let Some(g) = gestures.into_iter().last() {
+        if let Some(g) = gestures.into_iter().last().filter(|_| self.person.is_none()) {
             h.gesture = Some(g);
         }
         let (colour, e) = drain(&self.io.colour);
@@ -287,6 +306,14 @@ impl Robot {
             Ok(f) => {
                 h.frame = Some(f);
                 h.frame_problem = None;
+                if let Some(p) = &mut self.person {
+                    let (info, odom) = (h.info.as_ref().expect("camera_info came"), h.odom.as_ref());
+                    let (at, frame_id) = odom.map_or((Pose2::default(), ""), |o| (o.0, o.2.as_str()));
+                    match p.see(c, d, info, at) {
+                        Ok(()) => h.gesture = p.gesture(self.schedule, stamp, frame_id),
+                        Err(e) => h.frame_problem = Some(format!("the landmark model: {e:#}")),
+                    }
+                }
             }
             Err(e) => h.frame_problem = Some(e),
         }
@@ -328,6 +355,10 @@ impl Robot {
         if !self.needs_person || self.episode.is_none() {
             return None;
         }
+        if self.person.as_ref().is_some_and(|p| p.capturing() || p.look_around) {
+            // watching for the person's gesture is waiting, not a fault
+            return None;
+        }
         let odom_frame = h.odom.as_ref().map(|o| o.2.as_str()).unwrap_or("");
         match &h.gesture {
             None => Some(format!("no gesture on {}", n.gesture)),
@@ -358,9 +389,14 @@ impl Robot {
         self.episodes += 1;
         let at = self.heard.odom.as_ref().map_or(Pose2::default(), |o| o.0);
         self.drive.restart(at);
+        let now = self.now();
+        if let Some(p) = &mut self.person {
+            p.begin(now);
+            self.heard.gesture = None;
+        }
         // a frame taken after the goal: none seen before it
         let after = self.heard.frame.as_ref().map_or(self.now(), |f| self.now().max(f.stamp + 1e-6));
-        self.episode = Some(Episode { number: self.episodes, target, step: 0, last_action: action::NONE, phase: Phase::Deciding { after } });
+        self.episode = Some(Episode { number: self.episodes, turns: 0, target, step: 0, last_action: action::NONE, phase: Phase::Deciding { after } });
         say!("episode {}: to the {name}", self.episodes);
     }
 
@@ -398,10 +434,29 @@ impl Robot {
                     self.publish_twist(0.0, 0.0);
                 }
             },
-            Phase::Acting => {}
+            Phase::Looking if odom => match self.drive.command(pose, t) {
+                Ok((v, w)) => self.publish_twist(v, w),
+                Err(_) => {
+                    self.person.as_mut().expect("looking is for the camera's person").watch(t);
+                    e.phase = Phase::Deciding { after: t };
+                    self.publish_twist(0.0, 0.0);
+                }
+            },
+            Phase::Acting | Phase::Looking => {}
             Phase::Deciding { after } => {
                 if odom {
                     self.publish_twist(0.0, 0.0);
+                }
+                if let Some(p) = self.person.as_mut().filter(|p| p.look_around) {
+                    let e = self.episode.as_mut().expect("under way");
+                    if e.turns < LOOK_TURNS {
+                        e.turns += 1;
+                        e.phase = Phase::Looking;
+                        self.drive.start(action::ROTATE_LEFT, pose, t);
+                        return Ok(());
+                    }
+                    say!("episode {}: nobody in view all around: on without the person's gesture", e.number);
+                    p.give_up(pose);
                 }
                 let fresh = self.heard.frame.as_ref().is_some_and(|f| f.stamp >= after);
                 let seen = !self.needs_person || self.heard.gesture.as_ref().is_some_and(|g| seconds(g.header.stamp) >= after);
@@ -477,7 +532,7 @@ impl Robot {
             probs: a.map_or(Vec::new(), |a| a.probs.clone()),
             value: a.map_or(0.0, |a| a.value),
             gesture_kind: g.map_or(0, |g| g.kind),
-            gesture_source: if g.is_some() { "topic".into() } else { String::new() },
+            gesture_source: if g.is_some() { self.args.gesture.clone() } else { String::new() },
             done,
             holding: holding.into(),
         };

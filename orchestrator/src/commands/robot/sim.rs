@@ -139,6 +139,8 @@ pub struct Sim {
     command: (f64, f64),
     track: Option<Track>,
     holding: String,
+    /// When the episode under way began (s): the person performs from then on.
+    began: f64,
 }
 
 /// The programs `--programs`/`--spread` name, in their split.
@@ -224,6 +226,7 @@ impl Sim {
             command: (0.0, 0.0),
             track: None,
             holding: String::new(),
+            began: 0.0,
             args,
         })
     }
@@ -255,6 +258,7 @@ impl Sim {
         };
         self.command = (0.0, 0.0);
         self.track = None;
+        self.began = self.t;
         self.tick(true)?;
         self.apply((0.0, 0.0))?;
         if number == 1 {
@@ -388,6 +392,8 @@ impl Sim {
     /// The camera: colour (rgb8), depth (16UC1, mm) and camera_info, and the person's gesture,
     /// all stamped now.
     fn publish_frame(&mut self) -> anyhow::Result<()> {
+        let frame = ((self.t - self.began) * worker::gesture::FPS as f64) as usize;
+        self.pool.env_mut(0).context("the episode's env")?.set_person_frame(frame);
         self.pool.observe(self.buf.bytes_mut())?;
         let view = ObsView::new(self.shape, &self.buf.bytes()[..self.shape.layout.total_len as usize])
             .expect("the pool's own layout");

@@ -1,0 +1,284 @@
+//! The person as the robot's own camera sees them (`--gesture camera`): the landmark model of
+//! the live page's webcam (MediaPipe) reads each colour frame. At an episode's start the
+//! gesture is captured for `--capture-seconds` and fitted to the 95 muscles as `gesture capture`
+//! fits a video; where the person stands is read from the aligned depth under their hips, and
+//! which way they face from the line of their hips. A wave calls the intervention, as on the
+//! live page.
+
+use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, gesture_kind};
+use worker::gesture::capture::LandmarkFrame;
+use worker::humanoid::Humanoid;
+
+use super::drive::{Pose2, wrap};
+use super::msgs::{CameraInfo, Gesture, Header, Image, Pose};
+use crate::commands::live::gesture::muscles;
+use crate::commands::live::webcam::{Webcam, waving};
+
+/// MediaPipe's pose landmarks of the hips: the person's left, right.
+const HIPS: [usize; 2] = [23, 24];
+/// Seconds of frames a wave is read from (as the live page's).
+const WAVE_WINDOW: f64 = 1.5;
+
+/// What the camera has told of the person.
+pub struct Person {
+    webcam: Webcam,
+    capture_seconds: f64,
+    /// The capture under way: from when (ROS time), and its frames.
+    capturing: Option<(f64, Vec<LandmarkFrame>)>,
+    /// The captured gesture's muscles, and where the person stood then (odometry frame).
+    referencing: Option<(Vec<f32>, Pose2)>,
+    /// The last frames, for a wave (ROS time in `t`).
+    recent: Vec<LandmarkFrame>,
+    intervention: Vec<f32>,
+    /// The person is not in view: the robot should turn to look for them.
+    pub look_around: bool,
+    /// Captures tried this episode.
+    tries: u32,
+}
+
+/// Captures that found a person but no gesture, before the episode goes on without one.
+const TRIES: u32 = 2;
+
+impl Person {
+    pub fn start(capture_seconds: f64) -> anyhow::Result<Person> {
+        Ok(Person {
+            webcam: Webcam::start()?,
+            capture_seconds,
+            capturing: None,
+            referencing: None,
+            recent: Vec::new(),
+            intervention: worker::gesture::intervention(0).as_flat().to_vec(),
+            look_around: false,
+            tries: 0,
+        })
+    }
+
+    /// A new episode: the person's gesture is captured afresh from `now` on.
+    pub fn begin(&mut self, now: f64) {
+        self.capturing = Some((now, Vec::new()));
+        self.referencing = None;
+        self.look_around = false;
+        self.tries = 0;
+    }
+
+    /// Watches again from `now` (after a turn to look for the person).
+    pub fn watch(&mut self, now: f64) {
+        self.capturing = Some((now, Vec::new()));
+        self.look_around = false;
+    }
+
+    /// No person was found: the episode goes on without their gesture, where the robot stands.
+    pub fn give_up(&mut self, robot: Pose2) {
+        self.capturing = None;
+        self.look_around = false;
+        self.referencing = Some((Vec::new(), robot));
+    }
+
+    pub fn capturing(&self) -> bool {
+        self.capturing.is_some()
+    }
+
+    /// Reads one colour frame (and its depth) taken where the robot stood at `robot`.
+    pub fn see(&mut self, colour: &Image, depth: &Image, info: &CameraInfo, robot: Pose2) -> anyhow::Result<()> {
+        let t = super::dds::seconds(colour.header.stamp);
+        let jpeg = jpeg(colour)?;
+        let mut f = self.webcam.read(&jpeg, std::time::Instant::now())?;
+        f.t = t as f32;
+        self.recent.retain(|r| (r.t as f64) > t - WAVE_WINDOW);
+        self.recent.push(f.clone());
+        let Some((from, frames)) = &mut self.capturing else { return Ok(()) };
+        if frames.is_empty() && f.pose.is_none() {
+            // nobody in view: look elsewhere rather than watch an empty room
+            self.capturing = None;
+            self.look_around = true;
+            return Ok(());
+        }
+        let mut f = f;
+        f.t = (t - *from) as f32;
+        let stood = stands(&f, depth, info, robot);
+        frames.push(f);
+        if t - *from < self.capture_seconds {
+            return Ok(());
+        }
+        let (_, frames) = self.capturing.take().expect("under way");
+        match (muscles(Humanoid::seeded(0).skeleton(), &frames), stood) {
+            (Ok(c), Some(at)) => {
+                say!(
+                    "the person's gesture read ({} arm, {} of {} frames), the person at ({:.2}, {:.2}) facing {:.0}°",
+                    crate::commands::live::gesture::arm_name(c.side),
+                    c.person_frames,
+                    frames.len(),
+                    at.x,
+                    at.y,
+                    at.yaw.to_degrees()
+                );
+                self.referencing = Some((c.motion.as_flat().to_vec(), at));
+            }
+            (Err(e), _) => self.fail(t, format!("the person's gesture was not read: {e:#}"), robot),
+            (Ok(_), None) => {
+                self.fail(t, "the person's gesture was read, but not where they stand (no depth under their hips)".into(), robot)
+            }
+        }
+        Ok(())
+    }
+
+    /// A capture that found no gesture starts again, then the episode goes on without one.
+    fn fail(&mut self, t: f64, why: String, robot: Pose2) {
+        self.tries += 1;
+        say!("{why}");
+        match self.tries < TRIES {
+            true => self.capturing = Some((t, Vec::new())),
+            false => self.give_up(robot),
+        }
+    }
+
+    /// The gesture the policy is shown with a frame stamped `stamp`, in `odom`'s frame: the
+    /// captured one, or the intervention while the person waves (as `schedule` shows them).
+    pub fn gesture(&self, schedule: farm::config::GestureSchedule, stamp: f64, odom: &str) -> Option<Gesture> {
+        let (referencing, at) = self.referencing.as_ref()?;
+        let mut kind = worker::env::shown(schedule, waving(&self.recent));
+        if kind == gesture_kind::REFERENCING && referencing.is_empty() {
+            kind = gesture_kind::NONE;
+        }
+        let muscles = match kind {
+            gesture_kind::REFERENCING => referencing.clone(),
+            gesture_kind::INTERVENTION => self.intervention.clone(),
+            _ => Vec::new(),
+        };
+        let size = |n: usize| if muscles.is_empty() { 0 } else { n as u16 };
+        Some(Gesture {
+            header: Header::new(super::dds::time(stamp), odom),
+            kind,
+            person: Pose::planar(at.x, at.y, at.yaw),
+            frames: size(GESTURE_FRAMES),
+            dims: size(GESTURE_DIMS),
+            muscles,
+        })
+    }
+}
+
+/// Where the person stands and faces in the odometry frame, from one frame's landmarks: each
+/// hip where the aligned depth puts it along its pixel's ray (the median of a small window that
+/// measured it), the person between them, facing square to the line from their right hip to
+/// their left.
+fn stands(f: &LandmarkFrame, depth: &Image, info: &CameraInfo, robot: Pose2) -> Option<Pose2> {
+    let img = f.pose_image.as_ref()?;
+    // a hip in the optical frame (x right, z ahead; y is not needed)
+    let hip = |i: usize| -> Option<(f64, f64)> {
+        let (u, v) = (img[i][0] as f64, img[i][1] as f64);
+        let d = depth_near(depth, u as i64, v as i64)?;
+        Some(((u - info.k[2]) / info.k[0] * d, d))
+    };
+    let (l, r) = (hip(HIPS[0])?, hip(HIPS[1])?);
+    let (x, z) = ((l.0 + r.0) / 2.0, (l.1 + r.1) / 2.0);
+    // their left (lx, lz); they face (lz, −lx), which is (ahead, left) = (−lx, −lz) for the robot
+    let (lx, lz) = (l.0 - r.0, l.1 - r.1);
+    let facing = (-lz).atan2(-lx);
+    let (ahead, left) = (z, -x);
+    let (s, c) = robot.yaw.sin_cos();
+    Some(Pose2 { x: robot.x + ahead * c - left * s, y: robot.y + ahead * s + left * c, yaw: wrap(robot.yaw + facing) })
+}
+
+/// Metres at pixel (u, v) of a 16UC1 (mm) or 32FC1 (m) depth image: the median of the measured
+/// values within two pixels.
+fn depth_near(depth: &Image, u: i64, v: i64) -> Option<f64> {
+    let mut vals = Vec::new();
+    for y in (v - 2).max(0)..=(v + 2).min(depth.height as i64 - 1) {
+        for x in (u - 2).max(0)..=(u + 2).min(depth.width as i64 - 1) {
+            let at = y as usize * depth.step as usize;
+            let m = match depth.encoding.as_str() {
+                "32FC1" => {
+                    let b = depth.data.get(at + x as usize * 4..at + x as usize * 4 + 4)?;
+                    f32::from_le_bytes(b.try_into().ok()?) as f64
+                }
+                _ => {
+                    let b = depth.data.get(at + x as usize * 2..at + x as usize * 2 + 2)?;
+                    u16::from_le_bytes(b.try_into().ok()?) as f64 / 1000.0
+                }
+            };
+            if m.is_finite() && m > 0.0 {
+                vals.push(m);
+            }
+        }
+    }
+    vals.sort_by(f64::total_cmp);
+    vals.get(vals.len() / 2).copied()
+}
+
+/// The colour image as a JPEG for the landmark model.
+fn jpeg(img: &Image) -> anyhow::Result<Vec<u8>> {
+    let (ch, colour) = match img.encoding.as_str() {
+        "rgb8" => (3, jpeg_encoder::ColorType::Rgb),
+        "bgr8" => (3, jpeg_encoder::ColorType::Bgr),
+        "rgba8" => (4, jpeg_encoder::ColorType::Rgba),
+        "bgra8" => (4, jpeg_encoder::ColorType::Bgra),
+        other => anyhow::bail!("colour image: encoding `{other}`"),
+    };
+    let row = img.width as usize * ch;
+    let packed: Vec<u8> = (0..img.height as usize).flat_map(|y| img.data[y * img.step as usize..][..row].iter().copied()).collect();
+    let mut out = Vec::new();
+    jpeg_encoder::Encoder::new(&mut out, 90).encode(&packed, img.width as u16, img.height as u16, colour)?;
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::commands::robot::camera::pinhole;
+
+    /// A 640×480 16UC1 image, `mm` everywhere but `(u, v, mm)` patches.
+    fn depth(mm: u16, patches: &[(usize, usize, u16)]) -> Image {
+        let (w, h) = (640usize, 480usize);
+        let mut px = vec![mm; w * h];
+        for &(u, v, d) in patches {
+            for y in v - 3..=v + 3 {
+                for x in u - 3..=u + 3 {
+                    px[y * w + x] = d;
+                }
+            }
+        }
+        Image {
+            header: Header::default(),
+            height: h as u32,
+            width: w as u32,
+            encoding: "16UC1".into(),
+            is_bigendian: 0,
+            step: w as u32 * 2,
+            data: px.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        }
+    }
+
+    fn hips(left: (f32, f32), right: (f32, f32)) -> LandmarkFrame {
+        let mut img = vec![[0.0; 2]; 33];
+        (img[HIPS[0]], img[HIPS[1]]) = ([left.0, left.1], [right.0, right.1]);
+        LandmarkFrame { pose_image: Some(img), ..Default::default() }
+    }
+
+    #[test]
+    fn a_person_facing_the_robot_stands_where_the_depth_says_and_faces_it() {
+        let info = pinhole(640, 480, 90.0, Header::default());
+        // 2 m ahead, square to the camera: their left hip on the image's right
+        let f = hips((359.5, 239.5), (279.5, 239.5));
+        let at = stands(&f, &depth(2000, &[]), &info, Pose2::default()).unwrap();
+        assert!((at.x - 2.0).abs() < 1e-6 && at.y.abs() < 1e-6, "{at:?}");
+        assert!((wrap(at.yaw - std::f64::consts::PI)).abs() < 1e-6, "{at:?}");
+        // the robot elsewhere: the same person seen from (1, 1) facing +y stands at (1, 3)
+        let robot = Pose2 { x: 1.0, y: 1.0, yaw: std::f64::consts::FRAC_PI_2 };
+        let at = stands(&f, &depth(2000, &[]), &info, robot).unwrap();
+        assert!((at.x - 1.0).abs() < 1e-6 && (at.y - 3.0).abs() < 1e-6, "{at:?}");
+        assert!((wrap(at.yaw + std::f64::consts::FRAC_PI_2)).abs() < 1e-6, "{at:?}");
+    }
+
+    #[test]
+    fn a_person_turned_to_their_right_has_their_left_hip_nearer() {
+        let info = pinhole(640, 480, 90.0, Header::default());
+        // facing the camera, turned to their right: their left hip nearer
+        let f = hips((400.0, 239.5), (240.0, 239.5));
+        let d = depth(2000, &[(400, 240, 1850), (240, 240, 2150)]);
+        let at = stands(&f, &d, &info, Pose2::default()).unwrap();
+        // they face the robot, turned toward its left
+        assert!(at.yaw > std::f64::consts::FRAC_PI_2 && at.yaw < std::f64::consts::PI, "{:.1}°", at.yaw.to_degrees());
+        // no depth under a hip: no place
+        assert!(stands(&f, &depth(0, &[]), &info, Pose2::default()).is_none());
+    }
+}
