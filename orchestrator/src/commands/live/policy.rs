@@ -63,12 +63,18 @@ impl Policy {
     /// Starts the learner on `c` with `config` (the run's), and waits until the checkpoint has
     /// loaded.
     pub fn start(c: &Checkpoint, config: &Path) -> anyhow::Result<Policy> {
+        Policy::start_with(c, config, false)
+    }
+
+    /// [`Policy::start`]; `greedy`: the most likely action at every step instead of a sample.
+    pub fn start_with(c: &Checkpoint, config: &Path, greedy: bool) -> anyhow::Result<Policy> {
         let learner = binaries::sibling("learner")?;
         let mut child = Command::new(&learner)
             .args(["--device", "cpu", "act", "--config"])
             .arg(config)
             .arg("--checkpoint")
             .arg(&c.file)
+            .args(greedy.then_some("--greedy"))
             .env("RUST_LOG", "warn")
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())

@@ -56,6 +56,10 @@ pub struct NodeArgs {
     /// (s, ROS time; GOND's gestures last 3.3 s).
     #[arg(long, default_value_t = 3.5)]
     pub capture_seconds: f64,
+    /// Take the policy's most likely action at every step instead of sampling it (as `eval
+    /// --greedy`: the same observations then give the same decisions).
+    #[arg(long)]
+    pub greedy: bool,
     /// Publish geometry_msgs/TwistStamped on cmd_vel (ROS 2 Jazzy bases) instead of Twist.
     #[arg(long)]
     pub stamped: bool,

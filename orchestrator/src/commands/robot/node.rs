@@ -130,7 +130,7 @@ impl Robot {
             stall: args.stall_seconds,
         };
         let needs_person = cfg.run.method.schedule() != farm::config::GestureSchedule::None || cfg.model.person_pose;
-        let policy = Policy::start(&ck, &ck.config)?;
+        let policy = Policy::start_with(&ck, &ck.config, args.greedy)?;
         let person = match args.gesture.as_str() {
             "camera" if needs_person => Some(Person::start(args.capture_seconds)?),
             _ => None,
