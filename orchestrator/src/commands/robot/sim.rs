@@ -57,6 +57,10 @@ pub struct SimArgs {
     pub rate: f64,
     #[arg(long, default_value_t = 5.0)]
     pub camera_rate: f64,
+    /// How the person's gesture moves: `steps` (3 frames a decision, as in training and `eval`)
+    /// or `time` (30 frames a second, as a person would: for `--gesture camera`).
+    #[arg(long, default_value = "steps", value_parser = ["steps", "time"])]
+    pub animate: String,
     /// Pace simulated time to the wall clock.
     #[arg(long)]
     pub realtime: bool,
@@ -392,8 +396,10 @@ impl Sim {
     /// The camera: colour (rgb8), depth (16UC1, mm) and camera_info, and the person's gesture,
     /// all stamped now.
     fn publish_frame(&mut self) -> anyhow::Result<()> {
-        let frame = ((self.t - self.began) * worker::gesture::FPS as f64) as usize;
-        self.pool.env_mut(0).context("the episode's env")?.set_person_frame(frame);
+        if self.args.animate == "time" {
+            let frame = ((self.t - self.began) * worker::gesture::FPS as f64) as usize;
+            self.pool.env_mut(0).context("the episode's env")?.set_person_frame(frame);
+        }
         self.pool.observe(self.buf.bytes_mut())?;
         let view = ObsView::new(self.shape, &self.buf.bytes()[..self.shape.layout.total_len as usize])
             .expect("the pool's own layout");
