@@ -95,15 +95,7 @@ impl Sampling {
     /// The aligned depth image as the policy's depth frame (`size²`, linear 0..10 m). A pixel
     /// the camera could not measure (0, NaN) reads as nearest: the safer mistake.
     pub fn depth(&self, img: &Image, out: &mut [u16]) -> Result<(), String> {
-        let metres: fn(&[u8]) -> f32 = match img.encoding.as_str() {
-            "16UC1" | "mono16" => |b| u16::from_le_bytes([b[0], b[1]]) as f32 / 1000.0,
-            "32FC1" => |b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-            other => return Err(format!("depth image: encoding `{other}`; 16UC1 (mm) or 32FC1 (m) expected")),
-        };
-        if img.is_bigendian != 0 {
-            return Err("depth image: big-endian; little-endian expected".into());
-        }
-        let bytes = if img.encoding == "32FC1" { 4 } else { 2 };
+        let (metres, bytes) = depth_pixel(img)?;
         self.check(img, bytes)?;
         let n = self.size();
         for (y, &row) in self.rows.iter().enumerate() {
@@ -136,6 +128,20 @@ impl Sampling {
         }
         Ok(())
     }
+}
+
+/// How a depth image's pixel reads in metres, and its bytes: 16UC1 (mm) or 32FC1 (m),
+/// little-endian; why not otherwise.
+pub fn depth_pixel(img: &Image) -> Result<(fn(&[u8]) -> f32, usize), String> {
+    let read: (fn(&[u8]) -> f32, usize) = match img.encoding.as_str() {
+        "16UC1" | "mono16" => (|b| u16::from_le_bytes([b[0], b[1]]) as f32 / 1000.0, 2),
+        "32FC1" => (|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]), 4),
+        other => return Err(format!("depth image: encoding `{other}`; 16UC1 (mm) or 32FC1 (m) expected")),
+    };
+    if img.is_bigendian != 0 {
+        return Err("depth image: big-endian; little-endian expected".into());
+    }
+    Ok(read)
 }
 
 /// The `camera_info` of an ideal pinhole camera of `width × height` whose vertical field of

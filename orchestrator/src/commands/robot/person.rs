@@ -179,23 +179,15 @@ fn stands(f: &LandmarkFrame, depth: &Image, info: &CameraInfo, robot: Pose2) -> 
     Some(Pose2 { x: robot.x + ahead * c - left * s, y: robot.y + ahead * s + left * c, yaw: wrap(robot.yaw + facing) })
 }
 
-/// Metres at pixel (u, v) of a 16UC1 (mm) or 32FC1 (m) depth image: the median of the measured
-/// values within two pixels.
+/// Metres at pixel (u, v) of the aligned depth image: the median of the measured values within
+/// two pixels.
 fn depth_near(depth: &Image, u: i64, v: i64) -> Option<f64> {
+    let (metres, bytes) = super::camera::depth_pixel(depth).ok()?;
     let mut vals = Vec::new();
     for y in (v - 2).max(0)..=(v + 2).min(depth.height as i64 - 1) {
         for x in (u - 2).max(0)..=(u + 2).min(depth.width as i64 - 1) {
-            let at = y as usize * depth.step as usize;
-            let m = match depth.encoding.as_str() {
-                "32FC1" => {
-                    let b = depth.data.get(at + x as usize * 4..at + x as usize * 4 + 4)?;
-                    f32::from_le_bytes(b.try_into().ok()?) as f64
-                }
-                _ => {
-                    let b = depth.data.get(at + x as usize * 2..at + x as usize * 2 + 2)?;
-                    u16::from_le_bytes(b.try_into().ok()?) as f64 / 1000.0
-                }
-            };
+            let at = y as usize * depth.step as usize + x as usize * bytes;
+            let m = metres(depth.data.get(at..at + bytes)?) as f64;
             if m.is_finite() && m > 0.0 {
                 vals.push(m);
             }
