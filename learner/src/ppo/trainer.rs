@@ -1,42 +1,33 @@
-//! PPO (§4.3.1–§4.3.2, Algorithm 1, T4.1), readable top to bottom in the order it happens:
+//! The PPO trainer (§4.3.1–§4.3.2, Algorithm 1, T4.1). Each step message, in this order
+//! ([`Trainer::step_at`]):
 //!
-//! 1. **collect** — every step message: record the feedback of the previous action, act, store
-//!    ([`Trainer::step`]);
-//! 2. **bootstrap** — when T steps are stored, the value of the next observation;
-//! 3. **GAE** — advantages and returns ([`gae`]);
-//! 4. **learn** — for each epoch, for each minibatch of whole envs (the GRU is re-run over their
-//!    full sequences from the stored initial memory): probability ratio, clipped policy loss,
-//!    value loss, entropy bonus, Adam step with the gradient norm clipped ([`learn`]).
+//! 1. **feedback** — the previous action's reward and end of episode, into the rollout;
+//! 2. **learn**, when the message completes a rollout — bootstrap from V(o_T), then GAE and the
+//!    epochs of [`super::update`], in place or on a thread beside acting ([`super::overlap`]);
+//! 3. **act** — sample the actions (after an update, the new policy's on the same o_T and memory)
+//!    and store them.
 //!
 //! The learning rate decays linearly from 3e-4 to 0 over the run's frames (§4.3.2).
-//!
-//! With `ppo.overlap_update` the update of a full rollout runs on a thread, on a copy of the
-//! network ([`Overlap`]), while the agent collects the next rollout with the weights before it;
-//! the copy's weights come back when that rollout is full (a policy lag of one update).
 
-use std::thread::JoinHandle;
 use std::time::Instant;
 
 use farm::config::{PpoConfig, RunConfig};
-use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
-use tch::{Device, Kind, Tensor};
+use tch::Device;
 
+use crate::inputs::Inputs;
 use crate::logs::metrics::{EpisodeWindow, UpdateMetrics};
-use crate::net::agent::{ActMode, Actions, Agent, AgentError};
-use crate::net::network::PolicyNet;
+use crate::net::agent::{ActMode, Actions, Agent, AgentError, Forward};
 use crate::obs::{EnvBatch, EnvStep, ObsError};
 use crate::ppo::optim::Adam;
-use crate::ppo::rollout::{FeedbackCounts, Rollout, flags};
+use crate::ppo::overlap::Overlap;
+use crate::ppo::rollout::{FeedbackCounts, Rollout};
+pub use crate::ppo::update::lr_at;
+use crate::ppo::update::{UpdateSettings, update};
 use crate::stages::{Stage, StageClock};
 
 /// Adam's ε: 1e-5, the usual choice for PPO (torch's default is 1e-8).
 const ADAM_EPS: f64 = 1e-5;
-
-/// The linearly annealed learning rate after `frames` of the run's `total_frames`.
-pub fn lr_at(p: &PpoConfig, total_frames: u64, frames: u64) -> f64 {
-    p.lr * (1.0 - frames as f64 / total_frames.max(1) as f64).max(0.0)
-}
 
 /// What [`Trainer::step`] gives back: the actions to send, and the update's metrics when this
 /// message completed a rollout.
@@ -72,60 +63,11 @@ pub struct Trainer {
     collected_by: u64,
     /// Seconds steps spent learning: whole updates in place, waits for them overlapped.
     learning_s: f64,
-    /// `ppo.overlap_update`: the copy that learns beside acting, and its work.
+    /// `ppo.overlap_update`: the copy that learns beside acting, and its work; `None`: in place.
     overlap: Option<Overlap>,
     /// Asked before every minibatch: true ends the update's epochs there (a stop signal), so a
     /// stop never waits for a whole update.
     pub interrupted: fn() -> bool,
-}
-
-/// `ppo.overlap_update`: a full rollout is queued at the step that completes it and handed to a
-/// thread at the next step, with a copy of the network, Adam and the minibatch order as they are
-/// then; the copy's weights, moments and order come back into the trainer when the next rollout is
-/// full. Between steps the trainer's own state is always that after its last joined update, so a
-/// checkpoint written at any step is consistent (the rollouts queued or in flight are not in it).
-#[derive(Debug)]
-struct Overlap {
-    /// The learning copy (built like the agent; its frozen parts copied once), `None` while in flight.
-    copy: Option<Learner>,
-    queued: Option<Queued>,
-    in_flight: Option<JoinHandle<Learned>>,
-    /// The rollout of the last joined update, collected into next.
-    spare: Option<Rollout>,
-}
-
-/// A network with Adam over its trainable variables.
-#[derive(Debug)]
-struct Learner {
-    agent: Agent,
-    opt: Adam,
-    /// The frozen variables (never stepped) have been copied from the acting agent.
-    frozen_copied: bool,
-}
-
-/// A full rollout waiting for its update: V(o_T) per env and the update that collected it.
-#[derive(Debug)]
-struct Queued {
-    rollout: Rollout,
-    bootstrap: Vec<f32>,
-    collected_by: u64,
-}
-
-/// What an overlapped update hands back.
-#[derive(Debug)]
-struct Learned {
-    copy: Learner,
-    rng: ChaCha8Rng,
-    rollout: Rollout,
-    metrics: UpdateMetrics,
-}
-
-/// What an update reads besides the rollout and the state it changes.
-#[derive(Clone, Debug)]
-struct UpdateSettings {
-    hp: PpoConfig,
-    lr: f64,
-    interrupted: fn() -> bool,
 }
 
 impl Trainer {
@@ -152,14 +94,7 @@ impl Trainer {
         let rollout = Rollout::new(hp.rollout, n_envs, agent.hidden());
         let overlap = match hp.overlap_update {
             false => None,
-            true => {
-                // built without its weight files: every variable is copied from the agent at the
-                // first update, after a checkpoint has been loaded into it
-                let copy = Agent::build(cfg, 1, device, false)?;
-                let opt = Adam::new(&copy.vs, hp.lr, ADAM_EPS);
-                let copy = Learner { agent: copy, opt, frozen_copied: false };
-                Some(Overlap { copy: Some(copy), queued: None, in_flight: None, spare: None })
-            }
+            true => Some(Overlap::new(cfg, &hp, device, ADAM_EPS)?),
         };
         Ok(Trainer {
             rng: farm::seed::rng(cfg.run.seed, &[0x7070_6f5f]),
@@ -197,47 +132,66 @@ impl Trainer {
         self.launch_queued();
         self.agent.stages.start(true);
         let (x, starts) = self.agent.prepare_at(at, obs)?;
-        let n = starts.len();
+        self.check_round(at, starts.len())?;
+        let mut fwd = self.agent.forward_at(at, &x, starts.clone());
+        self.record_feedback(at, obs, &fwd.values);
+        let mut update = None;
+        if self.rollout.is_full() {
+            update = self.learn_full_rollout(fwd.values.clone());
+            fwd = self.agent.forward(&x, starts);
+        }
+        let actions = self.act_and_store(at, obs, &x, fwd);
+        Ok(StepOutput { actions, update })
+    }
+
+    /// The step that completes a rollout must be a round for all envs.
+    fn check_round(&self, at: usize, n: usize) -> Result<(), ObsError> {
         if self.wants_all() && n != self.rollout.envs {
             return Err(ObsError::Shape(format!(
                 "envs {at}..{} alone at the end of a rollout: the update needs every env",
                 at + n
             )));
         }
-        let mut fwd = self.agent.forward_at(at, &x, starts.clone());
+        Ok(())
+    }
 
-        // 1. The feedback of the previous action: reward, end of episode, truncation bootstrap.
-        let c = self.rollout.record_feedback_at(at, obs.envs, &fwd.values, self.hp.gamma as f32);
+    /// 1. The feedback of the previous action: reward, end of episode, truncation bootstrap.
+    fn record_feedback(&mut self, at: usize, obs: &EnvBatch, values: &[f32]) {
+        let c = self.rollout.record_feedback_at(at, obs.envs, values, self.hp.gamma as f32);
         self.counts.bootstrapped += c.bootstrapped;
         self.counts.truncated_without_final += c.truncated_without_final;
         self.counts.lost += c.lost;
         self.track_episodes(at, obs.envs);
         self.agent.stages.lap(Stage::ActStore);
+    }
 
-        // 2.–4. A full rollout: bootstrap from V(o_T) (the old policy's), learn, and act on o_T
-        //       with the new policy from the same memory. Overlapped: the last rollout's update
-        //       is joined and this one queued.
-        let mut update = None;
-        if self.rollout.is_full() {
-            let bootstrap = fwd.values.clone();
-            update = match self.overlap.is_some() {
-                false => Some(self.update(&bootstrap)),
-                true => self.join_and_queue(bootstrap),
-            };
-            self.rollout.begin(self.agent.hidden());
-            self.collected_by = self.updates;
-            fwd = self.agent.forward(&x, starts);
-        }
+    /// 2. The full rollout learned from V(o_T) (the old policy's `bootstrap`): in place now, or
+    /// queued for the next step's thread with the previous rollout's update joined.
+    fn learn_full_rollout(&mut self, bootstrap: Vec<f32>) -> Option<UpdateMetrics> {
+        let update = match self.overlap.is_some() {
+            false => Some(self.update(&bootstrap)),
+            true => {
+                let joined = self.join();
+                let ov = self.overlap.as_mut().expect("overlapped");
+                ov.queue(&mut self.rollout, bootstrap, self.collected_by);
+                joined
+            }
+        };
+        self.rollout.begin(self.agent.hidden());
+        self.collected_by = self.updates;
+        update
+    }
 
-        // 1. (cont.) Act and store. A final observation's action is ignored by the env.
+    /// 3. Act and store. A final observation's action is ignored by the env.
+    fn act_and_store(&mut self, at: usize, obs: &EnvBatch, x: &Inputs, fwd: Forward) -> Actions {
         let acted = self.agent.choose(&fwd, ActMode::Sample);
         self.agent.stages.lap(Stage::ActSample);
         let valid: Vec<bool> = obs.envs.iter().map(|e| !e.lost && !e.is_final_observation()).collect();
-        self.rollout.push_at(at, &x, &fwd.starts, &acted, &valid);
-        self.last_real[at..at + n].copy_from_slice(&valid);
+        self.rollout.push_at(at, x, &fwd.starts, &acted, &valid);
+        self.last_real[at..at + valid.len()].copy_from_slice(&valid);
         self.agent.commit_at(at, fwd, obs);
         self.agent.stages.lap(Stage::ActStore);
-        Ok(StepOutput { actions: acted, update })
+        acted
     }
 
     /// Times acting and updates stage by stage from now on, synchronizing the device after each
@@ -287,7 +241,7 @@ impl Trainer {
         self.agent.stages.start(false);
         let how = self.update_settings();
         let mut m =
-            learn(&self.agent.net, &mut self.opt, &mut self.rng, &self.rollout, bootstrap, &how, &self.agent.stages);
+            update(&self.agent.net, &mut self.opt, &mut self.rng, &self.rollout, bootstrap, &how, &self.agent.stages);
         m.update_seconds = started.elapsed().as_secs_f64();
         let m = self.count_update(m);
         self.agent.stages.lap(Stage::UpdatePrepare);
@@ -325,59 +279,20 @@ impl Trainer {
         m
     }
 
-    /// Overlapped, at a full rollout: the update in flight joined (its weights act from now on),
-    /// and the full rollout queued for the next step, which hands it to a thread.
-    fn join_and_queue(&mut self, bootstrap: Vec<f32>) -> Option<UpdateMetrics> {
-        let m = self.join();
-        let ov = self.overlap.as_mut().expect("overlapped");
-        let spare =
-            ov.spare.take().unwrap_or_else(|| Rollout::new(self.hp.rollout, self.rollout.envs, &self.rollout.h0));
-        let rollout = std::mem::replace(&mut self.rollout, spare);
-        ov.queued = Some(Queued { rollout, bootstrap, collected_by: self.collected_by });
-        m
-    }
-
-    /// Overlapped: hands the queued rollout to a thread that learns it on the copy, from the
-    /// trainer's weights, moments and minibatch order as they are now.
+    /// Overlapped: hands the queued rollout to a thread ([`Overlap::launch`]).
     fn launch_queued(&mut self) {
         let how = self.update_settings();
-        let Some(ov) = self.overlap.as_mut() else { return };
-        let Some(q) = ov.queued.take() else { return };
-        let mut copy = ov.copy.take().expect("the copy is back before a rollout is queued");
-        if !copy.frozen_copied {
-            copy.agent.vs.copy(&self.agent.vs).expect("the copy is built like the agent");
-            if let Some(f) = copy.agent.net.frozen() {
-                f.refresh(&copy.agent.vs);
-            }
-            copy.frozen_copied = true;
+        if let Some(ov) = self.overlap.as_mut() {
+            ov.launch(&self.agent, &self.opt, &self.rng, how, self.updates);
         }
-        copy.opt.copy_from(&self.opt);
-        let mut rng = self.rng.clone();
-        let policy_lag = self.updates - q.collected_by;
-        ov.in_flight = Some(std::thread::spawn(move || {
-            let started = Instant::now();
-            // its stages are not timed: they run beside acting's
-            let stages = StageClock::default();
-            let mut metrics = learn(&copy.agent.net, &mut copy.opt, &mut rng, &q.rollout, &q.bootstrap, &how, &stages);
-            metrics.update_seconds = started.elapsed().as_secs_f64();
-            metrics.policy_lag = policy_lag;
-            Learned { copy, rng, rollout: q.rollout, metrics }
-        }));
     }
 
     /// Overlapped: waits for the update in flight, if any, and takes its weights, moments and
     /// minibatch order.
     fn join(&mut self) -> Option<UpdateMetrics> {
-        let ov = self.overlap.as_mut()?;
-        let handle = ov.in_flight.take()?;
-        let waited = Instant::now();
-        let l = handle.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-        self.learning_s += waited.elapsed().as_secs_f64();
-        self.opt.copy_from(&l.copy.opt);
-        self.rng = l.rng;
-        ov.copy = Some(l.copy);
-        ov.spare = Some(l.rollout);
-        Some(self.count_update(l.metrics))
+        let (m, waited) = self.overlap.as_mut()?.join(&mut self.opt, &mut self.rng)?;
+        self.learning_s += waited;
+        Some(self.count_update(m))
     }
 
     /// Learns every rollout still queued or in flight (`ppo.overlap_update`; nothing otherwise),
@@ -390,270 +305,11 @@ impl Trainer {
     }
 }
 
-/// The PPO update of a full rollout on `net`, whose trainable variables `opt` steps: GAE, then
-/// the epochs of minibatches; the counters are the trainer's ([`Trainer::count_update`]).
-fn learn(
-    net: &PolicyNet,
-    opt: &mut Adam,
-    rng: &mut ChaCha8Rng,
-    r: &Rollout,
-    bootstrap: &[f32],
-    how: &UpdateSettings,
-    stages: &StageClock,
-) -> UpdateMetrics {
-    let hp = &how.hp;
-    let (t_len, n) = (r.steps, r.envs);
-    opt.lr = how.lr;
-    let mut m = UpdateMetrics { lr: how.lr, ..Default::default() };
-    let valid_count = r.valid.iter().filter(|v| **v).count();
-    m.valid_fraction = valid_count as f64 / (t_len * n) as f64;
-    if net.spec().random() || valid_count == 0 {
-        return m;
-    }
-
-    // GAE (Eq. 4.3–4.5), on the host: T×N scalars.
-    let (advantages, returns) =
-        gae(&r.rewards, &r.values, &r.ends, bootstrap, n, hp.gamma as f32, hp.gae_lambda as f32);
-    m.explained_variance = explained_variance(&r.values, &returns, &r.valid);
-
-    let b_adv = r.to_device(&advantages);
-    let b_ret = r.to_device(&returns);
-    let b_logp = r.to_device(&r.log_probs);
-    let b_val = r.to_device(&r.values);
-    let b_act = r.to_device(&r.actions);
-    let b_valid = flags(r, &r.valid);
-    let per_mb = n.div_ceil(hp.minibatches);
-    let mut envs: Vec<i64> = (0..n as i64).collect();
-    let mut sums = [0.0f64; 6];
-    let mut batches = 0.0;
-
-    'epochs: for _epoch in 0..hp.epochs {
-        envs.shuffle(rng);
-        for mb in envs.chunks(per_mb) {
-            if (how.interrupted)() {
-                m.cut_short = true;
-                break 'epochs;
-            }
-            let idx = Tensor::from_slice(mb).to_device(r.device());
-            let sel = |t: &Tensor| t.index_select(1, &idx);
-            let starts: Vec<bool> =
-                (0..t_len).flat_map(|t| mb.iter().map(move |&k| r.starts[t * n + k as usize])).collect();
-            let valid = sel(&b_valid);
-            let x = r.minibatch(&idx).expect("a full rollout has inputs");
-            stages.lap(Stage::UpdatePrepare);
-
-            // Re-run the network over the minibatch's whole sequences.
-            let (logits, values) = net.evaluate(&x, &r.h0.index_select(1, &idx), &starts);
-            let logp_all = logits.log_softmax(-1, Kind::Float);
-            let new_logp = logp_all.gather(-1, &sel(&b_act).unsqueeze(-1), false).squeeze_dim(-1);
-            let entropy = -(logp_all.exp() * &logp_all).sum_dim_intlist(-1, false, Kind::Float);
-
-            // Probability ratio r_t of Eq. 4.2, and how far the policy moved.
-            let log_ratio = new_logp - sel(&b_logp);
-            let ratio = log_ratio.exp();
-            let (approx_kl, clip_fraction) = tch::no_grad(|| {
-                let kl = masked_mean(&((&ratio - 1.0) - &log_ratio), &valid).double_value(&[]);
-                let clipped = (&ratio - 1.0).abs().gt(hp.clip).to_kind(Kind::Float);
-                (kl, masked_mean(&clipped, &valid).double_value(&[]))
-            });
-
-            // Advantages normalised over the minibatch's learnable steps.
-            let adv = normalize_masked(&sel(&b_adv), &valid);
-            let pg_loss = clipped_policy_loss(&ratio, &adv, &valid, hp.clip);
-            let v_loss = value_loss(&values, &sel(&b_val), &sel(&b_ret), &valid, hp.clip_value_loss.then_some(hp.clip));
-            let ent = masked_mean(&entropy, &valid);
-            let loss = &pg_loss - hp.entropy_coef * &ent + hp.value_coef * &v_loss;
-
-            opt.zero_grad();
-            loss.backward();
-            stages.lap(Stage::UpdateBackward);
-            let grad_norm = opt.clip_grad_norm(hp.max_grad_norm);
-            if grad_norm.is_finite() {
-                opt.step();
-                stages.lap(Stage::UpdateStep);
-            } else {
-                // one bad minibatch must not poison every weight with NaN
-                m.skipped_steps += 1;
-                continue;
-            }
-
-            for (s, v) in sums.iter_mut().zip([
-                pg_loss.double_value(&[]),
-                v_loss.double_value(&[]),
-                ent.double_value(&[]),
-                approx_kl,
-                clip_fraction,
-                grad_norm,
-            ]) {
-                *s += v;
-            }
-            batches += 1.0;
-        }
-    }
-    let batches = f64::max(batches, 1.0);
-    m.policy_loss = sums[0] / batches;
-    m.value_loss = sums[1] / batches;
-    m.entropy = sums[2] / batches;
-    m.approx_kl = sums[3] / batches;
-    m.clip_fraction = sums[4] / batches;
-    m.grad_norm = sums[5] / batches;
-    m
-}
-
-/// Generalised advantage estimation over `[T, N]` host arrays (index `t * N + n`):
-/// δ_t = r_t + γ·V(s_{t+1})·(1 − end_t) − V(s_t),  A_t = δ_t + γλ·(1 − end_t)·A_{t+1}.
-/// `bootstrap[n]` is V of the observation after the last step. Truncations already carry γ·V of
-/// their final observation in `rewards`, and `ends` there, so one rule covers both endings.
-/// Returns (advantages, returns = advantages + values).
-pub fn gae(
-    rewards: &[f32],
-    values: &[f32],
-    ends: &[bool],
-    bootstrap: &[f32],
-    envs: usize,
-    gamma: f32,
-    lambda: f32,
-) -> (Vec<f32>, Vec<f32>) {
-    let steps = rewards.len() / envs;
-    let mut adv = vec![0.0f32; rewards.len()];
-    for n in 0..envs {
-        let mut last = 0.0f32;
-        for t in (0..steps).rev() {
-            let i = t * envs + n;
-            let next_value = if t + 1 == steps { bootstrap[n] } else { values[i + envs] };
-            let not_end = if ends[i] { 0.0 } else { 1.0 };
-            let delta = rewards[i] + gamma * next_value * not_end - values[i];
-            last = delta + gamma * lambda * not_end * last;
-            adv[i] = last;
-        }
-    }
-    let returns = adv.iter().zip(values).map(|(a, v)| a + v).collect();
-    (adv, returns)
-}
-
-/// Mean of `x` over the entries where `valid` is 1.
-pub fn masked_mean(x: &Tensor, valid: &Tensor) -> Tensor {
-    (x * valid).sum(Kind::Float) / valid.sum(Kind::Float).clamp_min(1.0)
-}
-
-fn normalize_masked(x: &Tensor, valid: &Tensor) -> Tensor {
-    let mean = masked_mean(x, valid);
-    let std = masked_mean(&(x - &mean).square(), valid).sqrt();
-    (x - mean) / (std + 1e-8)
-}
-
-/// The clipped surrogate of Eq. 4.2, as a loss to minimise:
-/// mean over valid steps of max(−A·r, −A·clip(r, 1−ε, 1+ε)).
-pub fn clipped_policy_loss(ratio: &Tensor, adv: &Tensor, valid: &Tensor, clip: f64) -> Tensor {
-    let unclipped = -adv * ratio;
-    let clipped = -adv * ratio.clamp(1.0 - clip, 1.0 + clip);
-    masked_mean(&unclipped.maximum(&clipped), valid)
-}
-
-/// ½·mean (V − R)², or with `clip`, ½·mean max((V − R)², (V_old + clip(V − V_old, ±ε) − R)²).
-pub fn value_loss(new: &Tensor, old: &Tensor, returns: &Tensor, valid: &Tensor, clip: Option<f64>) -> Tensor {
-    let unclipped = (new - returns).square();
-    let l = match clip {
-        Some(c) => {
-            let v_clipped = old + (new - old).clamp(-c, c);
-            unclipped.maximum(&(v_clipped - returns).square())
-        }
-        None => unclipped,
-    };
-    0.5 * masked_mean(&l, valid)
-}
-
-/// 1 − Var(R − V) / Var(R) over valid steps (1: the critic explains the returns; ≤ 0: not at all).
-pub fn explained_variance(values: &[f32], returns: &[f32], valid: &[bool]) -> f64 {
-    let pairs: Vec<(f64, f64)> =
-        values.iter().zip(returns).zip(valid).filter(|(_, v)| **v).map(|((v, r), _)| (*v as f64, *r as f64)).collect();
-    if pairs.len() < 2 {
-        return 0.0;
-    }
-    let var = |xs: &mut dyn Iterator<Item = f64>| {
-        let v: Vec<f64> = xs.collect();
-        let mean = v.iter().sum::<f64>() / v.len() as f64;
-        v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64
-    };
-    let var_r = var(&mut pairs.iter().map(|p| p.1));
-    if var_r < 1e-12 {
-        return 0.0;
-    }
-    1.0 - var(&mut pairs.iter().map(|p| p.1 - p.0)) / var_r
-}
-
 #[cfg(test)]
 mod tests {
+    use tch::Tensor;
+
     use super::*;
-
-    fn t(v: &[f32]) -> Tensor {
-        Tensor::from_slice(v)
-    }
-
-    /// γ = λ = 0.5, one env, V = [1, 2, 3, 4], r = 1 everywhere, the episode ends after step 1,
-    /// V(next) = 8:
-    /// t3: δ = 1 + .5·8 − 4 = 1                       A = 1
-    /// t2: δ = 1 + .5·4 − 3 = 0                       A = 0 + .25·1 = 0.25
-    /// t1: ended: δ = 1 − 2 = −1                      A = −1
-    /// t0: δ = 1 + .5·2 − 1 = 1                       A = 1 + .25·(−1) = 0.75
-    #[test]
-    fn gae_by_hand_with_an_episode_end() {
-        let (a, r) = gae(&[1.0; 4], &[1.0, 2.0, 3.0, 4.0], &[false, true, false, false], &[8.0], 1, 0.5, 0.5);
-        assert_eq!(a, vec![0.75, -1.0, 0.25, 1.0]);
-        assert_eq!(r, vec![1.75, 1.0, 3.25, 5.0]);
-    }
-
-    /// The rollout's view of a truncation (γ·V(final obs) folded into the reward, `ends` set)
-    /// through GAE, with two envs interleaved: env 0 is truncated after step 0 with V(final) = 6,
-    /// env 1 terminates after step 0 (no bootstrap).
-    #[test]
-    fn gae_truncated_bootstraps_terminated_does_not() {
-        let gamma = 0.5;
-        // env 0: r0 = 0.5 + γ·6 = 3.5 (truncation), step 1 is the ignored final observation.
-        let rewards = [0.5 + gamma * 6.0, 1.0, 0.0, 0.0];
-        let values = [2.0, 2.0, 6.0, 0.5];
-        let ends = [true, true, true, false];
-        let (a, _) = gae(&rewards, &values, &ends, &[9.0, 4.0], 2, gamma, 1.0);
-        // env 0 t0: δ = 3.5 − 2 = 1.5 (= r + γ·V(final) − V), nothing flows back from t1
-        assert_eq!(a[0], 1.5);
-        // env 1 t0: terminated: δ = 1 − 2 = −1, V(s1) ignored
-        assert_eq!(a[1], -1.0);
-        // env 1 t1: δ = 0 + .5·4 − .5 = 1.5
-        assert_eq!(a[3], 1.5);
-    }
-
-    /// ratio [0.5, 1, 1.5, 1.5], A [1, −1, 1, −1], ε = 0.2:
-    /// max(−A·r, −A·clip(r)) = [max(−.5, −.8), max(1, 1), max(−1.5, −1.2), max(1.5, 1.2)]
-    ///                       = [−0.5, 1, −1.2, 1.5] → mean 0.2; without the last step −0.7/3.
-    #[test]
-    fn clipped_loss_by_hand() {
-        let ratio = t(&[0.5, 1.0, 1.5, 1.5]);
-        let adv = t(&[1.0, -1.0, 1.0, -1.0]);
-        let all = t(&[1.0; 4]);
-        let l = clipped_policy_loss(&ratio, &adv, &all, 0.2).double_value(&[]);
-        assert!((l - 0.2).abs() < 1e-6, "{l}");
-        let l = clipped_policy_loss(&ratio, &adv, &t(&[1.0, 1.0, 1.0, 0.0]), 0.2).double_value(&[]);
-        assert!((l + 0.7 / 3.0).abs() < 1e-6, "{l}");
-    }
-
-    /// old V [0, 0], new V [1, −0.1], R [2, 1], ε = 0.2:
-    /// (1−2)² = 1 vs clipped (0.2−2)² = 3.24 → 3.24; (−0.1−1)² = 1.21 (inside the clip)
-    /// → ½·(3.24 + 1.21)/2 = 1.1125; unclipped: ½·(1 + 1.21)/2 = 0.5525.
-    #[test]
-    fn value_loss_by_hand() {
-        let (new, old, ret, all) = (t(&[1.0, -0.1]), t(&[0.0, 0.0]), t(&[2.0, 1.0]), t(&[1.0, 1.0]));
-        let l = value_loss(&new, &old, &ret, &all, Some(0.2)).double_value(&[]);
-        assert!((l - 1.1125).abs() < 1e-6, "{l}");
-        let l = value_loss(&new, &old, &ret, &all, None).double_value(&[]);
-        assert!((l - 0.5525).abs() < 1e-6, "{l}");
-    }
-
-    #[test]
-    fn explained_variance_extremes() {
-        let r = [1.0, 2.0, 3.0];
-        assert!((explained_variance(&r, &r, &[true; 3]) - 1.0).abs() < 1e-9);
-        assert!(explained_variance(&[0.0; 3], &r, &[true; 3]).abs() < 1e-9);
-    }
 
     /// A stop during an update ends its epochs before the next minibatch: nothing more is
     /// learned from the rollout, the update is counted (its frames were collected) and says so.
@@ -835,15 +491,5 @@ mod tests {
         assert_eq!(last.iter().map(|m| (m.update, m.policy_lag)).collect::<Vec<_>>(), vec![(3, 1)]);
         assert_eq!((overlapped.updates, overlapped.frames), (in_place.updates, in_place.frames));
         assert!(overlapped.settle().is_empty() && in_place.settle().is_empty());
-    }
-
-    #[test]
-    fn lr_decays_linearly_to_zero() {
-        let cfg = RunConfig::from_toml("[run]\nmethod = \"both\"\ntotal_frames = 1000\n", "x.toml").unwrap();
-        let lr = |frames| lr_at(&cfg.ppo, cfg.run.total_frames, frames);
-        assert_eq!(lr(0), 3e-4);
-        assert!((lr(250) - 2.25e-4).abs() < 1e-12);
-        assert_eq!(lr(1000), 0.0);
-        assert_eq!(lr(5000), 0.0);
     }
 }

@@ -16,12 +16,12 @@ use tch::Device;
 use farm::config::RunConfig;
 use shm_schema::EnvRecord;
 
-use crate::logs::metrics::MetricsLog;
+use crate::logs::metrics::{MetricsLog, UpdateMetrics};
 use crate::net::agent::Agent;
 use crate::obs::{DeviceFrames, EnvBatch, EnvStep, FrameView, GestureKind, GestureView};
 use crate::ppo::checkpoint;
 use crate::ppo::trainer::Trainer;
-use crate::serve::batch::WorkerBatch;
+use crate::serve::batch::{WorkerBatch, WorkerObs};
 use crate::serve::frames::FrameImports;
 use crate::serve::policy::Policy;
 
@@ -47,9 +47,8 @@ pub struct PpoPolicy {
     workers: usize,
     envs: usize,
     blank: Blank,
-    zero_rgb: Vec<u8>,
-    zero_depth: Vec<u16>,
-    zero_gesture: Vec<f16>,
+    /// What a missing worker's envs (and a blanked input) show.
+    zeros: Zeros,
     steps: Vec<EnvStep>,
     /// Generation last seen per worker (a new one marks a restart).
     generations: Vec<Option<u32>>,
@@ -142,9 +141,11 @@ impl PpoPolicy {
             workers,
             envs: e,
             blank,
-            zero_rgb: vec![0; e * px * 3],
-            zero_depth: vec![0; e * px],
-            zero_gesture: vec![f16::ZERO; e * shm_schema::GESTURE_FRAMES * shm_schema::GESTURE_DIMS],
+            zeros: Zeros {
+                rgb: vec![0; e * px * 3],
+                depth: vec![0; e * px],
+                gesture: vec![f16::ZERO; e * shm_schema::GESTURE_FRAMES * shm_schema::GESTURE_DIMS],
+            },
             steps: vec![EnvStep { lost: true, ..Default::default() }; workers * e],
             generations: vec![None; workers],
             learning: 0.0,
@@ -167,6 +168,58 @@ impl PpoPolicy {
             trainer.time_stages();
         }
         self
+    }
+
+    /// The round's workers are the run's, each sending the configured envs.
+    fn check(&self, batch: &WorkerBatch<'_>) -> anyhow::Result<()> {
+        let (e, workers) = (self.envs, &batch.workers);
+        anyhow::ensure!(workers.end <= self.workers, "workers {workers:?} outside the run's {}", self.workers);
+        for p in &batch.parts {
+            let w = p.worker as usize;
+            anyhow::ensure!(workers.contains(&w), "worker {w} is outside the round's workers {workers:?}");
+            anyhow::ensure!(p.num_envs() == e, "worker {w} sends {} envs, the config says {e}", p.num_envs());
+        }
+        Ok(())
+    }
+
+    /// Each env's step of the round's workers: from its record, or lost where its worker sent
+    /// nothing. A restarted worker's envs lose the step the previous process never applied.
+    fn read_records(&mut self, batch: &WorkerBatch<'_>) {
+        let e = self.envs;
+        let mut parts = batch.parts.iter().peekable();
+        for w in batch.workers.clone() {
+            let Some(p) = parts.next_if(|p| p.worker as usize == w) else {
+                self.steps[w * e..(w + 1) * e].fill(EnvStep { lost: true, ..Default::default() });
+                continue;
+            };
+            let restarted = p.new_generation || self.generations[w].is_some_and(|g| g != p.generation);
+            self.generations[w] = Some(p.generation);
+            for (k, r) in p.records().iter().enumerate() {
+                let mut s = env_step(r);
+                s.lost |= restarted && r.episode_start == 0;
+                self.steps[w * e + k] = s;
+            }
+        }
+    }
+
+    /// The training loop's hook after each update: its metrics logged, a plot every 5 updates, a
+    /// checkpoint every `checkpoint.every_updates`. The time counts as learning.
+    fn after_update(&mut self, m: &UpdateMetrics) -> anyhow::Result<()> {
+        let began = std::time::Instant::now();
+        let Mode::Train { trainer, log, .. } = &mut self.mode else { return Ok(()) };
+        log.append(m)?;
+        if let Some(p) = self.farm_progress.take() {
+            log.farm(m.frames, &p)?;
+        }
+        tracing::info!("{}", update_line(m, self.cfg.ppo.overlap_update));
+        if trainer.updates % 5 == 0 {
+            log.plot()?;
+        }
+        if trainer.updates % self.cfg.checkpoint.every_updates.max(1) == 0 {
+            self.save_checkpoint()?;
+        }
+        self.learning += began.elapsed().as_secs_f64();
+        Ok(())
     }
 
     fn save_checkpoint(&mut self) -> anyhow::Result<()> {
@@ -204,6 +257,59 @@ pub(crate) fn env_step(r: &EnvRecord) -> EnvStep {
     }
 }
 
+/// Zero frames and gestures of one worker's envs.
+struct Zeros {
+    rgb: Vec<u8>,
+    depth: Vec<u16>,
+    gesture: Vec<f16>,
+}
+
+/// One frame group per worker of the round, in worker order, read in place; a missing worker's
+/// (and a blanked input) are zeros.
+fn frame_views<'a>(
+    batch: &WorkerBatch<'a>,
+    envs: usize,
+    zeros: &'a Zeros,
+    blank: Blank,
+    imports: Option<&'a FrameImports>,
+) -> Vec<FrameView<'a>> {
+    let mut parts = batch.parts.iter().peekable();
+    let missing = || FrameView {
+        envs,
+        rgb: &zeros.rgb,
+        depth: &zeros.depth,
+        gesture: GestureView::F16(&zeros.gesture),
+        device: None,
+    };
+    let present = |p: &WorkerObs<'a>| FrameView {
+        envs,
+        rgb: if blank.rgb { &zeros.rgb } else { p.rgb() },
+        depth: if blank.depth { &zeros.depth } else { p.depth() },
+        gesture: GestureView::F16(p.gesture()),
+        device: imports.and_then(|i| i.frames(p.worker)).map(|frames| DeviceFrames {
+            frames,
+            rgb: !blank.rgb,
+            depth: !blank.depth,
+        }),
+    };
+    batch.workers.clone().map(|w| parts.next_if(|p| p.worker as usize == w).map_or_else(missing, present)).collect()
+}
+
+/// The log's line for an update.
+fn update_line(m: &UpdateMetrics, overlapped: bool) -> String {
+    format!(
+        "update {} frames {} fps {:.0} success {} loss π {:.3} v {:.3} entropy {:.3}{}",
+        m.update,
+        m.frames,
+        m.fps,
+        m.success_rate.map_or("-".into(), |s| format!("{:.2}", s)),
+        m.policy_loss,
+        m.value_loss,
+        m.entropy,
+        if overlapped { format!(" policy lag {}", m.policy_lag) } else { String::new() }
+    )
+}
+
 impl Policy for PpoPolicy {
     fn name(&self) -> &str {
         match self.mode {
@@ -230,102 +336,28 @@ impl Policy for PpoPolicy {
         }
     }
 
+    /// check → import device frames → read the records → act (and learn) → answer.
     fn act(&mut self, batch: &WorkerBatch<'_>) -> anyhow::Result<Vec<u8>> {
-        let e = self.envs;
-        let workers = batch.workers.clone();
-        anyhow::ensure!(workers.end <= self.workers, "workers {workers:?} outside the run's {}", self.workers);
-        let mut frames = Vec::with_capacity(workers.len());
-        for p in &batch.parts {
-            let w = p.worker as usize;
-            anyhow::ensure!(workers.contains(&w), "worker {w} is outside the round's workers {workers:?}");
-            anyhow::ensure!(p.num_envs() == e, "worker {w} sends {} envs, the config says {e}", p.num_envs());
-        }
+        let (e, workers) = (self.envs, batch.workers.clone());
+        self.check(batch)?;
         if let Some(imports) = &mut self.imports {
             for p in &batch.parts {
                 imports.ensure(p.worker, p.generation)?;
             }
         }
-        // One frame group per worker, in worker order; missing workers send zeros.
-        let mut parts = batch.parts.iter().peekable();
-        for w in workers.clone() {
-            match parts.next_if(|p| p.worker as usize == w) {
-                Some(p) => {
-                    let restarted = p.new_generation || self.generations[w].is_some_and(|g| g != p.generation);
-                    self.generations[w] = Some(p.generation);
-                    for (k, r) in p.records().iter().enumerate() {
-                        let mut s = env_step(r);
-                        // the action sent to the previous process was never applied
-                        s.lost |= restarted && r.episode_start == 0;
-                        self.steps[w * e + k] = s;
-                    }
-                    frames.push(FrameView {
-                        envs: e,
-                        rgb: if self.blank.rgb { &self.zero_rgb } else { p.rgb() },
-                        depth: if self.blank.depth { &self.zero_depth } else { p.depth() },
-                        gesture: GestureView::F16(p.gesture()),
-                        device: self.imports.as_ref().and_then(|i| i.frames(p.worker)).map(|frames| DeviceFrames {
-                            frames,
-                            rgb: !self.blank.rgb,
-                            depth: !self.blank.depth,
-                        }),
-                    });
-                }
-                None => {
-                    for k in 0..e {
-                        self.steps[w * e + k] = EnvStep { lost: true, ..Default::default() };
-                    }
-                    frames.push(FrameView {
-                        envs: e,
-                        rgb: &self.zero_rgb,
-                        depth: &self.zero_depth,
-                        gesture: GestureView::F16(&self.zero_gesture),
-                        device: None,
-                    });
-                }
-            }
-        }
+        self.read_records(batch);
+        let frames = frame_views(batch, e, &self.zeros, self.blank, self.imports.as_ref());
         let envs = workers.start * e..workers.end * e;
         let obs = EnvBatch { height: batch.height, width: batch.width, frames, envs: &self.steps[envs.clone()] };
         let actions = match &mut self.mode {
-            Mode::Train { trainer, log, .. } => {
+            Mode::Train { trainer, .. } => {
                 let learned_before = trainer.learning_seconds();
                 let out = trainer.step_at(envs.start, &obs)?;
                 self.learning += trainer.learning_seconds() - learned_before;
-                let books = std::time::Instant::now();
                 if let Some(m) = &out.update {
-                    log.append(m)?;
-                    if let Some(p) = self.farm_progress.take() {
-                        log.farm(m.frames, &p)?;
-                    }
-                    tracing::info!(
-                        "update {} frames {} fps {:.0} success {} loss π {:.3} v {:.3} entropy {:.3}{}",
-                        m.update,
-                        m.frames,
-                        m.fps,
-                        m.success_rate.map_or("-".into(), |s| format!("{:.2}", s)),
-                        m.policy_loss,
-                        m.value_loss,
-                        m.entropy,
-                        if self.cfg.ppo.overlap_update {
-                            format!(" policy lag {}", m.policy_lag)
-                        } else {
-                            String::new()
-                        }
-                    );
+                    self.after_update(m)?;
                 }
-                let save = out.update.is_some() && trainer.updates % self.cfg.checkpoint.every_updates.max(1) == 0;
-                let plot = out.update.is_some() && trainer.updates % 5 == 0;
-                if plot {
-                    log.plot()?;
-                }
-                let a = out.actions.actions;
-                if save {
-                    self.save_checkpoint()?;
-                }
-                if out.update.is_some() {
-                    self.learning += books.elapsed().as_secs_f64();
-                }
-                a
+                out.actions.actions
             }
             Mode::Eval { agent, greedy } => {
                 anyhow::ensure!(envs.len() == self.workers * e, "evaluation acts on every env at once");

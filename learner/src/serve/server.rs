@@ -27,7 +27,7 @@ use std::time::{Duration, Instant};
 use farm::process;
 use farm::profile::{LearnerTime, Profile, WorkerTime, process_cpu_seconds};
 use farm::transport::TransportError;
-use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, ObsShape, WorkerTiming, action, command};
+use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, ObsHeader, ObsShape, WorkerTiming, action, command};
 
 use crate::logs::records::{Counters, Progress, RecordError, RunRecords, Summary, WorkerSummary};
 use crate::serve::batch::{WorkerBatch, WorkerObs};
@@ -370,12 +370,35 @@ impl Server<'_> {
         (g * w / groups..(g + 1) * w / groups, groups)
     }
 
-    /// Runs the policy on the held observations of `workers` and answers each of them. Returns a
-    /// stop reason when this round ended the run (its answers were then SHUTDOWN).
+    /// Runs the policy on the held observations of `workers` and answers each of them:
+    /// gather → act → check → account → answer. Returns a stop reason when this round ended the
+    /// run (its answers were then SHUTDOWN).
     fn round(&mut self, workers: std::ops::Range<usize>) -> Result<Option<Stop>, ServeError> {
         let began = Instant::now();
         let held: Vec<(usize, ObsMessage, bool)> =
             workers.clone().filter_map(|k| self.slots[k].held.take().map(|(m, g)| (k, m, g))).collect();
+        let batch = self.gather(workers, &held);
+        self.time.receive_s += began.elapsed().as_secs_f64();
+        let actions = self.timed(|s| s.policy.act(&batch)).map_err(|source| self.policy_error(source))?;
+        let answering = Instant::now();
+        self.check(&actions, batch.num_envs())?;
+        for p in &batch.parts {
+            self.account(p.worker as usize, p.records(), p.generation)?;
+        }
+        self.totals.rounds += 1;
+        let stop = self.stop_reason();
+        self.answer(&batch, &actions, if stop.is_some() { command::SHUTDOWN } else { command::STEP })?;
+        self.records.flush_episodes()?;
+        // The samples go back to their workers' pools here.
+        drop(batch);
+        drop(held);
+        self.time.send_s += answering.elapsed().as_secs_f64();
+        Ok(stop)
+    }
+
+    /// The round's batch, read in place from the held samples; `missing`: the workers of the
+    /// round that have started but sent nothing.
+    fn gather<'a>(&self, workers: std::ops::Range<usize>, held: &'a [(usize, ObsMessage, bool)]) -> WorkerBatch<'a> {
         let missing: Vec<u32> = workers
             .clone()
             .filter(|&k| self.slots[k].generation().is_some() && !held.iter().any(|h| h.0 == k))
@@ -386,22 +409,20 @@ impl Server<'_> {
             .map(|(k, m, new_generation)| {
                 let header = m.header();
                 let view = m.view().expect("checked on arrival");
-                WorkerObs {
-                    worker: *k as u32,
-                    generation: header.generation,
-                    new_generation: *new_generation,
-                    header,
-                    view,
-                }
+                let (worker, generation, new_generation) = (*k as u32, header.generation, *new_generation);
+                WorkerObs { worker, generation, new_generation, header, view }
             })
             .collect();
-        let batch = WorkerBatch { width: self.shape.width, height: self.shape.height, workers, parts, missing };
+        WorkerBatch { width: self.shape.width, height: self.shape.height, workers, parts, missing }
+    }
+
+    /// Runs `act` and charges its wall and CPU time to inference and learning, in the share
+    /// the policy reports it spent learning.
+    fn timed<T>(&mut self, act: impl FnOnce(&mut Self) -> T) -> T {
         let t = Instant::now();
-        self.time.receive_s += t.duration_since(began).as_secs_f64();
         let learning_before = self.policy.learning_seconds();
         let cpu_before = process_cpu_seconds();
-        let actions =
-            self.policy.act(&batch).map_err(|source| ServeError::Policy { name: self.policy.name().into(), source })?;
+        let out = act(self);
         let acted = t.elapsed().as_secs_f64();
         let cpu = process_cpu_seconds() - cpu_before;
         let learning = (self.policy.learning_seconds() - learning_before).clamp(0.0, acted);
@@ -411,55 +432,62 @@ impl Server<'_> {
         let learning_share = if acted > 0.0 { learning / acted } else { 0.0 };
         self.time.update_cpu_s += cpu * learning_share;
         self.time.infer_cpu_s += cpu * (1.0 - learning_share);
-        let answering = Instant::now();
-        if actions.len() != batch.num_envs() || actions.iter().any(|&a| a as usize >= action::COUNT) {
-            return Err(ServeError::Policy {
-                name: self.policy.name().into(),
-                source: anyhow::anyhow!(
-                    "returned {} actions (values < {}) for {} envs",
-                    actions.len(),
-                    action::COUNT,
-                    batch.num_envs()
-                ),
-            });
+        out
+    }
+
+    fn policy_error(&self, source: anyhow::Error) -> ServeError {
+        ServeError::Policy { name: self.policy.name().into(), source }
+    }
+
+    /// One action in range per env of the batch, or the policy is broken.
+    fn check(&self, actions: &[u8], envs: usize) -> Result<(), ServeError> {
+        if actions.len() != envs || actions.iter().any(|&a| a as usize >= action::COUNT) {
+            let why = anyhow::anyhow!("returned {} actions (values < {}) for {envs} envs", actions.len(), action::COUNT);
+            return Err(self.policy_error(why));
         }
-        for p in &batch.parts {
-            self.account(p.worker as usize, p.records(), p.generation)?;
-        }
-        self.totals.rounds += 1;
-        let stop = if self.opts.max_frames.is_some_and(|m| self.totals.frames >= m) {
+        Ok(())
+    }
+
+    /// Whether the run ends with this round: its frame budget spent, or every worker of an
+    /// evaluation finished.
+    fn stop_reason(&self) -> Option<Stop> {
+        if self.opts.max_frames.is_some_and(|m| self.totals.frames >= m) {
             Some(Stop::Frames)
         } else if self.opts.eval && self.slots.iter().all(|s| s.generation().is_some() && s.finished) {
             Some(Stop::EvalDone)
         } else {
             None
-        };
-        let cmd = if stop.is_some() { command::SHUTDOWN } else { command::STEP };
+        }
+    }
+
+    /// Sends each worker of the batch its envs' actions with `cmd`.
+    fn answer(&mut self, batch: &WorkerBatch<'_>, actions: &[u8], cmd: u32) -> Result<(), ServeError> {
         let mut offset = 0;
         for p in &batch.parts {
             let n = p.num_envs();
-            let mut msg = ActionMsg {
-                magic: ACT_MAGIC,
-                worker_id: p.worker,
-                generation: p.generation,
-                command: cmd,
-                step: p.header.step,
-                num_envs: n as u32,
-                ..Default::default()
-            };
-            msg.actions[..n].copy_from_slice(&actions[offset..offset + n]);
-            offset += n;
             let k = p.worker as usize;
-            self.ports.send(k, msg)?;
-            self.slots[k].sent_at = Some(Instant::now());
-            self.slots[k].shutdown_sent |= cmd == command::SHUTDOWN;
+            self.send(k, p.header, cmd, &actions[offset..offset + n])?;
+            offset += n;
         }
-        self.records.flush_episodes()?;
-        // The samples go back to their workers' pools here.
-        drop(batch);
-        drop(held);
-        self.time.send_s += answering.elapsed().as_secs_f64();
-        Ok(stop)
+        Ok(())
+    }
+
+    /// Answers worker `k`'s message `header` with `cmd` and `actions` (none for SHUTDOWN).
+    fn send(&mut self, k: usize, header: &ObsHeader, cmd: u32, actions: &[u8]) -> Result<(), ServeError> {
+        let mut msg = ActionMsg {
+            magic: ACT_MAGIC,
+            worker_id: k as u32,
+            generation: header.generation,
+            command: cmd,
+            step: header.step,
+            num_envs: header.num_envs,
+            ..Default::default()
+        };
+        msg.actions[..actions.len()].copy_from_slice(actions);
+        self.ports.send(k, msg)?;
+        self.slots[k].sent_at = Some(Instant::now());
+        self.slots[k].shutdown_sent |= cmd == command::SHUTDOWN;
+        Ok(())
     }
 
     /// Answers SHUTDOWN to every worker that sends (or holds an answer) until all have been
@@ -473,17 +501,7 @@ impl Server<'_> {
                     let h = *m.header();
                     let view = m.view().expect("checked on arrival");
                     self.account(k, view.records(), h.generation)?;
-                    let msg = ActionMsg {
-                        magic: ACT_MAGIC,
-                        worker_id: k as u32,
-                        generation: h.generation,
-                        command: command::SHUTDOWN,
-                        step: h.step,
-                        num_envs: h.num_envs,
-                        ..Default::default()
-                    };
-                    self.ports.send(k, msg)?;
-                    self.slots[k].shutdown_sent = true;
+                    self.send(k, &h, command::SHUTDOWN, &[])?;
                 }
             }
             let pending = (0..self.slots.len()).any(|k| {
