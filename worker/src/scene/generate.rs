@@ -20,6 +20,8 @@ use crate::nav::{GRID_STEP, NavGrid};
 use crate::physics::{Physics, RobotBody};
 use farm::seed;
 
+mod furnish;
+
 /// Stream key of scene generation (`seed::rng(seed, &[SCENE_KEY, floorplan, attempt])`).
 const SCENE_KEY: u64 = 0x5C3E_0001;
 
@@ -401,9 +403,24 @@ fn surfaces(rng: &mut ChaCha8Rng, t: SceneType) -> (Surface, Surface, Surface) {
     (floor, wall, ceiling)
 }
 
+/// One attempt at a room of `id`'s type: its shell, then its type's recipe (`furnish`).
 fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
-    use Category::*;
     let t = id.scene_type;
+    let room = shell(t, rng);
+    let mut l =
+        Layout { rng, room, objects: Vec::new(), floor: Vec::new(), wall_spans: Vec::new(), on_host: Vec::new() };
+    let main = *Wall::ALL.choose(l.rng).unwrap();
+    match t {
+        SceneType::Kitchen => l.kitchen(main),
+        SceneType::LivingRoom => l.living_room(main),
+        SceneType::Bedroom => l.bedroom(main),
+        SceneType::Bathroom => l.bathroom(main),
+    }
+    Scene { name: id.name(), scene_type: t, seed, room: l.room, walls: Vec::new(), objects: l.objects }
+}
+
+/// The empty room: its size on a 25 cm grid within its type's range, its height and surfaces.
+fn shell(t: SceneType, rng: &mut ChaCha8Rng) -> Room {
     let (wr, dr) = match t {
         SceneType::Kitchen => ((4.5, 6.5), (4.0, 6.0)),
         SceneType::LivingRoom => ((5.5, 8.0), (5.0, 7.5)),
@@ -415,335 +432,7 @@ fn layout(id: SceneId, seed: u64, rng: &mut ChaCha8Rng) -> Scene {
     let depth = snap(rng.random_range(dr.0..=dr.1));
     let height = rng.random_range(2.6..=3.0f32);
     let (floor, walls, ceiling) = surfaces(rng, t);
-    let room = Room { width, depth, height, floor, walls, ceiling };
-    let mut l =
-        Layout { rng, room, objects: Vec::new(), floor: Vec::new(), wall_spans: Vec::new(), on_host: Vec::new() };
-    let main = *Wall::ALL.choose(l.rng).unwrap();
-
-    match t {
-        SceneType::Kitchen => {
-            let frac = l.rng.random_range(0.6..0.9);
-            let mut hosts = l.counter_run(main, frac, true);
-            if l.chance(0.6) {
-                // an L: counters along an adjacent wall, starting past the first run's depth
-                let side = main.adjacent()[l.rng.random_range(0..2)];
-                let size = l.size(CounterTop);
-                let len = side.length(&l.room);
-                let u = -len / 2.0 + 0.7 + size[0] / 2.0;
-                if let Some(i) = l.against_wall_at(CounterTop, side, u, size) {
-                    hosts.push(i);
-                }
-            }
-            if l.chance(0.9) {
-                if let Some(tb) = l.on_floor(DiningTable, 1.0, 0.9) {
-                    hosts.push(tb);
-                    let n = l.rng.random_range(2..=4);
-                    l.chairs_around(tb, n);
-                }
-            }
-            if l.chance(0.35) {
-                l.against_wall(Chair, None);
-            }
-            if l.chance(0.55) {
-                if let Some(st) = l.against_wall(SideTable, None) {
-                    hosts.push(st);
-                }
-            }
-            for _ in 0..l.rng.random_range(1..=2) {
-                l.on_wall(Window, None);
-            }
-            l.on_wall(Door, Some(main.opposite()));
-            let items = [Apple, Bread, ButterKnife, Cup, Fork, Knife, PaperTowelRoll, Plate, Potato, Spoon, Tomato];
-            for c in items {
-                if l.chance(0.75) {
-                    let n = if l.chance(0.4) { 2 } else { 1 };
-                    for _ in 0..n {
-                        l.on_host(c, &hosts);
-                    }
-                }
-            }
-            if l.chance(0.45) {
-                l.on_host(RemoteControl, &hosts);
-            }
-        }
-        SceneType::LivingRoom => {
-            let mut hosts = Vec::new();
-            let sofa = l.against_wall(Sofa, Some(main)).or_else(|| l.against_wall(Sofa, None));
-            if let Some(s) = sofa {
-                let so = l.objects[s].clone();
-                let n = heading(so.yaw);
-                let size = l.size(CoffeeTable);
-                let p = Point2::new(so.position[0], so.position[2]) + n * (so.size[2] / 2.0 + 0.55 + size[2] / 2.0);
-                if l.chance(0.6) {
-                    let rs = l.size(Rug);
-                    let i = l.push(Rug, [p.x, 0.005, p.y], so.yaw, [rs[0], 0.01, rs[2]], None);
-                    let _ = i;
-                }
-                if let Some(ct) = l.on_floor_at(CoffeeTable, p, so.yaw, size, 0.3) {
-                    hosts.push(ct);
-                    // arm chairs at the coffee table's ends, facing it
-                    for side in [-1.0f32, 1.0] {
-                        if l.chance(0.45) {
-                            let a = l.size(ArmChair);
-                            let tang = Vector2::new(n.y, -n.x);
-                            let q = p + tang * side * (size[0] / 2.0 + 0.45 + a[2] / 2.0);
-                            let yaw = crate::geometry::yaw_of(p - q);
-                            let yaw = (yaw / 90.0).round() * 90.0 % 360.0;
-                            l.on_floor_at(ArmChair, q, yaw, a, 0.3);
-                        }
-                    }
-                }
-                // side tables at the sofa's ends
-                for side in [-1.0f32, 1.0] {
-                    if l.chance(0.5) {
-                        let st = l.size(SideTable);
-                        let sofa_wall = wall_of(so.yaw);
-                        let u_sofa = along(&l.room, sofa_wall, Point2::new(so.position[0], so.position[2]));
-                        let u = u_sofa + side * (so.size[0] / 2.0 + st[0] / 2.0 + 0.05);
-                        if let Some(i) = l.against_wall_at(SideTable, sofa_wall, u, st) {
-                            hosts.push(i);
-                            if l.chance(0.6) {
-                                l.on_host(DeskLamp, &[i]);
-                            }
-                        }
-                    }
-                }
-            }
-            if l.chance(0.2) {
-                l.against_wall(Sofa, None);
-            }
-            if l.chance(0.9) {
-                if let Some(tv) =
-                    l.against_wall(TvStand, Some(main.opposite())).or_else(|| l.against_wall(TvStand, None))
-                {
-                    hosts.push(tv);
-                    l.on_host(Television, &[tv]);
-                }
-            }
-            if l.chance(0.5) {
-                if let Some(tb) = l.on_floor(DiningTable, 0.9, 0.9) {
-                    hosts.push(tb);
-                    let n = l.rng.random_range(2..=4);
-                    l.chairs_around(tb, n);
-                }
-            }
-            if l.chance(0.6) {
-                if let Some(sh) = l.against_wall(Shelf, None) {
-                    hosts.push(sh);
-                }
-            }
-            if l.chance(0.7) {
-                l.on_floor(FloorLamp, 0.35, 0.3);
-            }
-            if l.chance(0.5) {
-                l.against_wall(Chair, None);
-            }
-            if l.chance(0.55) {
-                l.on_floor(Box, 0.4, 0.3);
-            }
-            if hosts.len() < 3 {
-                if let Some(st) = l.against_wall(SideTable, None) {
-                    hosts.push(st);
-                }
-            }
-            for _ in 0..l.rng.random_range(1..=2) {
-                l.on_wall(Window, None);
-            }
-            for _ in 0..l.rng.random_range(0..=2) {
-                l.on_wall(Poster, None);
-            }
-            l.on_wall(Door, None);
-            for (c, p) in [
-                (Laptop, 0.6),
-                (Newspaper, 0.6),
-                (Plate, 0.45),
-                (TissueBox, 0.6),
-                (Box, 0.35),
-                (DeskLamp, 0.3),
-                (RemoteControl, 0.3),
-            ] {
-                if l.chance(p) {
-                    l.on_host(c, &hosts);
-                }
-            }
-        }
-        SceneType::Bedroom => {
-            let mut hosts = Vec::new();
-            if let Some(bed) = l.against_wall(Bed, Some(main)).or_else(|| l.against_wall(Bed, None)) {
-                let b = l.objects[bed].clone();
-                let bed_wall = wall_of(b.yaw);
-                let u_bed = along(&l.room, bed_wall, Point2::new(b.position[0], b.position[2]));
-                for side in [-1.0f32, 1.0] {
-                    if l.chance(0.7) {
-                        let st = l.size(SideTable);
-                        let u = u_bed + side * (b.size[0] / 2.0 + st[0] / 2.0 + 0.05);
-                        if let Some(i) = l.against_wall_at(SideTable, bed_wall, u, st) {
-                            hosts.push(i);
-                            if l.chance(0.6) {
-                                l.on_host(AlarmClock, &[i]);
-                            }
-                            if l.chance(0.5) {
-                                l.on_host(DeskLamp, &[i]);
-                            }
-                        }
-                    }
-                }
-            }
-            if let Some(dr) = l.against_wall(Dresser, None) {
-                hosts.push(dr);
-                if l.chance(0.6) {
-                    l.on_host(Television, &[dr]);
-                }
-            }
-            if l.chance(0.7) {
-                if let Some(desk) = l.against_wall(Desk, None) {
-                    hosts.push(desk);
-                    let d = l.objects[desk].clone();
-                    let n = heading(d.yaw);
-                    let size = l.size(Chair);
-                    let p = Point2::new(d.position[0], d.position[2]) + n * (d.size[2] / 2.0 + size[2] / 2.0 + 0.05);
-                    l.on_floor_at(Chair, p, crate::geometry::wrap_deg(d.yaw + 180.0), size, 0.0);
-                    if l.chance(0.7) {
-                        l.on_host(Laptop, &[desk]);
-                    }
-                }
-            }
-            if l.chance(0.4) {
-                l.against_wall(Sofa, None);
-            }
-            if l.chance(0.5) {
-                l.against_wall(Chair, None);
-            }
-            if l.chance(0.5) {
-                l.on_floor(Box, 0.4, 0.3);
-            }
-            if hosts.len() < 3 {
-                if let Some(st) = l.against_wall(SideTable, None) {
-                    hosts.push(st);
-                }
-            }
-            for _ in 0..l.rng.random_range(1..=2) {
-                l.on_wall(Poster, None);
-            }
-            for _ in 0..l.rng.random_range(1..=2) {
-                l.on_wall(Window, None);
-            }
-            l.on_wall(Door, None);
-            for (c, p) in [
-                (AlarmClock, 0.35),
-                (DeskLamp, 0.35),
-                (Laptop, 0.3),
-                (RemoteControl, 0.75),
-                (TissueBox, 0.7),
-                (Box, 0.45),
-                (Television, 0.25),
-            ] {
-                if l.chance(p) {
-                    l.on_host(c, &hosts);
-                }
-            }
-        }
-        SceneType::Bathroom => {
-            let mut hosts = Vec::new();
-            // the tub fills a corner along the main wall, with a curtain or a glass door in front
-            let tub_size = l.size(Bathtub);
-            let len = main.length(&l.room);
-            let u = -len / 2.0 + tub_size[0] / 2.0 + 0.02;
-            if let Some(tub) = l.against_wall_at(Bathtub, main, u, tub_size) {
-                let tb = l.objects[tub].clone();
-                let n = heading(tb.yaw);
-                let front = Point2::new(tb.position[0], tb.position[2]) + n * (tb.size[2] / 2.0 + 0.03);
-                let kind = if l.chance(0.55) { ShowerCurtain } else { ShowerDoor };
-                let mut s = l.size(kind);
-                s[0] = s[0].min(tb.size[0]);
-                let y = s[1] / 2.0 + if kind == ShowerCurtain { 0.05 } else { 0.0 };
-                let i = l.push(kind, [front.x, y, front.y], tb.yaw, s, Some(tub));
-                let r = Layout::footprint(tb.yaw, front, [s[0], s[1], 0.06]);
-                l.floor.push((r, i));
-            }
-            let walls_left: Vec<Wall> = Wall::ALL.into_iter().filter(|w| *w != main).collect();
-            let toilet_wall = *walls_left.choose(l.rng).unwrap();
-            if let Some(toilet) = l.against_wall(Toilet, Some(toilet_wall)) {
-                let to = l.objects[toilet].clone();
-                let u_t = along(&l.room, toilet_wall, Point2::new(to.position[0], to.position[2]));
-                let side = if l.chance(0.5) { 1.0 } else { -1.0 };
-                let hs = l.size(ToiletPaperHanger);
-                let (ylo, yhi) = ToiletPaperHanger.wall_height().unwrap();
-                let y = l.rng.random_range(ylo..=yhi);
-                let uh = u_t + side * (to.size[0] / 2.0 + 0.2);
-                let span = WallSpan {
-                    wall: toilet_wall,
-                    u0: uh - hs[0] / 2.0,
-                    u1: uh + hs[0] / 2.0,
-                    y0: y - 0.05,
-                    y1: y + 0.05,
-                };
-                if l.wall_free(&span) && uh.abs() < toilet_wall.length(&l.room) / 2.0 - 0.15 {
-                    let p = toilet_wall.point(&l.room, uh, hs[2] / 2.0);
-                    let h = l.push(ToiletPaperHanger, [p.x, y, p.y], toilet_wall.yaw(), hs, None);
-                    l.wall_spans.push(span);
-                    if l.chance(0.85) {
-                        let tp = l.size(ToiletPaper);
-                        let n = heading(toilet_wall.yaw());
-                        let q = p + n * (hs[2] / 2.0 + 0.01);
-                        l.push(ToiletPaper, [q.x, y - 0.02, q.y], toilet_wall.yaw(), tp, Some(h));
-                    }
-                }
-                if l.chance(0.6) {
-                    let ps = l.size(Plunger);
-                    let q = toilet_wall.point(&l.room, u_t - side * (to.size[0] / 2.0 + 0.15), 0.15);
-                    l.on_floor_at(Plunger, q, toilet_wall.yaw(), ps, 0.02);
-                }
-            }
-            let sink_wall =
-                *walls_left.iter().filter(|w| **w != toilet_wall).collect::<Vec<_>>().choose(l.rng).unwrap().to_owned();
-            if let Some(sink) = l.against_wall(Sink, Some(sink_wall)).or_else(|| l.against_wall(Sink, None)) {
-                hosts.push(sink);
-                let s = l.objects[sink].clone();
-                let w = wall_of(s.yaw);
-                let u_s = along(&l.room, w, Point2::new(s.position[0], s.position[2]));
-                let ms = l.size(Mirror);
-                let span =
-                    WallSpan { wall: w, u0: u_s - ms[0] / 2.0, u1: u_s + ms[0] / 2.0, y0: 1.15, y1: 1.15 + ms[1] };
-                if l.wall_free(&span) {
-                    let p = w.point(&l.room, u_s, ms[2] / 2.0);
-                    l.push(Mirror, [p.x, 1.15 + ms[1] / 2.0, p.y], w.yaw(), ms, None);
-                    l.wall_spans.push(span);
-                }
-                if l.chance(0.9) {
-                    if let Some(hh) = l.on_wall(HandTowelHolder, Some(w)).or_else(|| l.on_wall(HandTowelHolder, None)) {
-                        if l.chance(0.9) {
-                            l.hang_on(HandTowel, hh);
-                        }
-                    }
-                }
-            }
-            for _ in 0..(1 + l.chance(0.45) as usize) {
-                if l.chance(0.9) {
-                    if let Some(th) = l.on_wall(TowelHolder, None) {
-                        if l.chance(0.9) {
-                            l.hang_on(Towel, th);
-                        }
-                    }
-                }
-            }
-            if l.chance(0.5) {
-                if let Some(st) = l.against_wall(SideTable, None) {
-                    hosts.push(st);
-                }
-            }
-            if l.chance(0.7) {
-                l.on_wall(Window, None);
-            }
-            l.on_wall(Door, None);
-            for (c, p) in [(TissueBox, 0.6), (PaperTowelRoll, 0.5), (ToiletPaper, 0.35)] {
-                if l.chance(p) {
-                    l.on_host(c, &hosts);
-                }
-            }
-        }
-    }
-    Scene { name: id.name(), scene_type: t, seed, room: l.room, walls: Vec::new(), objects: l.objects }
+    Room { width, depth, height, floor, walls, ceiling }
 }
 
 /// Along-wall coordinate of a floor point (inverse of `Wall::point` for u).
