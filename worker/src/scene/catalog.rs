@@ -306,7 +306,27 @@ pub fn build_parts(
     id: u16,
 ) -> Vec<Part> {
     let mut b = Builder { pos, rot: yaw_rotation(yaw), size, color, id, parts: Vec::new() };
-    let (w, h, d) = (size.x, size.y, size.z);
+    use Category::*;
+    match category {
+        Apple | Tomato | Potato | Bread | ButterKnife | Knife | Fork | Spoon | Cup | Plate | PaperTowelRoll | ToiletPaper => kitchen_item(&mut b, category, color, style),
+        RemoteControl | AlarmClock | TissueBox | Newspaper | Laptop | DeskLamp | FloorLamp | Box => small_item(&mut b, category, color, style),
+        Chair | ArmChair | Sofa | DiningTable | CoffeeTable | SideTable | Desk | Bed | Rug => seat_or_table(&mut b, category, color, style),
+        CounterTop | Dresser | TvStand | Shelf | Fridge | Stove | Sink | Television => cabinet_or_appliance(&mut b, category, color, style),
+        Window | Poster | Mirror | Door | HandTowelHolder | TowelHolder | ToiletPaperHanger | HandTowel | Towel => wall_item(&mut b, category, color, style),
+        Plunger | ShowerCurtain | ShowerDoor | Toilet | Bathtub => bathroom_fixture(&mut b, category, color),
+    }
+    if category == Rug || category == ShowerCurtain {
+        // the robot drives over rugs and pushes curtains aside: visible, not solid
+        for p in &mut b.parts {
+            p.solid = false;
+        }
+    }
+    b.parts
+}
+
+/// Food, cutlery and tableware.
+fn kitchen_item(b: &mut Builder, category: Category, color: [f32; 3], style: u32) {
+    let (w, h, d) = (b.size.x, b.size.y, b.size.z);
     let (hw, hh, hd) = (w / 2.0, h / 2.0, d / 2.0);
     use Category::*;
     use Material as M;
@@ -350,6 +370,17 @@ pub fn build_parts(
             b.cyl([0.0, 0.0, 0.0], [hw, hh, hd], color, M::Paper);
             b.cyl([0.0, 0.0, 0.0], [hw * 0.35, hh * 1.02, hd * 0.35], [0.55, 0.40, 0.25], M::Paper);
         }
+        _ => unreachable!("{category:?} is not one of kitchen_item's"),
+    }
+}
+
+/// Small things of the living room and bedroom.
+fn small_item(b: &mut Builder, category: Category, color: [f32; 3], style: u32) {
+    let (w, h, d) = (b.size.x, b.size.y, b.size.z);
+    let (hw, hh, hd) = (w / 2.0, h / 2.0, d / 2.0);
+    use Category::*;
+    use Material as M;
+    match category {
         RemoteControl => {
             b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], color, M::Matte);
             for k in 0..3 {
@@ -399,9 +430,20 @@ pub fn build_parts(
             b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], color, M::Paper);
             b.boxp([0.0, hh, 0.0], [hw * 1.01, 0.004, 0.03], [0.75, 0.65, 0.45], M::Paper);
         }
+        _ => unreachable!("{category:?} is not one of small_item's"),
+    }
+}
+
+/// Chairs, sofas, tables, the bed, the rug.
+fn seat_or_table(b: &mut Builder, category: Category, color: [f32; 3], style: u32) {
+    let (w, h, d) = (b.size.x, b.size.y, b.size.z);
+    let (hw, hh, hd) = (w / 2.0, h / 2.0, d / 2.0);
+    use Category::*;
+    use Material as M;
+    match category {
         Chair => {
             let seat = h * 0.47;
-            leg4(&mut b, hw * 0.85, hd * 0.85, seat, 0.02, color, M::Wood);
+            leg4(b, hw * 0.85, hd * 0.85, seat, 0.02, color, M::Wood);
             b.boxp([0.0, -hh + seat, 0.0], [hw, 0.025, hd], color, M::Wood);
             b.boxp([0.0, -hh + seat + (h - seat) / 2.0, -hd * 0.9], [hw, (h - seat) / 2.0, 0.02], color, M::Wood);
             if style % 2 == 1 {
@@ -441,74 +483,41 @@ pub fn build_parts(
                 b.cyl([0.0, -top, 0.0], [0.08, hh - top, 0.08], darker(color, 0.8), M::Wood);
                 b.cyl([0.0, -hh + 0.02, 0.0], [hw * 0.35, 0.02, hd * 0.35], darker(color, 0.8), M::Wood);
             } else {
-                leg4(&mut b, hw * 0.9, hd * 0.88, h - 2.0 * top, 0.03, darker(color, 0.85), M::Wood);
+                leg4(b, hw * 0.9, hd * 0.88, h - 2.0 * top, 0.03, darker(color, 0.85), M::Wood);
             }
             if category == Desk {
                 b.boxp([hw * 0.55, -top, 0.0], [hw * 0.4, hh - top, hd * 0.95], darker(color, 0.9), M::Wood);
             }
         }
-        Television => {
-            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd * 0.5], color, M::Matte);
-            b.boxp([0.0, 0.0, hd * 0.5], [hw * 0.95, hh * 0.92, 0.004], screen_color(style), M::Screen);
-            b.boxp([0.0, -hh, -hd * 0.1], [hw * 0.25, 0.015, hd], [0.1, 0.1, 0.1], M::Metal);
-        }
-        Window => {
-            b.boxp([0.0, 0.0, 0.0], [hw * 0.95, hh * 0.95, 0.01], sky_color(style), M::Emissive);
-            frame(&mut b, hw, hh, 0.05, hd, [0.92, 0.92, 0.9]);
-            b.boxp([0.0, 0.0, hd * 0.5], [0.02, hh, hd * 0.5], [0.92, 0.92, 0.9], M::Matte);
-        }
-        Poster => {
-            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], [0.95, 0.95, 0.93], M::Paper);
-            // a simple composition so posters differ
-            let c2 = lighter(color, 1.4);
-            b.boxp([0.0, hh * 0.2, hd], [hw * 0.8, hh * 0.55, 0.002], color, M::Paper);
-            b.ellipsoid(
-                [hw * 0.25 * ((style % 3) as f32 - 1.0), hh * 0.3, hd * 1.5],
-                [hw * 0.25, hw * 0.25, 0.002],
-                c2,
-                M::Paper,
+        Bed => {
+            let frame_h = h * 0.45;
+            b.boxp([0.0, -hh + frame_h / 2.0, 0.0], [hw, frame_h / 2.0, hd], [0.45, 0.3, 0.18], M::Wood);
+            b.boxp(
+                [0.0, -hh + frame_h + (h - frame_h) / 2.0, 0.05],
+                [hw * 0.97, (h - frame_h) / 2.0, hd * 0.95],
+                color,
+                M::Fabric,
             );
-            b.boxp([0.0, -hh * 0.7, hd], [hw * 0.6, hh * 0.06, 0.002], [0.1, 0.1, 0.1], M::Paper);
-        }
-        Mirror => {
-            frame(&mut b, hw, hh, 0.03, hd, [0.6, 0.55, 0.4]);
-            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd * 0.5], color, M::Glass);
-        }
-        HandTowelHolder | TowelHolder | ToiletPaperHanger => {
-            // a bar held off the wall by two posts (or one arm for the paper hanger)
-            let posts: &[f32] = if category == ToiletPaperHanger { &[-1.0] } else { &[-1.0, 1.0] };
-            for &s in posts {
-                b.boxp([s * hw * 0.9, 0.0, -hd * 0.5], [hw * 0.08, hh, hd * 0.5], color, M::Metal);
-            }
-            if category == HandTowelHolder && style % 2 == 1 {
-                b.cyl_z([0.0, -hh * 2.0, hd * 0.3], [hw * 0.8, hw * 0.8, 0.006], color, M::Metal);
-            } else {
-                b.cyl_x([0.0, 0.0, hd * 0.3], [hh * 0.35, hw, hh * 0.35], color, M::Metal);
+            b.boxp([0.0, 0.15, -hd * 0.97], [hw, hh + 0.15, 0.04], [0.45, 0.3, 0.18], M::Wood);
+            for s in [-1.0f32, 1.0] {
+                b.boxp([s * hw * 0.45, hh + 0.04, -hd * 0.75], [hw * 0.38, 0.06, 0.16], [0.95, 0.95, 0.95], M::Fabric);
             }
         }
-        HandTowel | Towel => {
+        Rug => {
             b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], color, M::Fabric);
-            b.boxp([0.0, -hh * 0.8, hd * 1.02], [hw, hh * 0.06, 0.002], darker(color, 0.7), M::Fabric);
+            b.boxp([0.0, 0.001, 0.0], [hw * 0.8, hh, hd * 0.75], lighter(color, 1.3), M::Fabric);
         }
-        Plunger => {
-            b.cyl([0.0, hh * 0.15, 0.0], [0.012, hh * 0.85, 0.012], [0.55, 0.38, 0.2], M::Wood);
-            b.cone([0.0, -hh * 0.82, 0.0], [hw, hh * 0.18, hd], color, M::Matte);
-        }
-        ShowerCurtain => {
-            b.cyl_x([0.0, hh, 0.0], [0.012, hw, 0.012], [0.7, 0.7, 0.72], M::Metal);
-            let folds = 6;
-            let fw = w / folds as f32;
-            for k in 0..folds {
-                let x = -hw + fw * (k as f32 + 0.5);
-                let z = if k % 2 == 0 { hd * 0.5 } else { -hd * 0.5 };
-                b.boxp([x, -0.05, z], [fw * 0.55, hh - 0.05, 0.01], color, M::Fabric);
-            }
-        }
-        ShowerDoor => {
-            frame(&mut b, hw, hh, 0.03, hd, [0.7, 0.7, 0.72]);
-            b.boxp([0.0, 0.0, 0.0], [hw, hh, 0.008], color, M::Glass);
-            b.boxp([hw * 0.8, 0.0, hd], [0.01, 0.12, 0.015], [0.7, 0.7, 0.72], M::Metal);
-        }
+        _ => unreachable!("{category:?} is not one of seat_or_table's"),
+    }
+}
+
+/// Cabinets, shelves and appliances.
+fn cabinet_or_appliance(b: &mut Builder, category: Category, color: [f32; 3], style: u32) {
+    let (w, h, d) = (b.size.x, b.size.y, b.size.z);
+    let (hw, hh, hd) = (w / 2.0, h / 2.0, d / 2.0);
+    use Category::*;
+    use Material as M;
+    match category {
         CounterTop | Dresser | TvStand => {
             let top = 0.03;
             let cab = if category == CounterTop { darker(color, 0.75) } else { color };
@@ -552,19 +561,93 @@ pub fn build_parts(
             b.cyl([0.0, hh - 0.02, 0.0], [hw * 0.4, 0.035, hd * 0.5], darker(color, 0.85), M::Metal);
             b.cyl([0.0, hh + 0.1, -hd * 0.75], [0.015, 0.1, 0.015], [0.7, 0.7, 0.72], M::Metal);
         }
-        Bed => {
-            let frame_h = h * 0.45;
-            b.boxp([0.0, -hh + frame_h / 2.0, 0.0], [hw, frame_h / 2.0, hd], [0.45, 0.3, 0.18], M::Wood);
-            b.boxp(
-                [0.0, -hh + frame_h + (h - frame_h) / 2.0, 0.05],
-                [hw * 0.97, (h - frame_h) / 2.0, hd * 0.95],
-                color,
-                M::Fabric,
+        Television => {
+            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd * 0.5], color, M::Matte);
+            b.boxp([0.0, 0.0, hd * 0.5], [hw * 0.95, hh * 0.92, 0.004], screen_color(style), M::Screen);
+            b.boxp([0.0, -hh, -hd * 0.1], [hw * 0.25, 0.015, hd], [0.1, 0.1, 0.1], M::Metal);
+        }
+        _ => unreachable!("{category:?} is not one of cabinet_or_appliance's"),
+    }
+}
+
+/// What hangs on a wall, and the door.
+fn wall_item(b: &mut Builder, category: Category, color: [f32; 3], style: u32) {
+    let (w, h, d) = (b.size.x, b.size.y, b.size.z);
+    let (hw, hh, hd) = (w / 2.0, h / 2.0, d / 2.0);
+    use Category::*;
+    use Material as M;
+    match category {
+        Window => {
+            b.boxp([0.0, 0.0, 0.0], [hw * 0.95, hh * 0.95, 0.01], sky_color(style), M::Emissive);
+            frame(b, hw, hh, 0.05, hd, [0.92, 0.92, 0.9]);
+            b.boxp([0.0, 0.0, hd * 0.5], [0.02, hh, hd * 0.5], [0.92, 0.92, 0.9], M::Matte);
+        }
+        Poster => {
+            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], [0.95, 0.95, 0.93], M::Paper);
+            // a simple composition so posters differ
+            let c2 = lighter(color, 1.4);
+            b.boxp([0.0, hh * 0.2, hd], [hw * 0.8, hh * 0.55, 0.002], color, M::Paper);
+            b.ellipsoid(
+                [hw * 0.25 * ((style % 3) as f32 - 1.0), hh * 0.3, hd * 1.5],
+                [hw * 0.25, hw * 0.25, 0.002],
+                c2,
+                M::Paper,
             );
-            b.boxp([0.0, 0.15, -hd * 0.97], [hw, hh + 0.15, 0.04], [0.45, 0.3, 0.18], M::Wood);
-            for s in [-1.0f32, 1.0] {
-                b.boxp([s * hw * 0.45, hh + 0.04, -hd * 0.75], [hw * 0.38, 0.06, 0.16], [0.95, 0.95, 0.95], M::Fabric);
+            b.boxp([0.0, -hh * 0.7, hd], [hw * 0.6, hh * 0.06, 0.002], [0.1, 0.1, 0.1], M::Paper);
+        }
+        Mirror => {
+            frame(b, hw, hh, 0.03, hd, [0.6, 0.55, 0.4]);
+            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd * 0.5], color, M::Glass);
+        }
+        Door => {
+            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], color, M::Wood);
+            b.cyl_z([hw * 0.8, -0.05, hd], [0.03, 0.03, 0.03], [0.75, 0.7, 0.4], M::Metal);
+        }
+        HandTowelHolder | TowelHolder | ToiletPaperHanger => {
+            // a bar held off the wall by two posts (or one arm for the paper hanger)
+            let posts: &[f32] = if category == ToiletPaperHanger { &[-1.0] } else { &[-1.0, 1.0] };
+            for &s in posts {
+                b.boxp([s * hw * 0.9, 0.0, -hd * 0.5], [hw * 0.08, hh, hd * 0.5], color, M::Metal);
             }
+            if category == HandTowelHolder && style % 2 == 1 {
+                b.cyl_z([0.0, -hh * 2.0, hd * 0.3], [hw * 0.8, hw * 0.8, 0.006], color, M::Metal);
+            } else {
+                b.cyl_x([0.0, 0.0, hd * 0.3], [hh * 0.35, hw, hh * 0.35], color, M::Metal);
+            }
+        }
+        HandTowel | Towel => {
+            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], color, M::Fabric);
+            b.boxp([0.0, -hh * 0.8, hd * 1.02], [hw, hh * 0.06, 0.002], darker(color, 0.7), M::Fabric);
+        }
+        _ => unreachable!("{category:?} is not one of wall_item's"),
+    }
+}
+
+/// The bathroom's fixtures.
+fn bathroom_fixture(b: &mut Builder, category: Category, color: [f32; 3]) {
+    let (w, h, d) = (b.size.x, b.size.y, b.size.z);
+    let (hw, hh, hd) = (w / 2.0, h / 2.0, d / 2.0);
+    use Category::*;
+    use Material as M;
+    match category {
+        Plunger => {
+            b.cyl([0.0, hh * 0.15, 0.0], [0.012, hh * 0.85, 0.012], [0.55, 0.38, 0.2], M::Wood);
+            b.cone([0.0, -hh * 0.82, 0.0], [hw, hh * 0.18, hd], color, M::Matte);
+        }
+        ShowerCurtain => {
+            b.cyl_x([0.0, hh, 0.0], [0.012, hw, 0.012], [0.7, 0.7, 0.72], M::Metal);
+            let folds = 6;
+            let fw = w / folds as f32;
+            for k in 0..folds {
+                let x = -hw + fw * (k as f32 + 0.5);
+                let z = if k % 2 == 0 { hd * 0.5 } else { -hd * 0.5 };
+                b.boxp([x, -0.05, z], [fw * 0.55, hh - 0.05, 0.01], color, M::Fabric);
+            }
+        }
+        ShowerDoor => {
+            frame(b, hw, hh, 0.03, hd, [0.7, 0.7, 0.72]);
+            b.boxp([0.0, 0.0, 0.0], [hw, hh, 0.008], color, M::Glass);
+            b.boxp([hw * 0.8, 0.0, hd], [0.01, 0.12, 0.015], [0.7, 0.7, 0.72], M::Metal);
         }
         Toilet => {
             b.boxp([0.0, 0.12, -hd * 0.75], [hw * 0.9, hh * 0.55, hd * 0.25], color, M::Matte);
@@ -575,22 +658,8 @@ pub fn build_parts(
             b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], color, M::Matte);
             b.boxp([0.0, hh * 0.2, 0.0], [hw * 0.9, hh * 0.82, hd * 0.82], [0.7, 0.8, 0.85], M::Glass);
         }
-        Rug => {
-            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], color, M::Fabric);
-            b.boxp([0.0, 0.001, 0.0], [hw * 0.8, hh, hd * 0.75], lighter(color, 1.3), M::Fabric);
-        }
-        Door => {
-            b.boxp([0.0, 0.0, 0.0], [hw, hh, hd], color, M::Wood);
-            b.cyl_z([hw * 0.8, -0.05, hd], [0.03, 0.03, 0.03], [0.75, 0.7, 0.4], M::Metal);
-        }
+        _ => unreachable!("{category:?} is not one of bathroom_fixture's"),
     }
-    if category == Rug || category == ShowerCurtain {
-        // the robot drives over rugs and pushes curtains aside: visible, not solid
-        for p in &mut b.parts {
-            p.solid = false;
-        }
-    }
-    b.parts
 }
 
 fn leg4(b: &mut Builder, hx: f32, hz: f32, height: f32, r: f32, color: [f32; 3], m: Material) {
