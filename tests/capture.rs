@@ -30,6 +30,8 @@ fn filmed_gestures_and_the_gond_recording_come_back_pointing_the_same_way() {
     if !capture_ready() {
         return;
     }
+    // the landmark model on many films: alone, not beside the browser's webcam tests
+    let _g = gesthor_tests::serial();
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("bench");
     let (data, sample) = (dataset(), gond_sample());

@@ -277,11 +277,12 @@ fn eventually(why: &str, mut what: impl FnMut() -> bool) {
     }
 }
 
-/// Whether Chromium and chromedriver are here; where setup.sh installed them, they must be.
+/// Whether Chromium and chromedriver are here; under CI, or where setup.sh installed them, they must be.
 pub(crate) fn browser_ready() -> bool {
     let found = ["/usr/bin/chromium", "/usr/bin/chromedriver"].iter().all(|p| Path::new(p).is_file());
-    if !found && std::env::var("GESTHOR_BROWSER_REQUIRED").is_ok_and(|v| v == "1") {
-        panic!("chromium or chromedriver is missing, but scripts/setup.sh installed them");
+    let required = std::env::var_os("CI").is_some() || std::env::var("GESTHOR_BROWSER_REQUIRED").is_ok_and(|v| v == "1");
+    if !found && required {
+        panic!("chromium or chromedriver is missing, but CI or scripts/setup.sh installs them");
     }
     if !found {
         eprintln!("skipped: no chromium and chromedriver (scripts/setup.sh installs them)");
@@ -505,6 +506,7 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
         // the camera was on all along: a pointing arm holds still, it does not wave
         let seen = page(&c, "[window.live.framesSeen, window.live.wavingFrames]").await;
         assert_eq!(seen[1], json!(0), "[frames read, read as a wave]: {seen}");
+        assert_eq!(page(&c, "window.live.errors").await, json!([]), "the page's errors");
         c.close().await.unwrap();
         let record = |e: &Value| PathBuf::from(e["record"].as_str().unwrap());
         (record(&end), [record(&ends[0]), record(&ends[1])])
@@ -542,9 +544,9 @@ fn a_person_gestures_at_the_robot_through_the_webcam_in_a_real_browser() {
 /// swings sideways over 25 cm. Of the 20, K = 0–5 and 17 read as a wave (the landmark model on
 /// the film at 10 and 30 frames a second: in 37–68% of 1.5 s windows; K = 1 in the most), the
 /// others raise no hand above the shoulder or swing it by 5 cm at most, and the referencing
-/// film in no window. The page reads ≈ 5 frames a second here (one in flight, the landmark
-/// model on a busy two-core machine); a wave needs 4 frames with the hand raised within its
-/// 1.5 s, so it is read down to ≈ 3 a second.
+/// film in no window. A wave is read from the last 1.5 s or the last 6 frames read, whichever
+/// holds more (`webcam::remember`), so a busy machine reading few frames a second reads it too;
+/// the capture tests that also run the landmark model take the serial lock.
 const WAVE: usize = 1;
 
 #[test]

@@ -305,16 +305,26 @@ mod tests {
         assert!(said.is_some_and(|m| m.contains("slot 3 asked for")), "{said:?}");
     }
 
-    /// Where CUDA cannot run, asking for it is an error, never a panic. (The CUDA import itself
-    /// runs on a GPU machine: `scripts/gpu_bench.sh` trains with `env.frames = "device"`.)
+    /// On CUDA, memory exported by the same card reads back as it does on the CPU; memory of
+    /// another device (lavapipe's, on a GPU machine) is refused by its UUID; where CUDA cannot
+    /// run, asking for it is an error, never a panic. (`scripts/gpu_bench.sh` also trains with
+    /// `env.frames = "device"` and fails without the import.)
     #[test]
-    fn cuda_without_a_usable_gpu_is_an_error() {
+    fn cuda_reads_its_own_cards_frames_and_refuses_others() {
         crate::device::load_cuda_backend();
-        if tch::Cuda::is_available() {
-            return;
-        }
         let Some(export) = frames() else { return };
-        let e = import(&export, Device::Cuda(0)).unwrap_err();
-        assert!(matches!(e, ImportError::NoCudaDriver(_) | ImportError::Cuda { .. }), "{e}");
+        let cuda = tch::Cuda::is_available();
+        match import(&export, Device::Cuda(0)) {
+            Ok(on_gpu) => {
+                assert!(cuda, "imported on CUDA without CUDA");
+                let on_cpu = import(&export, Device::Cpu).unwrap();
+                let slots = [2i64, 0];
+                assert!(on_gpu.rgb(&slots).to_device(Device::Cpu).equal(&on_cpu.rgb(&slots)));
+                assert!(on_gpu.depth(&slots).to_device(Device::Cpu).equal(&on_cpu.depth(&slots)));
+                assert!(on_gpu.ids(&slots).to_device(Device::Cpu).equal(&on_cpu.ids(&slots)));
+            }
+            Err(e) if cuda => assert!(matches!(e, ImportError::UuidMismatch { .. }), "{e}"),
+            Err(e) => assert!(matches!(e, ImportError::NoCudaDriver(_) | ImportError::Cuda { .. }), "{e}"),
+        }
     }
 }

@@ -15,8 +15,11 @@ use worker::gesture::capture::LandmarkFrame;
 
 /// A frame larger than this is refused (a 640×480 JPEG at quality 90 is ≈ 80 KiB).
 pub const MAX_FRAME_BYTES: usize = 512 * 1024;
-/// How much of the recent past a wave is read from.
+/// How much of the recent past a wave is read from: the last second and a half, or the last
+/// [`WAVE_FRAMES`] frames where fewer were read in that time (a slow machine reads a wave over a
+/// longer past rather than never).
 const WAVE_WINDOW: f32 = 1.5;
+const WAVE_FRAMES: usize = 6;
 
 /// Why a webcam frame was refused, in the words the page shows; `None`: it may be read. (One
 /// sent before the last was answered is refused by the socket, `super::server`.)
@@ -44,7 +47,7 @@ pub struct Webcam {
     stdout: BufReader<ChildStdout>,
     script: PathBuf,
     started: Instant,
-    /// The frames of the last [`WAVE_WINDOW`] seconds.
+    /// The frames a wave is read from ([`remember`]).
     recent: Vec<LandmarkFrame>,
     /// A capture under way: until when, and its frames.
     capturing: Option<(f32, Vec<LandmarkFrame>)>,
@@ -77,8 +80,7 @@ impl Webcam {
             anyhow::bail!("a webcam frame was refused: {e}");
         }
         frame.t = now.duration_since(self.started).as_secs_f32();
-        self.recent.retain(|f| f.t > frame.t - WAVE_WINDOW);
-        self.recent.push(frame.clone());
+        remember(&mut self.recent, frame.clone());
         if let Some((_, frames)) = &mut self.capturing {
             frames.push(frame.clone());
         }
@@ -118,12 +120,22 @@ impl Drop for Webcam {
     }
 }
 
+/// Adds `frame` to the `recent` frames a wave is read from, forgetting those older than
+/// [`WAVE_WINDOW`] beyond the last [`WAVE_FRAMES`].
+pub fn remember(recent: &mut Vec<LandmarkFrame>, frame: LandmarkFrame) {
+    let now = frame.t;
+    recent.push(frame);
+    let in_window = recent.iter().filter(|f| f.t > now - WAVE_WINDOW).count();
+    let forget = recent.len() - in_window.max(WAVE_FRAMES).min(recent.len());
+    recent.drain(..forget);
+}
+
 /// MediaPipe's pose landmarks of the shoulders and wrists (left, right).
 const SHOULDERS: [usize; 2] = [11, 12];
 const WRISTS: [usize; 2] = [15, 16];
 
 /// A wave: a hand held above its shoulder, swinging sideways at least twice by 8 cm or more,
-/// in the frames given (the last second and a half). A pointing arm holds still; a raised hand
+/// in the frames given (those [`remember`] keeps). A pointing arm holds still; a raised hand
 /// that does not swing is not a wave.
 pub fn waving(frames: &[LandmarkFrame]) -> bool {
     (0..2).any(|side| {
@@ -181,6 +193,31 @@ mod tests {
         assert!(!waving(&point));
         let low: Vec<_> = (0..15).map(|i| frame(i as f32 / 10.0, 0.12 * (i as f32 * 1.3).sin(), -0.2)).collect();
         assert!(!waving(&low));
+    }
+
+    /// A hand swung about once a second: read fast, the wave is read from the last second and a
+    /// half; read slowly (a busy machine, two frames a second), from the last six frames, so the
+    /// same swing is still a wave.
+    #[test]
+    fn a_wave_is_read_at_any_rate_from_a_second_and_a_half_or_six_frames() {
+        let swing = |t: f32| frame(t, 0.12 * (t * 6.0).sin(), -0.7);
+        let mut fast = Vec::new();
+        for i in 0..60 {
+            remember(&mut fast, swing(i as f32 / 20.0));
+        }
+        assert_eq!(fast.len(), 30, "1.5 s at 20 frames a second");
+        assert!(waving(&fast));
+        let mut slow = Vec::new();
+        for i in 0..20 {
+            remember(&mut slow, swing(i as f32 / 2.0));
+        }
+        assert_eq!(slow.len(), WAVE_FRAMES);
+        assert!(waving(&slow));
+        let mut still = Vec::new();
+        for i in 0..20 {
+            remember(&mut still, frame(i as f32 / 2.0, -0.5, -0.5));
+        }
+        assert!(!waving(&still));
     }
 
     #[test]

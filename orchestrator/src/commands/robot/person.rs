@@ -12,12 +12,10 @@ use worker::humanoid::Humanoid;
 use super::drive::{Pose2, wrap};
 use super::msgs::{CameraInfo, Gesture, Header, Image, Pose};
 use crate::commands::live::gesture::muscles;
-use crate::commands::live::webcam::{Webcam, waving};
+use crate::commands::live::webcam::{Webcam, remember, waving};
 
 /// MediaPipe's pose landmarks of the hips: the person's left, right.
 const HIPS: [usize; 2] = [23, 24];
-/// Seconds of frames a wave is read from (as the live page's).
-const WAVE_WINDOW: f64 = 1.5;
 
 /// What the camera has told of the person.
 pub struct Person {
@@ -84,8 +82,7 @@ impl Person {
         let jpeg = jpeg(colour)?;
         let mut f = self.webcam.read(&jpeg, std::time::Instant::now())?;
         f.t = t as f32;
-        self.recent.retain(|r| (r.t as f64) > t - WAVE_WINDOW);
-        self.recent.push(f.clone());
+        remember(&mut self.recent, f.clone());
         let Some((from, frames)) = &mut self.capturing else { return Ok(()) };
         if frames.is_empty() && f.pose.is_none() {
             // nobody in view: look elsewhere rather than watch an empty room

@@ -19,6 +19,10 @@ const live = (window.live = {
   room: null, placed: { person: null, robot: null },
 });
 
+// an exception the page did not catch is an error of the page too
+window.addEventListener("error", (e) => live.errors.push(`${e.message} (${e.filename}:${e.lineno})`));
+window.addEventListener("unhandledrejection", (e) => live.errors.push(`unhandled: ${e.reason}`));
+
 // the token printed at start, in the URL opened; a page opened without it (a reload of a bare
 // URL) is let in by the cookie the server set, which the socket and the uploads carry too
 const token = new URLSearchParams(location.search).get("token");
