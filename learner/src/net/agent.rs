@@ -557,13 +557,30 @@ mod tests {
         }
     }
 
+    /// The steps' inputs `[N, ..]` stacked into `[T, N, ..]`, every field.
+    fn stacked(steps: &[Inputs]) -> Inputs {
+        let field = |pick: fn(&Inputs) -> &Option<Tensor>| {
+            let all: Option<Vec<Tensor>> = steps.iter().map(|s| pick(s).as_ref().map(|t| t.shallow_clone())).collect();
+            all.map(|all| Tensor::stack(&all, 0))
+        };
+        Inputs {
+            rgb: field(|s| &s.rgb),
+            depth: field(|s| &s.depth),
+            visual: field(|s| &s.visual),
+            gesture: field(|s| &s.gesture),
+            gesture_index: None,
+            target: field(|s| &s.target),
+            pose: field(|s| &s.pose),
+        }
+    }
+
     fn distinct_gestures_read_as_every_row(cfg: &RunConfig) {
         let mut p = Agent::new(cfg, 2, Device::Cpu).unwrap();
         let h0 = p.hidden().copy();
         let mut r = crate::ppo::rollout::Rollout::new(6, 2, &h0);
         let first = random_obs(2, 16, 40);
-        // each step's gestures as the envs showed them: the oracle, kept apart from the rollout
-        let mut shown = Vec::new();
+        // each step's inputs as the agent prepared them: the oracle, kept apart from the rollout
+        let mut steps = Vec::new();
         for t in 0..6u64 {
             let mut o = random_obs(2, 16, 50 + t);
             // env 0 keeps its gesture all along; env 1 shows a new one at every step
@@ -574,13 +591,13 @@ mod tests {
                 e.person_pose = [0.3 * t as f32, k as f32 - 0.5, 0.1 * t as f32];
             }
             let (x, st) = p.prepare(&o.batch()).unwrap();
-            shown.push(x.gesture.as_ref().unwrap().copy());
+            steps.push(x.map(|t| t.copy()));
             let f = p.forward(&x, st);
             let acted = Actions { actions: vec![0; 2], log_probs: vec![0.0; 2], values: f.values.clone() };
             r.push(&x, &[t == 0, t == 0], &acted, &[true, true]);
             p.commit(f, &o.batch());
         }
-        let shown = Tensor::stack(&shown, 0);
+        let every_row = stacked(&steps);
         let table = r.gestures().unwrap();
         assert_eq!(table.len(), 1 + 6, "env 0: one gesture; env 1: six");
         // both envs: 12 rows of the 7 gestures; env 1 alone: 6 rows of its own 6 (env 0's is
@@ -589,9 +606,8 @@ mod tests {
             let idx = Tensor::from_slice(envs);
             let distinct = r.minibatch(&idx).unwrap();
             assert_eq!(distinct.gesture.as_ref().unwrap().size()[0], distinct_shown, "{envs:?}");
-            // every row's gesture as its env showed it, read without the table
-            let rows = shown.index_select(1, &idx);
-            let plain = Inputs { gesture: Some(rows), gesture_index: None, ..distinct.map(|t| t.shallow_clone()) };
+            // every row's inputs as its env showed them, the gestures without the table
+            let plain = every_row.map(|t| t.index_select(1, &idx));
             let starts = vec![false; 6 * envs.len()];
             let run = |x: &Inputs| {
                 for mut v in p.vs.trainable_variables() {
