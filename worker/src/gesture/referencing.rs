@@ -24,6 +24,7 @@
 
 use nalgebra::{Point3, UnitQuaternion, Vector3};
 use rand::Rng;
+use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
@@ -130,7 +131,8 @@ pub fn referencing(
 }
 
 /// [`referencing`] for a given body (its proportions decide the exact arm angles) and pointing
-/// level.
+/// level: this person's stance, the style drawn, the pointing pose solved, where the eyes go,
+/// the hold's tremor, then the 100 frames. The draws from the seed come in that order.
 ///
 /// Panics if a position or the yaw is not finite (a caller's bug, not a data error).
 pub fn referencing_with(
@@ -147,8 +149,18 @@ pub fn referencing_with(
     );
     let sk = h.skeleton();
     let mut r = farm::seed::rng(seed, &[KEY_REFERENCING]);
+    let (base, idle) = stance(&mut r);
+    let t_local = target_from_hips(h, sk, &base, target, human_pos, human_yaw);
+    let mut style = draw_style(&mut r, pointing, t_local.x.atan2(t_local.z).to_degrees());
+    let (pose, target_distance) = pointing_pose(sk, &base, &style, t_local, &mut r);
+    let gaze = Gaze::draw(&mut r, sk, &base, &pose, t_local, target_distance, &style);
+    style.gaze = (gaze.on, gaze.off);
+    let hold = Hold::draw(&mut r);
+    (animate(&base, &pose, &idle, &style, &gaze, &hold), style)
+}
 
-    // This person's way of standing.
+/// This person's way of standing, and their idle movement.
+fn stance(r: &mut ChaCha8Rng) -> ([f32; MUSCLES], Idle) {
     let mut base = STANDING;
     let arm_down = r.random_range(-0.06..0.06f32);
     let elbow = r.random_range(-0.08..0.06f32);
@@ -159,19 +171,32 @@ pub fn referencing_with(
         base[side.leg_muscles() + idx::UPPER_LEG_IN_OUT] += r.random_range(-0.05..0.05f32);
     }
     base[idx::SPINE_FRONT_BACK] += r.random_range(-0.04..0.04f32);
-    let idle = Idle::new(&mut r);
+    (base, Idle::new(r))
+}
 
-    let hips = sk.hips_height(&base);
-    let mut t_local = to_hips_frame(target, human_pos, human_yaw, hips);
-    // A target inside the body cannot be pointed at: treat it as half a metre further out.
+/// The target in the standing person's hips frame; one inside the body cannot be pointed at
+/// and is taken half a metre further out.
+fn target_from_hips(
+    h: &Humanoid,
+    sk: &Skeleton,
+    base: &[f32; MUSCLES],
+    target: Point3<f32>,
+    human_pos: Point3<f32>,
+    human_yaw: f32,
+) -> Point3<f32> {
+    let mut t_local = to_hips_frame(target, human_pos, human_yaw, sk.hips_height(base));
     let chest = Point3::new(0.0, 0.4 * h.height() / 1.7, 0.0);
     if (t_local - chest).norm() < 0.4 {
         let out = Vector3::new(t_local.x, 0.0, t_local.z);
         let out = if out.norm() > 1e-3 { out.normalize() } else { Vector3::z() };
         t_local += out * 0.5;
     }
-    let bearing = t_local.x.atan2(t_local.z).to_degrees();
+    t_local
+}
 
+/// The gesture's style for a target at `bearing` degrees: the arm, the hand, the elbow, the
+/// torso's turn, the timing and the aiming error (the eyes' timing comes later: [`Gaze`]).
+fn draw_style(r: &mut ChaCha8Rng, pointing: Pointing, bearing: f32) -> ReferencingStyle {
     // Arm by the target's side; near straight ahead, mostly the right.
     let side = if bearing > 12.0 {
         Side::Right
@@ -190,8 +215,42 @@ pub fn referencing_with(
     let mut bent = r.random_bool(if shape == HandShape::OpenPalm { 0.2 } else { 0.4 });
     let mut stretch = if bent { r.random_range(0.2..0.55f32) } else { r.random_range(0.82..0.98f32) };
     let torso_turn = bearing.signum() * ((bearing.abs() - 35.0).max(0.0) * r.random_range(0.35..0.6f32)).min(65.0);
+    let [lead, rise, hold, ret] = draw_timing(r);
+    let normal = |sd: f32| Normal::new(0.0f32, sd).expect("positive deviation");
+    let mut aim_err = [normal(2.5).sample(r).clamp(-6.0, 6.0), normal(2.0).sample(r).clamp(-5.0, 5.0)];
+    // The realistic level draws after everything the clean one draws, so a clean dataset's
+    // gestures do not depend on it.
+    let (mut arm_aimed, mut eye_aligned) = (false, false);
+    if pointing == Pointing::Realistic {
+        aim_err = [normal(3.0).sample(r).clamp(-9.0, 9.0), normal(3.0).sample(r).clamp(-9.0, 9.0)];
+        arm_aimed = r.random_bool(0.4);
+        let arm_bend = r.random_range(55.0..90.0f32);
+        if arm_aimed {
+            // Forearm Stretch 1 is straight, 0 bent 80°, linear in between and beyond.
+            (bent, stretch) = (false, 1.0 - arm_bend / 80.0);
+        }
+        eye_aligned = !arm_aimed && !bent;
+    }
+    ReferencingStyle {
+        side,
+        shape,
+        bent_elbow: bent,
+        forearm_stretch: stretch,
+        arm_aimed,
+        eye_aligned,
+        lead,
+        rise,
+        hold,
+        ret,
+        gaze: (0, 0),
+        aim_error_deg: aim_err,
+        torso_turn_deg: torso_turn,
+        bearing_deg: bearing,
+    }
+}
 
-    // Timing (frames).
+/// Frames of lead-in idle, rise, hold and return, fitting 96 frames (the hold shortened first).
+fn draw_timing(r: &mut ChaCha8Rng) -> [u32; 4] {
     let mut lead = r.random_range(3..=30u32);
     let rise = r.random_range(8..=20u32);
     let mut hold = r.random_range(12..=50u32);
@@ -203,60 +262,65 @@ pub fn referencing_with(
             lead -= 1;
         }
     }
-    let normal = |sd: f32| Normal::new(0.0f32, sd).expect("positive deviation");
-    let mut aim_err = [normal(2.5).sample(&mut r).clamp(-6.0, 6.0), normal(2.0).sample(&mut r).clamp(-5.0, 5.0)];
-    // The realistic level draws after everything the clean one draws, so a clean dataset's
-    // gestures do not depend on it.
-    let (mut arm_aimed, mut eye_aligned) = (false, false);
-    if pointing == Pointing::Realistic {
-        aim_err = [normal(3.0).sample(&mut r).clamp(-9.0, 9.0), normal(3.0).sample(&mut r).clamp(-9.0, 9.0)];
-        arm_aimed = r.random_bool(0.4);
-        let arm_bend = r.random_range(55.0..90.0f32);
-        if arm_aimed {
-            // Forearm Stretch 1 is straight, 0 bent 80°, linear in between and beyond.
-            (bent, stretch) = (false, 1.0 - arm_bend / 80.0);
-        }
-        eye_aligned = !arm_aimed && !bent;
-    }
+    [lead, rise, hold, ret]
+}
 
-    // The pointing pose.
-    let mut pose = base;
-    set_torso_turn(&mut pose, torso_turn);
-    blend_hand(&mut pose, side, shape.fingers(), 1.0);
-    let a = side.arm_muscles();
-    pose[a + idx::FOREARM_STRETCH] = stretch;
-    pose[a + idx::FOREARM_TWIST] = match shape {
+/// The held pointing pose, its ray through the aimed point; and the target's distance from the
+/// shoulder.
+fn pointing_pose(
+    sk: &Skeleton,
+    base: &[f32; MUSCLES],
+    s: &ReferencingStyle,
+    t_local: Point3<f32>,
+    r: &mut ChaCha8Rng,
+) -> ([f32; MUSCLES], f32) {
+    let mut pose = *base;
+    set_torso_turn(&mut pose, s.torso_turn_deg);
+    blend_hand(&mut pose, s.side, s.shape.fingers(), 1.0);
+    let a = s.side.arm_muscles();
+    pose[a + idx::FOREARM_STRETCH] = s.forearm_stretch;
+    pose[a + idx::FOREARM_TWIST] = match s.shape {
         HandShape::OpenPalm => r.random_range(0.3..0.7f32),
         _ => r.random_range(-0.15..0.15f32),
     };
-    let ua = Bone::upper_arm(side);
+    let ua = Bone::upper_arm(s.side);
     let shoulder = sk.chain(&pose, ua).0;
-    let to_target = t_local - shoulder;
+    let distance = (t_local - shoulder).norm();
     // Where the pointing line should go before the aiming error: the target, or for an
     // eye-aligned point the direction from the shoulder through a fingertip on the eye→target
     // line.
-    let aimed_at = if eye_aligned { eye_aligned_point(sk, &pose, side, t_local) } else { t_local };
+    let aimed_at = if s.eye_aligned { eye_aligned_point(sk, &pose, s.side, t_local) } else { t_local };
     // The aiming error is an angle seen from the pointing hand (from the shoulder when the
     // arm aims).
     aim_bone(sk, &mut pose, ua, aimed_at - shoulder);
-    let from = if arm_aimed { shoulder } else { sk.chain(&pose, shape.ray_bone(side)).0 };
+    let from = if s.arm_aimed { shoulder } else { sk.chain(&pose, s.shape.ray_bone(s.side)).0 };
     let along = aimed_at - from;
-    let aim = from + perturb(along.normalize(), aim_err) * along.norm();
-    if arm_aimed {
-        aim_with_arm(sk, &mut pose, side, aim, stretch);
-    } else if bent {
-        // Upper arm lower than the aim by the elbow angle, then the twist that lifts the
-        // forearm onto the aim.
+    let aim = from + perturb(along.normalize(), s.aim_error_deg) * along.norm();
+    if s.arm_aimed {
+        aim_with_arm(sk, &mut pose, s.side, aim, s.forearm_stretch);
+    } else {
+        point_hand(sk, &mut pose, s, shoulder, aim);
+    }
+    (pose, distance)
+}
+
+/// A straight or bent arm whose hand's ray goes through `aim`: the upper arm aimed (lower by
+/// the elbow's angle when bent, then the twist that lifts the forearm onto the aim), then a few
+/// solver steps over shoulder, arm and hand.
+fn point_hand(sk: &Skeleton, pose: &mut [f32; MUSCLES], s: &ReferencingStyle, shoulder: Point3<f32>, aim: Point3<f32>) {
+    let ua = Bone::upper_arm(s.side);
+    if s.bent_elbow {
         let aim_dir = (aim - shoulder).normalize();
-        let bend = (1.0 - stretch) * 80.0;
+        let bend = (1.0 - s.forearm_stretch) * 80.0;
         let axis = Vector3::y().cross(&aim_dir);
         let axis = if axis.norm() > 1e-3 { axis.normalize() } else { Vector3::x() };
         let down = UnitQuaternion::from_scaled_axis(axis * bend.to_radians()) * aim_dir;
-        aim_bone(sk, &mut pose, ua, down + Vector3::new(0.25 * side.sign(), 0.0, 0.0));
-        best_twist(sk, &mut pose, side, aim);
+        aim_bone(sk, pose, ua, down + Vector3::new(0.25 * s.side.sign(), 0.0, 0.0));
+        best_twist(sk, pose, s.side, aim);
     } else {
-        aim_bone(sk, &mut pose, ua, aim - shoulder);
+        aim_bone(sk, pose, ua, aim - shoulder);
     }
+    let a = s.side.arm_muscles();
     let params = [
         a + idx::ARM_DOWN_UP,
         a + idx::ARM_FRONT_BACK,
@@ -265,106 +329,126 @@ pub fn referencing_with(
         a + idx::HAND_IN_OUT,
     ];
     let stay = [0.02, 0.02, 0.05, 0.12, 0.12];
-    if !arm_aimed {
-        solve_arm(
-            sk,
-            &mut pose,
-            side,
-            &ArmGoal { ray: Some((shape.ray_bone(side), aim)), ..Default::default() },
-            &params,
-            &stay,
-            12,
-        );
+    let goal = ArmGoal { ray: Some((s.shape.ray_bone(s.side), aim)), ..Default::default() };
+    solve_arm(sk, pose, s.side, &goal, &params, &stay, 12);
+}
+
+/// Where the face goes: at the target, from the standing and from the pointing posture; and
+/// when (frames: on, its ramp, off, its fall).
+struct Gaze {
+    look_base: [f32; MUSCLES],
+    look_hold: [f32; MUSCLES],
+    on: u32,
+    ramp: f32,
+    off: u32,
+    fall: f32,
+}
+
+impl Gaze {
+    fn draw(
+        r: &mut ChaCha8Rng,
+        sk: &Skeleton,
+        base: &[f32; MUSCLES],
+        pose: &[f32; MUSCLES],
+        t_local: Point3<f32>,
+        distance: f32,
+        s: &ReferencingStyle,
+    ) -> Gaze {
+        let normal = |sd: f32| Normal::new(0.0f32, sd).expect("positive deviation");
+        let err = Vector3::new(normal(0.04).sample(r), normal(0.03).sample(r), 0.0) * distance;
+        let (mut look_base, mut look_hold) = (*base, *pose);
+        solve_gaze(sk, &mut look_base, t_local + err, 6);
+        solve_gaze(sk, &mut look_hold, t_local + err, 6);
+        let on = if r.random_bool(0.3) { 0 } else { s.lead.saturating_sub(r.random_range(0..12)) };
+        let ramp = r.random_range(5..11) as f32;
+        let end = s.lead + s.rise + s.hold;
+        let off = if r.random_bool(0.45) { FRAMES as u32 } else { (end + r.random_range(0..=s.ret + 10)).min(FRAMES as u32) };
+        let fall = r.random_range(6..13) as f32;
+        Gaze { look_base, look_hold, on, ramp, off, fall }
     }
+}
 
-    // Where the face goes: at the target, from the standing and from the pointing posture.
-    let gaze_err = Vector3::new(normal(0.04).sample(&mut r), normal(0.03).sample(&mut r), 0.0) * to_target.norm();
-    let mut look_base = base;
-    solve_gaze(sk, &mut look_base, t_local + gaze_err, 6);
-    let mut look_hold = pose;
-    solve_gaze(sk, &mut look_hold, t_local + gaze_err, 6);
-    let gaze_on = if r.random_bool(0.3) { 0 } else { lead.saturating_sub(r.random_range(0..12)) };
-    let gaze_ramp = r.random_range(5..11) as f32;
-    let end = lead + rise + hold;
-    let gaze_off =
-        if r.random_bool(0.45) { FRAMES as u32 } else { (end + r.random_range(0..=ret + 10)).min(FRAMES as u32) };
-    let gaze_fall = r.random_range(6..13) as f32;
+/// Tremor while holding, a little overshoot-and-settle after the rise.
+struct Hold {
+    tremor: [Wobble; 4],
+    settle: f32,
+}
 
-    // Tremor while holding, a little overshoot-and-settle after the rise.
-    let tremor_amp = r.random_range(0.003..0.01f32);
-    let tremor = [
-        Wobble::new(&mut r, tremor_amp, 6.0),
-        Wobble::new(&mut r, tremor_amp, 6.0),
-        Wobble::new(&mut r, 2.0 * tremor_amp, 5.0),
-        Wobble::new(&mut r, 0.015, 0.6),
-    ];
-    let settle = r.random_range(0.0..0.03f32);
+impl Hold {
+    fn draw(r: &mut ChaCha8Rng) -> Hold {
+        let amp = r.random_range(0.003..0.01f32);
+        let tremor = [
+            Wobble::new(r, amp, 6.0),
+            Wobble::new(r, amp, 6.0),
+            Wobble::new(r, 2.0 * amp, 5.0),
+            Wobble::new(r, 0.015, 0.6),
+        ];
+        Hold { tremor, settle: r.random_range(0.0..0.03f32) }
+    }
+}
 
-    let head = [idx::NECK_NOD, idx::NECK_TURN, idx::HEAD_NOD, idx::HEAD_TURN, idx::NECK_TILT, idx::HEAD_TILT];
-    let torso = [idx::SPINE_TWIST, idx::CHEST_TWIST, idx::UPPER_CHEST_TWIST];
-    let f = side.finger_muscles();
-    let (lead_f, rise_f, hold_f, ret_f) = (lead as f32, rise as f32, hold as f32, ret as f32);
-    let mut motion = Motion::constant(&base);
+const HEAD: [usize; 6] = [idx::NECK_NOD, idx::NECK_TURN, idx::HEAD_NOD, idx::HEAD_TURN, idx::NECK_TILT, idx::HEAD_TILT];
+const TORSO: [usize; 3] = [idx::SPINE_TWIST, idx::CHEST_TWIST, idx::UPPER_CHEST_TWIST];
+
+/// The 100 frames: from standing to the pointing pose and back on the style's timing, the face
+/// on its own, tremor and idle movement on top.
+fn animate(
+    base: &[f32; MUSCLES],
+    pose: &[f32; MUSCLES],
+    idle: &Idle,
+    s: &ReferencingStyle,
+    g: &Gaze,
+    hold: &Hold,
+) -> Motion {
+    let (a, f) = (s.side.arm_muscles(), s.side.finger_muscles());
+    let (lead, rise, held, ret) = (s.lead as f32, s.rise as f32, s.hold as f32, s.ret as f32);
+    let mut motion = Motion::constant(base);
     for t in 0..FRAMES {
         let x = t as f32;
-        let e_arm = envelope(x, lead_f, rise_f, lead_f + rise_f + hold_f, ret_f);
-        let e_hand = envelope(x, lead_f + 0.25 * rise_f, 0.7 * rise_f, lead_f + rise_f + hold_f - 2.0, 0.7 * ret_f);
+        let e_arm = envelope(x, lead, rise, lead + rise + held, ret);
+        let e_hand = envelope(x, lead + 0.25 * rise, 0.7 * rise, lead + rise + held - 2.0, 0.7 * ret);
         // Looking at the target from the start means looking at it in frame 0 already.
-        let e_gaze =
-            envelope(x, gaze_on as f32, if gaze_on == 0 { 0.0 } else { gaze_ramp }, gaze_off as f32, gaze_fall);
+        let e_gaze = envelope(x, g.on as f32, if g.on == 0 { 0.0 } else { g.ramp }, g.off as f32, g.fall);
         let m = motion.frame_mut(t);
-        for k in 0..9 {
-            m[a + k] = base[a + k] + (pose[a + k] - base[a + k]) * e_arm;
+        let towards = |i: usize, e: f32| base[i] + (pose[i] - base[i]) * e;
+        for i in (a..a + 9).chain(TORSO) {
+            m[i] = towards(i, e_arm);
         }
-        for &i in &torso {
-            m[i] = base[i] + (pose[i] - base[i]) * e_arm;
+        for i in f..f + 20 {
+            m[i] = towards(i, e_hand);
         }
-        for k in 0..20 {
-            m[f + k] = base[f + k] + (pose[f + k] - base[f + k]) * e_hand;
-        }
-        for &i in &head {
-            let look = look_base[i] + (look_hold[i] - look_base[i]) * e_arm;
+        for i in HEAD {
+            let look = g.look_base[i] + (g.look_hold[i] - g.look_base[i]) * e_arm;
             m[i] = base[i] + (look - base[i]) * e_gaze;
         }
-        // Overshoot just after the rise, settling during the hold; tremor while the arm is up.
-        let after_rise = x - (lead_f + rise_f);
-        if after_rise > -3.0 {
-            m[a + idx::ARM_DOWN_UP] += settle * (-(after_rise + 3.0) / 6.0).exp() * e_arm;
-        }
-        let held = e_arm * e_arm;
-        m[a + idx::ARM_DOWN_UP] += held * tremor[0].at(x);
-        m[a + idx::ARM_FRONT_BACK] += held * tremor[1].at(x);
-        m[a + idx::HAND_DOWN_UP] += held * tremor[2].at(x);
-        m[a + idx::ARM_TWIST] += held * tremor[3].at(x);
-        // The other arm moves a little with the body.
-        let o = side.other().arm_muscles();
-        m[o + idx::ARM_FRONT_BACK] -= 0.03 * e_arm;
-        m[o + idx::FOREARM_STRETCH] -= 0.05 * e_arm;
+        hold_and_sway(m, x, s, hold, lead + rise, e_arm);
         // Idle drift of the head is damped while the eyes are on the target.
-        let held_head = head.map(|i| m[i]);
+        let held_head = HEAD.map(|i| m[i]);
         idle.apply(m, x);
-        for (k, &i) in head.iter().enumerate() {
+        for (k, &i) in HEAD.iter().enumerate() {
             m[i] = held_head[k] + (m[i] - held_head[k]) * (1.0 - 0.7 * e_gaze);
         }
         clamp_pose(m);
     }
-    let style = ReferencingStyle {
-        side,
-        shape,
-        bent_elbow: bent,
-        forearm_stretch: stretch,
-        arm_aimed,
-        eye_aligned,
-        lead,
-        rise,
-        hold,
-        ret,
-        gaze: (gaze_on, gaze_off),
-        aim_error_deg: aim_err,
-        torso_turn_deg: torso_turn,
-        bearing_deg: bearing,
-    };
-    (motion, style)
+    motion
+}
+
+/// Overshoot just after the rise (ending at frame `risen`), settling during the hold; tremor
+/// while the arm is up; the other arm moving a little with the body.
+fn hold_and_sway(m: &mut [f32; MUSCLES], x: f32, s: &ReferencingStyle, hold: &Hold, risen: f32, e_arm: f32) {
+    let a = s.side.arm_muscles();
+    let after_rise = x - risen;
+    if after_rise > -3.0 {
+        m[a + idx::ARM_DOWN_UP] += hold.settle * (-(after_rise + 3.0) / 6.0).exp() * e_arm;
+    }
+    let held = e_arm * e_arm;
+    m[a + idx::ARM_DOWN_UP] += held * hold.tremor[0].at(x);
+    m[a + idx::ARM_FRONT_BACK] += held * hold.tremor[1].at(x);
+    m[a + idx::HAND_DOWN_UP] += held * hold.tremor[2].at(x);
+    m[a + idx::ARM_TWIST] += held * hold.tremor[3].at(x);
+    let o = s.side.other().arm_muscles();
+    m[o + idx::ARM_FRONT_BACK] -= 0.03 * e_arm;
+    m[o + idx::FOREARM_STRETCH] -= 0.05 * e_arm;
 }
 
 /// Turns spine, chest and upper chest together by `deg` (+ right).
