@@ -125,8 +125,8 @@ pub fn select(choice: DeviceChoice) -> Result<Device, NoCuda> {
 
 /// torch's CPU threads when the network runs on a GPU, unless `OMP_NUM_THREADS` says otherwise.
 /// The host's share of the work is small there, and torch's pool spins between its parallel
-/// sections on cores the workers render with: on an H100 with 16 workers, 16 threads made PPO
-/// updates 1.9× slower than 2 (docs/bench/log.md, "On the H100").
+/// sections on cores the workers render with, which slows the updates (docs/bench/log.md, "On
+/// the H100").
 pub const GPU_CPU_THREADS: i32 = 2;
 
 /// Prepares a device for work: on CUDA, cuDNN autotuning (our shapes are fixed per run) and
@@ -148,8 +148,7 @@ pub fn use_bf16(device: Device, mixed_precision: bool) -> bool {
 
 /// Flushes denormal floats to zero on this thread's CPU (x86-64 MXCSR FTZ + DAZ), as
 /// `torch.set_flush_denormal(True)`. Once a policy becomes nearly deterministic, its gradients and
-/// Adam's moments drift into denormals, which run tens of times slower on x86 CPUs (a smoke run
-/// slowed from ~800 to ~50 frames/s). Threads inherit the setting when created, so call it before
+/// Adam's moments drift into denormals, which run tens of times slower on x86 CPUs. Threads inherit the setting when created, so call it before
 /// torch starts its thread pool; harmless elsewhere.
 pub fn flush_denormals() {
     #[cfg(target_arch = "x86_64")]

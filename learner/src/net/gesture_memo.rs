@@ -1,8 +1,8 @@
 //! Acting's gesture parts, kept per env from one step to the next.
 //!
 //! An env shows the same 100 × 95 gesture from an episode's start until intervention switches
-//! on or off, yet acting would run the gesture network (9,500 wide) over all N envs at every step —
-//! at 64×64 on a CPU, a third of a step's forward. The memo keeps each env's part
+//! on or off, yet acting would run the gesture network (9,500 wide) over all N envs at every step,
+//! a large share of a step's forward at 64×64 on a CPU. The memo keeps each env's part
 //! ([`GestureNet::part`]: what the network reads of the gesture alone, the features themselves
 //! unless the pose joins after) and the gesture it came from, and recomputes only the envs whose
 //! gesture changed (compared element by element) or all of them when the network's weights

@@ -16,11 +16,9 @@ use nix::unistd::{Pid, getpid, getppid};
 /// at a barrier, then sleep, unless the user chose how they wait. Spinning long (libgomp's
 /// default: 300,000 spins, milliseconds) costs nothing on idle cores but, where anything else runs
 /// beside the learner (a build, a second training), the threads spin for a partner that is not
-/// scheduled: one training beside a build made 24–42 frames/s spinning and 370–400 waiting
-/// passively. Sleeping at once pays a wake-up at each of the update's many small operations:
-/// 30,000 spins first made the default 12% faster idle at 4 workers, and beside two busy
-/// processes about as fast as passive waiting (299 against 316 frames/s;
-/// docs/bench/log.md, "OpenMP's bounded spin").
+/// scheduled, and a training crawls. Sleeping at once pays a wake-up at each of the update's
+/// many small operations; a short spin first keeps an idle machine's speed and a busy one's
+/// (docs/bench/log.md, "OpenMP's bounded spin").
 pub fn learner_env() -> Vec<(&'static str, String)> {
     omp_waiting(|name| std::env::var_os(name).is_some())
 }

@@ -369,10 +369,8 @@ impl Crew {
     /// cores, in every worker. Once there are at least as many workers as cores, the processes
     /// fill the cores by themselves and the extra threads only add hand-offs and contention:
     /// each worker then rasterises in its own thread (`LP_NUM_THREADS=0`); with fewer workers
-    /// each gets its share of the cores. Measured with `orchestrator bench farm` (2 cores,
-    /// 224×224, random policy): 2 workers 1890–1930 frames/s in-thread against 1550–1770 with
-    /// one extra thread each; 20 workers 1690–1800 against 1490–1580. A user's `LP_NUM_THREADS`
-    /// wins; a GPU driver ignores the variable.
+    /// each gets its share of the cores (`orchestrator bench farm` with and without
+    /// `LP_NUM_THREADS=0` compares them). A user's `LP_NUM_THREADS` wins; a GPU driver ignores the variable.
     fn renderer_env(&self) -> Vec<(&'static str, String)> {
         if std::env::var_os(LP_THREADS_ENV).is_some() {
             return vec![];

@@ -166,7 +166,7 @@ fn render_to(rooms: &Rooms, frames: usize, size: u32, seed: u64, path: &Path) ->
 pub(crate) fn learner_command(bin_dir: Option<&Path>) -> anyhow::Result<(PathBuf, std::process::Command)> {
     let learner = crate::supervise::binaries::sibling_in(bin_dir, "learner")?;
     let mut learn = std::process::Command::new(&learner);
-    // passive waiting trained the encoder 3–4× faster on two busy cores (same weights)
+    // the learner's thread waiting (`child::learner_env`): the same weights, sooner on busy cores
     learn.envs(crate::supervise::child::learner_env());
     Ok((learner, learn))
 }

@@ -72,8 +72,8 @@ pub struct LiveArgs {
     pub no_token: bool,
     /// Sessions (tabs) run at once, at most; a tab beyond them is told the server is full. A
     /// session is its simulator in this process, a `learner act` a robot (two side by side) and,
-    /// with the camera on, the landmark model: 0.4 GB resident, 0.8 GB with the camera (a 64²
-    /// configs/tiny checkpoint), and up to a core while it runs; 4 suit two cores.
+    /// with the camera on, the landmark model: under a gigabyte with the camera (a configs/tiny
+    /// checkpoint; BENCHMARKS.md) and up to a core while it runs; 4 suit two cores.
     #[arg(long, default_value_t = NonZeroUsize::new(4).expect("not zero"))]
     pub max_sessions: NonZeroUsize,
     /// Serve plain HTTP beyond loopback instead of HTTPS (behind a TLS proxy, or on a network
