@@ -208,7 +208,10 @@ pub mod idx {
     pub const HEAD_NOD: usize = 12;
     pub const HEAD_TILT: usize = 13;
     pub const HEAD_TURN: usize = 14;
+    pub const RIGHT_EYE_DOWN_UP: usize = 17;
+    pub const RIGHT_EYE_IN_OUT: usize = 18;
     pub const JAW_CLOSE: usize = 19;
+    pub const JAW_LEFT_RIGHT: usize = 20;
     /// First muscle of the left leg block (Upper Leg Front-Back); the right leg is `+ 8`.
     pub const LEFT_LEG: usize = 21;
     pub const RIGHT_LEG: usize = 29;
@@ -230,6 +233,10 @@ pub mod idx {
     pub const UPPER_LEG_IN_OUT: usize = 1;
     pub const UPPER_LEG_TWIST: usize = 2;
     pub const LOWER_LEG_STRETCH: usize = 3;
+    pub const LOWER_LEG_TWIST: usize = 4;
+    pub const FOOT_UP_DOWN: usize = 5;
+    pub const FOOT_TWIST: usize = 6;
+    pub const TOES_UP_DOWN: usize = 7;
     /// First muscle of the left / right finger block (Thumb 1 Stretched); each finger has 4:
     /// 1 Stretched, Spread, 2 Stretched, 3 Stretched, in the order thumb, index, middle, ring, little.
     pub const LEFT_FINGERS: usize = 55;

@@ -23,7 +23,7 @@
 
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, Unit, UnitQuaternion, Vector3};
 
-use super::muscles::{MUSCLES, muscle_degrees};
+use super::muscles::{MUSCLES, idx, muscle_degrees};
 use crate::geometry::yaw_rotation;
 
 /// Number of humanoid bones (Unity's `HumanBodyBones`, without `LastBone`).
@@ -438,187 +438,222 @@ fn left_muscle(right: usize) -> usize {
     }
 }
 
+/// Bone definitions at a body's scale (lengths given for the reference height).
+struct Defs {
+    scale: f32,
+}
+
+impl Defs {
+    /// A bone under `parent`, at `offset` from its joint, reaching `tip`; no muscle yet.
+    fn bone(&self, parent: Bone, offset: Vector3<f32>, tip: Vector3<f32>) -> BoneDef {
+        BoneDef {
+            parent: Some(parent),
+            offset: offset * self.scale,
+            tip: tip * self.scale,
+            zero: UnitQuaternion::identity(),
+            twist_axis: tip.normalize(),
+            twist: None,
+            swing: [None, None],
+        }
+    }
+}
+
+/// Muscle `muscle` turning about `axis`.
+fn ma(muscle: usize, axis: Vector3<f32>) -> Option<MuscleAxis> {
+    Some(MuscleAxis { muscle, axis: axis.normalize() })
+}
+
+fn v(x: f32, y: f32, z: f32) -> Vector3<f32> {
+    Vector3::new(x, y, z)
+}
+
+/// The spine chain: twist about +y (+ = turn right), front-back about −x (+ = back),
+/// left-right about −z (+ = lean right); and the jaw.
+fn spine_and_head(d: &Defs) -> Vec<(Bone, BoneDef)> {
+    use Bone::*;
+    let (x, y, z) = (Vector3::x(), Vector3::y(), Vector3::z());
+    // bone, parent, offset, tip, its front-back muscle (left-right and twist follow it)
+    let spine = [
+        (Spine, Hips, 0.07, 0.13, idx::SPINE_FRONT_BACK),
+        (Chest, Spine, 0.13, 0.12, idx::CHEST_FRONT_BACK),
+        (UpperChest, Chest, 0.12, 0.17, idx::UPPER_CHEST_FRONT_BACK),
+        (Neck, UpperChest, 0.17, 0.085, idx::NECK_NOD),
+        (Head, Neck, 0.085, 0.17, idx::HEAD_NOD),
+    ];
+    let mut out: Vec<(Bone, BoneDef)> = spine
+        .into_iter()
+        .map(|(b, p, off, tip, m)| {
+            let mut def = d.bone(p, v(0.0, off, 0.0), v(0.0, tip, 0.0));
+            def.twist = ma(m + 2, y);
+            def.swing = [ma(m, -x), ma(m + 1, -z)];
+            (b, def)
+        })
+        .collect();
+    let mut jaw = d.bone(Head, v(0.0, 0.005, 0.02), v(0.0, -0.055, 0.065));
+    jaw.twist_axis = z;
+    jaw.swing = [ma(idx::JAW_CLOSE, -x), ma(idx::JAW_LEFT_RIGHT, y)];
+    out.push((Jaw, jaw));
+    out
+}
+
+/// The right eye, shoulder, upper and lower arm, and hand.
+fn right_eye_and_arm(d: &Defs) -> Vec<(Bone, BoneDef)> {
+    use Bone::*;
+    let (x, y, z) = (Vector3::x(), Vector3::y(), Vector3::z());
+    let arm = |k: usize| idx::RIGHT_ARM + k;
+    let mut eye = d.bone(Head, v(0.032, 0.075, 0.082), v(0.0, 0.0, 0.012));
+    eye.swing = [ma(idx::RIGHT_EYE_DOWN_UP, -x), ma(idx::RIGHT_EYE_IN_OUT, y)];
+    let mut sh = d.bone(UpperChest, v(0.025, 0.11, 0.0), v(0.145, 0.01, 0.0));
+    sh.twist_axis = x;
+    sh.swing = [ma(arm(idx::SHOULDER_DOWN_UP), z), ma(arm(idx::SHOULDER_FRONT_BACK), y)];
+    let mut ua = d.bone(RightShoulder, v(0.145, 0.01, 0.0), v(0.28, 0.0, 0.0));
+    // Unity's upper-arm neutral: 48.65° about (0, 0.593, 0.805) in its axes.
+    ua.zero = UnitQuaternion::from_axis_angle(&Unit::new_normalize(v(0.0, -0.593, -0.805)), 48.65f32.to_radians());
+    ua.twist = ma(arm(idx::ARM_TWIST), -x);
+    ua.swing = [ma(arm(idx::ARM_DOWN_UP), z), ma(arm(idx::ARM_FRONT_BACK), y)];
+    let mut la = d.bone(RightUpperArm, v(0.28, 0.0, 0.0), v(0.25, 0.0, 0.0));
+    la.zero = deg(v(0.0, -80.0, 0.0));
+    la.twist = ma(arm(idx::FOREARM_TWIST), -x);
+    la.swing = [ma(arm(idx::FOREARM_STRETCH), y), None];
+    let mut hand = d.bone(RightLowerArm, v(0.25, 0.0, 0.0), v(0.097, 0.0, 0.0));
+    // Hand In-Out +1 bends the hand towards the thumb (palm down: forward), "out" as
+    // abduction, the sense of Eye and Upper Leg In-Out here; the GOND recording holds it at
+    // 0.11 while pointing, too little to tell the sign from its rays.
+    hand.swing = [ma(arm(idx::HAND_DOWN_UP), z), ma(arm(idx::HAND_IN_OUT), -y)];
+    vec![(RightEye, eye), (RightShoulder, sh), (RightUpperArm, ua), (RightLowerArm, la), (RightHand, hand)]
+}
+
+/// The right hand's four fingers: knuckle offsets from the wrist and phalanx lengths (palm
+/// down, thumb forward). Stretched about +z (+ = straight), spread about ∓y (index/middle fan
+/// towards the thumb, ring/little towards the little-finger side).
+fn right_fingers(d: &Defs) -> Vec<(Bone, BoneDef)> {
+    const ZERO_FLEX: [f32; 3] = [40.0, 45.0, 40.0];
+    let fingers = [
+        (Finger::Index, v(0.094, 0.0, 0.028), [0.043, 0.025, 0.021], -1.0),
+        (Finger::Middle, v(0.097, 0.0, 0.008), [0.047, 0.029, 0.022], -1.0),
+        (Finger::Ring, v(0.092, 0.0, -0.012), [0.044, 0.027, 0.021], 1.0),
+        (Finger::Little, v(0.083, -0.003, -0.031), [0.034, 0.020, 0.019], 1.0),
+    ];
+    let z = Vector3::z();
+    let mut out = Vec::with_capacity(12);
+    for (f, knuckle, len, spread_sign) in fingers {
+        // its four muscles: 1 Stretched, Spread, 2 Stretched, 3 Stretched
+        let m0 = idx::RIGHT_FINGERS + 4 * f as usize;
+        let (mut prev, mut off) = (Bone::RightHand, knuckle);
+        for (ph, zero_flex) in ZERO_FLEX.into_iter().enumerate() {
+            let b = Bone::finger(Side::Right, f, ph);
+            let mut def = d.bone(prev, off, v(len[ph], 0.0, 0.0));
+            def.zero = deg(v(0.0, 0.0, -zero_flex));
+            def.swing = match ph {
+                0 => [ma(m0, z), ma(m0 + 1, v(0.0, spread_sign, 0.0))],
+                _ => [ma(m0 + 1 + ph, z), None],
+            };
+            out.push((b, def));
+            (prev, off) = (b, v(len[ph], 0.0, 0.0));
+        }
+    }
+    out
+}
+
+/// The right thumb: it leaves the wrist forward and a little under the palm, curls across the
+/// palm towards the little finger, and spreads away from the palm.
+fn right_thumb(d: &Defs) -> Vec<(Bone, BoneDef)> {
+    let dt = v(0.78, -0.28, 0.56).normalize();
+    let curl_to = v(0.05, -0.35, -0.94).normalize();
+    let flex = dt.cross(&curl_to).normalize();
+    let ext = -flex;
+    let mut spread = dt.cross(&ext).normalize();
+    if spread.cross(&dt).y > 0.0 {
+        spread = -spread;
+    }
+    let m0 = idx::RIGHT_FINGERS;
+    let (mut prev, mut off) = (Bone::RightHand, v(0.022, -0.012, 0.022));
+    let mut out = Vec::with_capacity(3);
+    for (ph, len) in [0.046, 0.032, 0.028].into_iter().enumerate() {
+        let b = Bone::finger(Side::Right, Finger::Thumb, ph);
+        let mut def = d.bone(prev, off, dt * len);
+        def.twist_axis = dt;
+        if ph == 0 {
+            def.swing = [ma(m0, ext), ma(m0 + 1, spread)];
+        } else {
+            def.zero = UnitQuaternion::from_scaled_axis(ext * (-30.0f32).to_radians());
+            def.swing = [ma(m0 + 1 + ph, ext), None];
+        }
+        out.push((b, def));
+        (prev, off) = (b, dt * len);
+    }
+    out
+}
+
+/// The right leg: front-back about +x (+ = back), in-out about +z (+ = out), twist about +y
+/// (+ = out); knee stretch about −x (+ = straight); foot/toes up-down about +x (+ = down).
+fn right_leg(d: &Defs) -> Vec<(Bone, BoneDef)> {
+    use Bone::*;
+    let (x, y, z) = (Vector3::x(), Vector3::y(), Vector3::z());
+    let leg = |k: usize| idx::RIGHT_LEG + k;
+    let mut ul = d.bone(Hips, v(0.09, -0.065, 0.0), v(0.0, -0.42, 0.0));
+    ul.zero = deg(v(-30.0, 0.0, 0.0));
+    ul.twist = ma(leg(idx::UPPER_LEG_TWIST), y);
+    ul.swing = [ma(leg(idx::UPPER_LEG_FRONT_BACK), x), ma(leg(idx::UPPER_LEG_IN_OUT), z)];
+    let mut ll = d.bone(RightUpperLeg, v(0.0, -0.42, 0.0), v(0.0, -0.40, 0.0));
+    ll.zero = deg(v(80.0, 0.0, 0.0));
+    ll.twist = ma(leg(idx::LOWER_LEG_TWIST), y);
+    ll.swing = [ma(leg(idx::LOWER_LEG_STRETCH), -x), None];
+    let mut foot = d.bone(RightLowerLeg, v(0.0, -0.40, 0.0), v(0.0, -0.045, 0.13));
+    foot.twist_axis = z;
+    foot.swing = [ma(leg(idx::FOOT_UP_DOWN), x), ma(leg(idx::FOOT_TWIST), y)];
+    let mut toes = d.bone(RightFoot, v(0.0, -0.045, 0.13), v(0.0, 0.0, 0.055));
+    toes.swing = [ma(leg(idx::TOES_UP_DOWN), x), None];
+    vec![(RightUpperLeg, ul), (RightLowerLeg, ll), (RightFoot, foot), (RightToes, toes)]
+}
+
+/// A right-side bone's left twin: mirrored across the body's plane, on the left's muscles.
+fn mirrored(d: &BoneDef) -> BoneDef {
+    let mirror_axis = |m: Option<MuscleAxis>| m.map(|m| MuscleAxis { muscle: left_muscle(m.muscle), axis: mirror_a(m.axis) });
+    let (axis, angle) = d.zero.axis_angle().map(|(a, t)| (a.into_inner(), t)).unwrap_or((Vector3::x(), 0.0));
+    BoneDef {
+        parent: d.parent.map(Bone::mirror),
+        offset: mirror_p(d.offset),
+        tip: mirror_p(d.tip),
+        zero: UnitQuaternion::from_scaled_axis(mirror_a(axis) * angle),
+        twist_axis: mirror_p(d.twist_axis),
+        twist: mirror_axis(d.twist),
+        swing: [mirror_axis(d.swing[0]), mirror_axis(d.swing[1])],
+    }
+}
+
 fn deg(v: Vector3<f32>) -> UnitQuaternion<f32> {
     UnitQuaternion::from_scaled_axis(v.map(f32::to_radians))
 }
 
 impl Skeleton {
-    /// An adult skeleton of `height` metres (crown to sole).
+    /// An adult skeleton of `height` metres (crown to sole): the spine and head, then the right
+    /// side (an eye, the arm, the fingers, the thumb, the leg) and its mirror image.
     pub fn new(height: f32) -> Skeleton {
-        let s = height / REFERENCE_HEIGHT;
-        let x = Vector3::x();
-        let y = Vector3::y();
-        let z = Vector3::z();
-        let v = Vector3::new;
-        let ma = |muscle: usize, axis: Vector3<f32>| Some(MuscleAxis { muscle, axis: axis.normalize() });
-        let def = |parent: Bone, offset: Vector3<f32>, tip: Vector3<f32>| BoneDef {
-            parent: Some(parent),
-            offset: offset * s,
-            tip: tip * s,
-            zero: UnitQuaternion::identity(),
-            twist_axis: tip.normalize(),
-            twist: None,
-            swing: [None, None],
-        };
+        let d = Defs { scale: height / REFERENCE_HEIGHT };
         let mut bones = [BoneDef {
             parent: None,
             offset: Vector3::zeros(),
-            tip: v(0.0, 0.07, 0.0) * s,
+            tip: Vector3::new(0.0, 0.07, 0.0) * d.scale,
             zero: UnitQuaternion::identity(),
-            twist_axis: y,
+            twist_axis: Vector3::y(),
             twist: None,
             swing: [None, None],
         }; BONES];
-        let mut set = |b: Bone, d: BoneDef| bones[b.index()] = d;
-        use Bone::*;
-
-        // Spine chain: twist about +y (+ = turn right), front-back about −x (+ = back),
-        // left-right about −z (+ = lean right).
-        let spine = [
-            (Spine, Hips, 0.07, 0.13, 0),
-            (Chest, Spine, 0.13, 0.12, 3),
-            (UpperChest, Chest, 0.12, 0.17, 6),
-            (Neck, UpperChest, 0.17, 0.085, 9),
-            (Head, Neck, 0.085, 0.17, 12),
-        ];
-        for (b, p, off, tip, m) in spine {
-            let mut d = def(p, v(0.0, off, 0.0), v(0.0, tip, 0.0));
-            d.twist = ma(m + 2, y);
-            d.swing = [ma(m, -x), ma(m + 1, -z)];
-            set(b, d);
+        for (b, def) in spine_and_head(&d) {
+            bones[b.index()] = def;
         }
-        let mut jaw = def(Head, v(0.0, 0.005, 0.02), v(0.0, -0.055, 0.065));
-        jaw.twist_axis = z;
-        jaw.swing = [ma(19, -x), ma(20, y)];
-        set(Jaw, jaw);
-
-        // The right side; the left is its mirror image.
-        let mut right: Vec<(Bone, BoneDef)> = Vec::with_capacity(27);
-        let mut eye = def(Head, v(0.032, 0.075, 0.082), v(0.0, 0.0, 0.012));
-        eye.swing = [ma(17, -x), ma(18, y)];
-        right.push((RightEye, eye));
-
-        let mut sh = def(UpperChest, v(0.025, 0.11, 0.0), v(0.145, 0.01, 0.0));
-        sh.twist_axis = x;
-        sh.swing = [ma(46, z), ma(47, y)];
-        right.push((RightShoulder, sh));
-        let mut ua = def(RightShoulder, v(0.145, 0.01, 0.0), v(0.28, 0.0, 0.0));
-        // Unity's upper-arm neutral: 48.65° about (0, 0.593, 0.805) in its axes.
-        ua.zero = UnitQuaternion::from_axis_angle(&Unit::new_normalize(v(0.0, -0.593, -0.805)), 48.65f32.to_radians());
-        ua.twist = ma(50, -x);
-        ua.swing = [ma(48, z), ma(49, y)];
-        right.push((RightUpperArm, ua));
-        let mut la = def(RightUpperArm, v(0.28, 0.0, 0.0), v(0.25, 0.0, 0.0));
-        la.zero = deg(v(0.0, -80.0, 0.0));
-        la.twist = ma(52, -x);
-        la.swing = [ma(51, y), None];
-        right.push((RightLowerArm, la));
-        let mut hand = def(RightLowerArm, v(0.25, 0.0, 0.0), v(0.097, 0.0, 0.0));
-        // Hand In-Out +1 bends the hand towards the thumb (palm down: forward), "out" as
-        // abduction, the sense of Eye and Upper Leg In-Out here; the GOND recording holds it at
-        // 0.11 (4.5°) while pointing, too little to tell the sign from its rays (its hand ray
-        // is 41.6° off the target with this sign, 40.9° with the other).
-        hand.swing = [ma(53, z), ma(54, -y)];
-        right.push((RightHand, hand));
-
-        // Fingers: knuckle offsets from the wrist and phalanx lengths (palm down, thumb forward).
-        // Stretched about +z (+ = straight), spread about ∓y (index/middle fan towards the
-        // thumb, ring/little towards the little-finger side).
-        let fingers = [
-            (Finger::Index, v(0.094, 0.0, 0.028), [0.043, 0.025, 0.021], -1.0),
-            (Finger::Middle, v(0.097, 0.0, 0.008), [0.047, 0.029, 0.022], -1.0),
-            (Finger::Ring, v(0.092, 0.0, -0.012), [0.044, 0.027, 0.021], 1.0),
-            (Finger::Little, v(0.083, -0.003, -0.031), [0.034, 0.020, 0.019], 1.0),
-        ];
-        const FINGER_ZERO_FLEX: [f32; 3] = [40.0, 45.0, 40.0];
-        for (f, knuckle, len, spread_sign) in fingers {
-            let m0 = 75 + 4 * f as usize;
-            let mut prev = RightHand;
-            let mut off = knuckle;
-            for ph in 0..3 {
-                let b = Bone::finger(Side::Right, f, ph);
-                let mut d = def(prev, off, v(len[ph], 0.0, 0.0));
-                d.zero = deg(v(0.0, 0.0, -FINGER_ZERO_FLEX[ph]));
-                d.swing = if ph == 0 {
-                    [ma(m0, z), ma(m0 + 1, v(0.0, spread_sign, 0.0))]
-                } else {
-                    [ma(m0 + 1 + ph, z), None]
-                };
-                right.push((b, d));
-                prev = b;
-                off = v(len[ph], 0.0, 0.0);
-            }
+        let right = [right_eye_and_arm(&d), right_fingers(&d), right_thumb(&d), right_leg(&d)].concat();
+        for (b, def) in right {
+            bones[b.mirror().index()] = mirrored(&def);
+            bones[b.index()] = def;
         }
-        // Thumb: leaves the wrist forward and a little under the palm; it curls across the
-        // palm towards the little finger, and spreads away from the palm.
-        let dt = v(0.78, -0.28, 0.56).normalize();
-        let curl_to = v(0.05, -0.35, -0.94).normalize();
-        let flex = dt.cross(&curl_to).normalize();
-        let ext = -flex;
-        let mut spread = dt.cross(&ext).normalize();
-        if spread.cross(&dt).y > 0.0 {
-            spread = -spread;
-        }
-        let thumb_len = [0.046, 0.032, 0.028];
-        let mut prev = RightHand;
-        let mut off = v(0.022, -0.012, 0.022);
-        for (ph, len) in thumb_len.into_iter().enumerate() {
-            let b = Bone::finger(Side::Right, Finger::Thumb, ph);
-            let mut d = def(prev, off, dt * len);
-            d.twist_axis = dt;
-            if ph == 0 {
-                d.swing = [ma(75, ext), ma(76, spread)];
-            } else {
-                d.zero = UnitQuaternion::from_scaled_axis(ext * (-30.0f32).to_radians());
-                d.swing = [ma(76 + ph, ext), None];
-            }
-            right.push((b, d));
-            prev = b;
-            off = dt * len;
-        }
-
-        // Legs: front-back about +x (+ = back), in-out about +z (+ = out), twist about +y
-        // (+ = out); knee stretch about −x (+ = straight); foot/toes up-down about +x (+ = down).
-        let mut ul = def(Hips, v(0.09, -0.065, 0.0), v(0.0, -0.42, 0.0));
-        ul.zero = deg(v(-30.0, 0.0, 0.0));
-        ul.twist = ma(31, y);
-        ul.swing = [ma(29, x), ma(30, z)];
-        right.push((RightUpperLeg, ul));
-        let mut ll = def(RightUpperLeg, v(0.0, -0.42, 0.0), v(0.0, -0.40, 0.0));
-        ll.zero = deg(v(80.0, 0.0, 0.0));
-        ll.twist = ma(33, y);
-        ll.swing = [ma(32, -x), None];
-        right.push((RightLowerLeg, ll));
-        let mut foot = def(RightLowerLeg, v(0.0, -0.40, 0.0), v(0.0, -0.045, 0.13));
-        foot.twist_axis = z;
-        foot.swing = [ma(34, x), ma(35, y)];
-        right.push((RightFoot, foot));
-        let mut toes = def(RightFoot, v(0.0, -0.045, 0.13), v(0.0, 0.0, 0.055));
-        toes.swing = [ma(36, x), None];
-        right.push((RightToes, toes));
-
-        for (b, d) in right {
-            let mirror_axis =
-                |m: Option<MuscleAxis>| m.map(|m| MuscleAxis { muscle: left_muscle(m.muscle), axis: mirror_a(m.axis) });
-            let (axis, angle) = d.zero.axis_angle().map(|(a, t)| (a.into_inner(), t)).unwrap_or((x, 0.0));
-            let left = BoneDef {
-                parent: d.parent.map(Bone::mirror),
-                offset: mirror_p(d.offset),
-                tip: mirror_p(d.tip),
-                zero: UnitQuaternion::from_scaled_axis(mirror_a(axis) * angle),
-                twist_axis: mirror_p(d.twist_axis),
-                twist: mirror_axis(d.twist),
-                swing: [mirror_axis(d.swing[0]), mirror_axis(d.swing[1])],
-            };
-            set(b, d);
-            set(b.mirror(), left);
-        }
-
+        let s = d.scale;
         Skeleton {
             height,
             bones,
-            sole_foot: v(0.0, -0.075, -0.045) * s,
-            sole_toes: [v(0.0, -0.03, 0.0) * s, v(0.0, -0.03, 0.055) * s],
+            sole_foot: Vector3::new(0.0, -0.075, -0.045) * s,
+            sole_toes: [Vector3::new(0.0, -0.03, 0.0) * s, Vector3::new(0.0, -0.03, 0.055) * s],
         }
     }
 
