@@ -280,7 +280,8 @@ fn eventually(why: &str, mut what: impl FnMut() -> bool) {
 /// Whether Chromium and chromedriver are here; under CI, or where setup.sh installed them, they must be.
 pub(crate) fn browser_ready() -> bool {
     let found = ["/usr/bin/chromium", "/usr/bin/chromedriver"].iter().all(|p| Path::new(p).is_file());
-    let required = std::env::var_os("CI").is_some() || std::env::var("GESTHOR_BROWSER_REQUIRED").is_ok_and(|v| v == "1");
+    let required =
+        std::env::var_os("CI").is_some() || std::env::var("GESTHOR_BROWSER_REQUIRED").is_ok_and(|v| v == "1");
     if !found && required {
         panic!("chromium or chromedriver is missing, but CI or scripts/setup.sh installs them");
     }

@@ -63,7 +63,8 @@ fn lines(path: &Path) -> Vec<Value> {
 /// 0.25 m ahead (none when blocked), or 15° either way.
 fn check_path(steps: &[Value], episode: &Path) {
     for pair in steps.windows(2) {
-        let pose = |s: &Value| -> Vec<f64> { s["robot"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect() };
+        let pose =
+            |s: &Value| -> Vec<f64> { s["robot"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect() };
         let (a, b) = (pose(&pair[0]), pose(&pair[1]));
         let moved = (b[0] - a[0]).hypot(b[1] - a[1]);
         let turned = ((b[2] - a[2] + 540.0) % 360.0) - 180.0;
@@ -73,7 +74,12 @@ fn check_path(steps: &[Value], episode: &Path) {
             2 => moved < 0.01 && (turned - 15.0).abs() < 1.0,
             a => panic!("{}: action {a} before the episode's end", episode.display()),
         };
-        assert!(ok, "{}: after action {} the robot moved {moved:.3} m and turned {turned:.2}°", episode.display(), pair[0]["action"]);
+        assert!(
+            ok,
+            "{}: after action {} the robot moved {moved:.3} m and turned {turned:.2}°",
+            episode.display(),
+            pair[0]["action"]
+        );
     }
 }
 
@@ -94,7 +100,8 @@ fn the_node_drives_gesthors_robot_closed_loop_and_each_episode_is_judged() {
         .unwrap();
     let said = String::from_utf8_lossy(&sim.stderr);
     assert!(sim.status.success(), "robot sim failed:\n{said}");
-    let summary: Value = serde_json::from_str(&std::fs::read_to_string(out.path().join("sim/summary.json")).unwrap()).unwrap();
+    let summary: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("sim/summary.json")).unwrap()).unwrap();
     assert_eq!(summary["episodes"], 3, "{summary}");
     for n in 1..=3 {
         let dir = out.path().join(format!("sim/episode-{n:03}"));
@@ -122,21 +129,26 @@ fn write_frames(dir: &Path) {
     cfg.run.scenes.clear();
     cfg.run.max_programs = None;
     (cfg.env.width, cfg.env.height, cfg.env.envs_per_worker) = (640, 480, 1);
-    let spec = PoolSpec { worker_id: 0, generation: 0, programs: ProgramSource::Sequence(vec![0]), expert_hints: false };
+    let spec =
+        PoolSpec { worker_id: 0, generation: 0, programs: ProgramSource::Sequence(vec![0]), expert_hints: false };
     let mut pool = EnvPool::new(&cfg, spec).unwrap();
     let shape = ObsShape::new(1, 640, 480);
     let mut buf = PayloadBuf::new(&pool.layout());
     pool.reset(buf.bytes_mut()).unwrap();
     let view = ObsView::new(shape, &buf.bytes()[..shape.layout.total_len as usize]).unwrap();
     std::fs::write(dir.join("rgb.bin"), view.rgb(0)).unwrap();
-    let mm: Vec<u8> =
-        view.depth(0).iter().flat_map(|&v| ((worker::camera::decode_depth(v) * 1000.0).round() as u16).to_le_bytes()).collect();
+    let mm: Vec<u8> = view
+        .depth(0)
+        .iter()
+        .flat_map(|&v| ((worker::camera::decode_depth(v) * 1000.0).round() as u16).to_le_bytes())
+        .collect();
     std::fs::write(dir.join("depth.bin"), mm).unwrap();
     let env = pool.env(0).unwrap();
     let muscles: Vec<u8> = env.perceived().unwrap().as_flat().iter().flat_map(|v| v.to_le_bytes()).collect();
     std::fs::write(dir.join("gesture.bin"), muscles).unwrap();
     let p = &env.program;
-    let (x, y, yaw) = orchestrator::commands::robot::sim::floor_pose(p.human_pos[0], p.human_pos[2], p.human_yaw).to_planar();
+    let (x, y, yaw) =
+        orchestrator::commands::robot::sim::floor_pose(p.human_pos[0], p.human_pos[2], p.human_yaw).to_planar();
     let meta = serde_json::json!({"width": 640, "height": 480, "fov_deg": cfg.env.fov_deg, "target": p.target.name(), "person": [x, y, yaw]});
     std::fs::write(dir.join("meta.json"), meta.to_string()).unwrap();
 }
@@ -160,7 +172,8 @@ fn cyclone_dds_drives_the_node_which_holds_still_on_bad_and_stale_input() {
     assert!(peer.status.success(), "the Cyclone DDS robot failed:\n{said}\nthe node:\n{log}");
     let seen: Value = serde_json::from_slice(&peer.stdout).unwrap();
     let phase = |p: &str, k: &str| seen[p][k].as_u64().unwrap();
-    let held = |p: &str, what: &str| seen[p]["holding"].as_array().unwrap().iter().any(|h| h.as_str().unwrap().contains(what));
+    let held =
+        |p: &str, what: &str| seen[p]["holding"].as_array().unwrap().iter().any(|h| h.as_str().unwrap().contains(what));
     // good input: the node decides and drives
     assert!(phase("good", "decisions") >= 2 && phase("good", "moving_commands") > 0, "{seen}\n{log}");
     // an image of another encoding: one line why, and not one moving command after it

@@ -7,7 +7,8 @@ use clap::{Parser, Subcommand};
 use tracing_subscriber::Layer;
 
 use orchestrator::commands::{
-    bench, dataset, encoder, eval, follow, gesture, hosts, live, model, program, render, robot, soak, study, up, workers,
+    bench, dataset, encoder, eval, follow, gesture, hosts, live, model, program, render, robot, soak, study, up,
+    workers,
 };
 
 #[derive(Parser)]

@@ -347,7 +347,8 @@ mod tests {
 
     #[test]
     fn lr_decays_linearly_to_zero() {
-        let cfg = farm::config::RunConfig::from_toml("[run]\nmethod = \"both\"\ntotal_frames = 1000\n", "x.toml").unwrap();
+        let cfg =
+            farm::config::RunConfig::from_toml("[run]\nmethod = \"both\"\ntotal_frames = 1000\n", "x.toml").unwrap();
         let lr = |frames| lr_at(&cfg.ppo, cfg.run.total_frames, frames);
         assert_eq!(lr(0), 3e-4);
         assert!((lr(250) - 2.25e-4).abs() < 1e-12);

@@ -442,7 +442,8 @@ impl Server<'_> {
     /// One action in range per env of the batch, or the policy is broken.
     fn check(&self, actions: &[u8], envs: usize) -> Result<(), ServeError> {
         if actions.len() != envs || actions.iter().any(|&a| a as usize >= action::COUNT) {
-            let why = anyhow::anyhow!("returned {} actions (values < {}) for {envs} envs", actions.len(), action::COUNT);
+            let why =
+                anyhow::anyhow!("returned {} actions (values < {}) for {envs} envs", actions.len(), action::COUNT);
             return Err(self.policy_error(why));
         }
         Ok(())

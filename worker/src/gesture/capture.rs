@@ -552,7 +552,13 @@ pub fn landmarks_of(sk: &Skeleton, m: &[f32; MUSCLES], t: f32, camera: &Matrix3<
         let wrist = cam(pose.position(Bone::hand(side)));
         hand_points(&pose, side).iter().map(|p| ((wrist + camera * p) * 1000.0).into()).collect()
     };
-    LandmarkFrame { t, pose: Some(lm), left_hand: Some(hand(Side::Left)), right_hand: Some(hand(Side::Right)), pose_image: None }
+    LandmarkFrame {
+        t,
+        pose: Some(lm),
+        left_hand: Some(hand(Side::Left)),
+        right_hand: Some(hand(Side::Right)),
+        pose_image: None,
+    }
 }
 
 #[cfg(test)]

@@ -362,7 +362,8 @@ impl Gaze {
         let on = if r.random_bool(0.3) { 0 } else { s.lead.saturating_sub(r.random_range(0..12)) };
         let ramp = r.random_range(5..11) as f32;
         let end = s.lead + s.rise + s.hold;
-        let off = if r.random_bool(0.45) { FRAMES as u32 } else { (end + r.random_range(0..=s.ret + 10)).min(FRAMES as u32) };
+        let off =
+            if r.random_bool(0.45) { FRAMES as u32 } else { (end + r.random_range(0..=s.ret + 10)).min(FRAMES as u32) };
         let fall = r.random_range(6..13) as f32;
         Gaze { look_base, look_hold, on, ramp, off, fall }
     }

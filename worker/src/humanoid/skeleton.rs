@@ -609,7 +609,8 @@ fn right_leg(d: &Defs) -> Vec<(Bone, BoneDef)> {
 
 /// A right-side bone's left twin: mirrored across the body's plane, on the left's muscles.
 fn mirrored(d: &BoneDef) -> BoneDef {
-    let mirror_axis = |m: Option<MuscleAxis>| m.map(|m| MuscleAxis { muscle: left_muscle(m.muscle), axis: mirror_a(m.axis) });
+    let mirror_axis =
+        |m: Option<MuscleAxis>| m.map(|m| MuscleAxis { muscle: left_muscle(m.muscle), axis: mirror_a(m.axis) });
     let (axis, angle) = d.zero.axis_angle().map(|(a, t)| (a.into_inner(), t)).unwrap_or((Vector3::x(), 0.0));
     BoneDef {
         parent: d.parent.map(Bone::mirror),

@@ -308,11 +308,20 @@ pub fn build_parts(
     let mut b = Builder { pos, rot: yaw_rotation(yaw), size, color, id, parts: Vec::new() };
     use Category::*;
     match category {
-        Apple | Tomato | Potato | Bread | ButterKnife | Knife | Fork | Spoon | Cup | Plate | PaperTowelRoll | ToiletPaper => kitchen_item(&mut b, category, color, style),
-        RemoteControl | AlarmClock | TissueBox | Newspaper | Laptop | DeskLamp | FloorLamp | Box => small_item(&mut b, category, color, style),
-        Chair | ArmChair | Sofa | DiningTable | CoffeeTable | SideTable | Desk | Bed | Rug => seat_or_table(&mut b, category, color, style),
-        CounterTop | Dresser | TvStand | Shelf | Fridge | Stove | Sink | Television => cabinet_or_appliance(&mut b, category, color, style),
-        Window | Poster | Mirror | Door | HandTowelHolder | TowelHolder | ToiletPaperHanger | HandTowel | Towel => wall_item(&mut b, category, color, style),
+        Apple | Tomato | Potato | Bread | ButterKnife | Knife | Fork | Spoon | Cup | Plate | PaperTowelRoll
+        | ToiletPaper => kitchen_item(&mut b, category, color, style),
+        RemoteControl | AlarmClock | TissueBox | Newspaper | Laptop | DeskLamp | FloorLamp | Box => {
+            small_item(&mut b, category, color, style)
+        }
+        Chair | ArmChair | Sofa | DiningTable | CoffeeTable | SideTable | Desk | Bed | Rug => {
+            seat_or_table(&mut b, category, color, style)
+        }
+        CounterTop | Dresser | TvStand | Shelf | Fridge | Stove | Sink | Television => {
+            cabinet_or_appliance(&mut b, category, color, style)
+        }
+        Window | Poster | Mirror | Door | HandTowelHolder | TowelHolder | ToiletPaperHanger | HandTowel | Towel => {
+            wall_item(&mut b, category, color, style)
+        }
         Plunger | ShowerCurtain | ShowerDoor | Toilet | Bathtub => bathroom_fixture(&mut b, category, color),
     }
     if category == Rug || category == ShowerCurtain {

@@ -28,9 +28,9 @@ mod passes;
 mod plan;
 
 pub use args::EvalArgs;
+use plan::Plan;
 pub(crate) use plan::locate;
 pub use plan::{assign, choose_programs};
-use plan::Plan;
 
 pub use passes::read_episodes;
 use passes::{first_headings, pass_trajectories};
@@ -85,8 +85,13 @@ fn report(
     timing: &[(&str, usize, f64)],
 ) -> anyhow::Result<()> {
     let (label, index, out) = (&plan.label, &plan.index, &plan.out);
-    let evaluation =
-        Evaluation { label: label.clone(), split: plan.split.name(), programs: index, passes, dts_threshold: a.dts_threshold };
+    let evaluation = Evaluation {
+        label: label.clone(),
+        split: plan.split.name(),
+        programs: index,
+        passes,
+        dts_threshold: a.dts_threshold,
+    };
     let md = tables_markdown(plan, a, &evaluation, timing)?;
     farm::files::write_atomic(&out.join("tables.md"), md.as_bytes())?;
     farm::files::write_atomic(&out.join("tables.csv"), evaluation.csv().as_bytes())?;

@@ -34,7 +34,8 @@ pub(super) fn run_pass(plan: &Plan, mode: EvalMode, workers: usize) -> anyhow::R
     }
     let t = Instant::now();
     let mut crew = Crew::start(spec)?;
-    let bar = Bar::new(&format!("eval {}", mode.name()), plan.programs.len() as u64, "episodes", Duration::from_secs(10));
+    let bar =
+        Bar::new(&format!("eval {}", mode.name()), plan.programs.len() as u64, "episodes", Duration::from_secs(10));
     let mut polled = Instant::now();
     while crew.tick()? == CrewState::Running {
         if polled.elapsed() >= Duration::from_millis(500) {

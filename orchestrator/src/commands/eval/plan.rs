@@ -53,7 +53,8 @@ impl Plan {
         let modes = modes_for(&cfg, baseline, &a.modes)?;
         let default_label = if a.expert { "Expert (shortest path)" } else { cfg.run.method.label() };
         let greedy = a.greedy && !baseline;
-        let label = a.label.clone().unwrap_or_else(|| format!("{default_label}{}", if greedy { ", greedy" } else { "" }));
+        let label =
+            a.label.clone().unwrap_or_else(|| format!("{default_label}{}", if greedy { ", greedy" } else { "" }));
         // An explicit --out is replaced; a default one is never: a second evaluation of the same
         // run and split goes beside the first (test-2, test-3, ...).
         let out = a.out.clone().unwrap_or_else(|| {

@@ -68,4 +68,3 @@ pub struct NodeArgs {
 fn ros_domain_id() -> u16 {
     std::env::var("ROS_DOMAIN_ID").ok().and_then(|v| v.parse().ok()).unwrap_or(0)
 }
-

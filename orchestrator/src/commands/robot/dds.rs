@@ -4,8 +4,8 @@
 use anyhow::Context as _;
 use ros2_client::dds::rustdds::Topic;
 use ros2_client::dds::{Context, ContextOptions, Node, Publisher, Subscription};
-use ros2_client::{Message, Name, NodeName, NodeOptions, QosProfile};
 use ros2_client::qos::{Durability, History, WhenFull};
+use ros2_client::{Message, Name, NodeName, NodeOptions, QosProfile};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
@@ -40,7 +40,11 @@ fn topic<M: Typed>(node: &mut Node, name: &str, qos: &QosProfile) -> anyhow::Res
     node.create_topic(&n, M::type_name(), qos).with_context(|| format!("topic {name}"))
 }
 
-pub fn publisher<M: Typed + Message + Serialize>(node: &mut Node, name: &str, qos: QosProfile) -> anyhow::Result<Publisher<M>> {
+pub fn publisher<M: Typed + Message + Serialize>(
+    node: &mut Node,
+    name: &str,
+    qos: QosProfile,
+) -> anyhow::Result<Publisher<M>> {
     let t = topic::<M>(node, name, &qos)?;
     node.create_publisher(&t, Some(qos)).with_context(|| format!("publishing {name}"))
 }

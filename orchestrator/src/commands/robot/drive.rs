@@ -101,7 +101,9 @@ impl Drive {
     /// What is left of the action under way (m for a move, rad for a turn).
     fn remaining(&self, now: Pose2) -> f64 {
         match self.under.map(|u| u.action) {
-            Some(action::MOVE_AHEAD) => (self.aim.x - now.x) * self.aim.yaw.cos() + (self.aim.y - now.y) * self.aim.yaw.sin(),
+            Some(action::MOVE_AHEAD) => {
+                (self.aim.x - now.x) * self.aim.yaw.cos() + (self.aim.y - now.y) * self.aim.yaw.sin()
+            }
             Some(_) => wrap(self.aim.yaw - now.yaw).abs(),
             None => 0.0,
         }

@@ -16,8 +16,9 @@ impl Names {
         let ns = format!("/{}", namespace.trim_matches('/'));
         let mut n = Names { namespace: ns, node: node.to_string(), remaps: Vec::new() };
         for r in remaps {
-            let (from, to) =
-                r.split_once(":=").ok_or_else(|| anyhow::anyhow!("--remap `{r}`: FROM:=TO expected (cmd_vel:=mobile_base/cmd_vel)"))?;
+            let (from, to) = r
+                .split_once(":=")
+                .ok_or_else(|| anyhow::anyhow!("--remap `{r}`: FROM:=TO expected (cmd_vel:=mobile_base/cmd_vel)"))?;
             anyhow::ensure!(!from.is_empty() && !to.is_empty(), "--remap `{r}`: a name on each side of := expected");
             let pair = (n.plain(from), n.plain(to));
             n.remaps.push(pair);
@@ -90,8 +91,9 @@ mod tests {
         let n = Names::new("", "gesthor_robot", &[]).unwrap();
         assert_eq!(n.resolve("odom"), "/odom");
         assert_eq!(n.resolve("~/decision"), "/gesthor_robot/decision");
-        let n = Names::new("locobot", "gesthor_robot", &["cmd_vel:=mobile_base/cmd_vel".into(), "odom:=/odom_raw".into()])
-            .unwrap();
+        let n =
+            Names::new("locobot", "gesthor_robot", &["cmd_vel:=mobile_base/cmd_vel".into(), "odom:=/odom_raw".into()])
+                .unwrap();
         assert_eq!(n.resolve("camera/color/image_raw"), "/locobot/camera/color/image_raw");
         assert_eq!(n.resolve("cmd_vel"), "/locobot/mobile_base/cmd_vel");
         assert_eq!(n.resolve("odom"), "/odom_raw");

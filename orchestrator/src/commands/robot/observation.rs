@@ -66,7 +66,13 @@ impl Observation {
 
     /// Writes an observation from frames already sampled to the policy's view; a gesture of the
     /// wrong size says why.
-    pub fn write(&mut self, facts: Facts, frame: &Frame, gesture: Option<&Gesture>, person: [f32; 3]) -> Result<(), String> {
+    pub fn write(
+        &mut self,
+        facts: Facts,
+        frame: &Frame,
+        gesture: Option<&Gesture>,
+        person: [f32; 3],
+    ) -> Result<(), String> {
         let s = ObsSections::new(&self.shape, self.buf.bytes_mut()).expect("the buffer's own shape");
         s.rgb.copy_from_slice(&frame.rgb);
         s.depth.copy_from_slice(&frame.depth);
@@ -119,7 +125,11 @@ mod tests {
 
     #[test]
     fn the_person_is_where_the_simulator_puts_them() {
-        let cases = [((0.0, 0.0, 0.0), (1.0, 2.0, 90.0)), ((1.0, -1.0, 135.0), (-2.0, 0.5, 300.0)), ((3.0, 2.0, 270.0), (3.0, 4.0, 80.0))];
+        let cases = [
+            ((0.0, 0.0, 0.0), (1.0, 2.0, 90.0)),
+            ((1.0, -1.0, 135.0), (-2.0, 0.5, 300.0)),
+            ((3.0, 2.0, 270.0), (3.0, 4.0, 80.0)),
+        ];
         for ((rx, rz, ry), (px, pz, py)) in cases {
             // Program::person_relative, written out: right and forward of the heading (sin, cos)
             let h = worker::geometry::heading(ry);

@@ -112,9 +112,11 @@ impl Person {
                 self.referencing = Some((c.motion.as_flat().to_vec(), at));
             }
             (Err(e), _) => self.fail(t, format!("the person's gesture was not read: {e:#}"), robot),
-            (Ok(_), None) => {
-                self.fail(t, "the person's gesture was read, but not where they stand (no depth under their hips)".into(), robot)
-            }
+            (Ok(_), None) => self.fail(
+                t,
+                "the person's gesture was read, but not where they stand (no depth under their hips)".into(),
+                robot,
+            ),
         }
         Ok(())
     }
@@ -204,7 +206,8 @@ fn jpeg(img: &Image) -> anyhow::Result<Vec<u8>> {
         other => anyhow::bail!("colour image: encoding `{other}`"),
     };
     let row = img.width as usize * ch;
-    let packed: Vec<u8> = (0..img.height as usize).flat_map(|y| img.data[y * img.step as usize..][..row].iter().copied()).collect();
+    let packed: Vec<u8> =
+        (0..img.height as usize).flat_map(|y| img.data[y * img.step as usize..][..row].iter().copied()).collect();
     let mut out = Vec::new();
     jpeg_encoder::Encoder::new(&mut out, 90).encode(&packed, img.width as u16, img.height as u16, colour)?;
     Ok(out)

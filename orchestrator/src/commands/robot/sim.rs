@@ -204,7 +204,8 @@ impl Sim {
         cfg.env.width = args.width;
         cfg.env.height = args.height;
         cfg.env.frames = farm::config::FramePath::SharedMemory;
-        let spec = PoolSpec { worker_id: 0, generation: 0, programs: ProgramSource::Sequence(list), expert_hints: false };
+        let spec =
+            PoolSpec { worker_id: 0, generation: 0, programs: ProgramSource::Sequence(list), expert_hints: false };
         let pool = EnvPool::new(&cfg, spec)?;
         let shape = ObsShape::new(1, args.width, args.height);
         let io = Io::open(&args.bus)?;
@@ -268,7 +269,10 @@ impl Sim {
         if number == 1 {
             self.await_node()?;
         }
-        self.io.goal.publish(Text { data: target.to_string() }).map_err(|e| anyhow::anyhow!("{}: {e:?}", self.io.names.goal))?;
+        self.io
+            .goal
+            .publish(Text { data: target.to_string() })
+            .map_err(|e| anyhow::anyhow!("{}: {e:?}", self.io.names.goal))?;
         loop {
             // the node decides before it drives: its decision is judged where the robot stood
             let command = self.tick(false)?;
@@ -299,7 +303,9 @@ impl Sim {
     /// sensors ticking meanwhile.
     fn await_node(&mut self) -> anyhow::Result<()> {
         let start = Instant::now();
-        while self.io.node.subscription_count(&self.io.names.goal) == 0 || self.io.node.publisher_count(&self.io.names.cmd_vel) == 0 {
+        while self.io.node.subscription_count(&self.io.names.goal) == 0
+            || self.io.node.publisher_count(&self.io.names.cmd_vel) == 0
+        {
             anyhow::ensure!(
                 start.elapsed().as_secs_f64() < self.args.wait,
                 "no robot node subscribed to {} within {:.0} s (start `orchestrator robot --domain {}`)",
@@ -538,7 +544,11 @@ impl Sim {
         });
         let path = self.args.out.join("summary.json");
         farm::files::write_atomic(&path, serde_json::to_string_pretty(&s)?.as_bytes())?;
-        say!("{} episodes: SR {sr:.1}, SPL {spl:.1}, DTS {dts:.2} at the first stop ({})", outcomes.len(), path.display());
+        say!(
+            "{} episodes: SR {sr:.1}, SPL {spl:.1}, DTS {dts:.2} at the first stop ({})",
+            outcomes.len(),
+            path.display()
+        );
         Ok(())
     }
 }
