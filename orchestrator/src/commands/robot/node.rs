@@ -16,14 +16,14 @@ use shm_schema::action;
 use worker::robot::Action;
 use worker::scene::Category;
 
-use super::args::NodeArgs;
 use super::camera::{PolicyView, Sampling};
 use super::dds::{self, drain, seconds};
 use super::drive::{Drive, Ended, Limits, Pose2};
 use super::msgs::{CameraInfo, Clock, Decision, Gesture, Header, Image, Odometry, Text, Twist, TwistStamped};
-use super::names::{self, Names, Resolved};
 use super::observation::{Facts, Frame, Observation, person_relative};
 use super::person::Person;
+use super::args::NodeArgs;
+use super::names::{self, Names, Resolved};
 use crate::commands::live::policy::{Answer, Checkpoint, Policy};
 
 /// Frames kept while waiting for their pair (colour and depth arrive apart).
@@ -70,9 +70,7 @@ struct Heard {
 
 enum Phase {
     /// Waiting for a frame taken at or after this time (s).
-    Deciding {
-        after: f64,
-    },
+    Deciding { after: f64 },
     Acting,
     /// Turning to look for the person (`--gesture camera`).
     Looking,
@@ -122,13 +120,7 @@ impl Robot {
     pub fn start(args: NodeArgs) -> anyhow::Result<Robot> {
         let ck = Checkpoint::open(&args.checkpoint)?;
         let cfg = &ck.cfg;
-        anyhow::ensure!(
-            cfg.env.width == cfg.env.height,
-            "{}: frames of {}×{}; square ones expected",
-            ck.name,
-            cfg.env.width,
-            cfg.env.height
-        );
+        anyhow::ensure!(cfg.env.width == cfg.env.height, "{}: frames of {}×{}; square ones expected", ck.name, cfg.env.width, cfg.env.height);
         let view = PolicyView { size: cfg.env.width, fov_deg: cfg.env.fov_deg };
         let limits = Limits {
             move_step: cfg.env.move_step as f64,
@@ -257,10 +249,7 @@ impl Robot {
         let (infos, e) = drain(&self.io.info);
         note(&self.io.names.info, e);
         if let Some(info) = infos.last() {
-            if h.sampling
-                .as_ref()
-                .is_none_or(|s| s.as_ref().map_or(true, |s| (s.width, s.height) != (info.width, info.height)))
-            {
+            if h.sampling.as_ref().is_none_or(|s| s.as_ref().map_or(true, |s| (s.width, s.height) != (info.width, info.height))) {
                 h.sampling = Some(Sampling::new(info, self.view));
             }
             h.info = Some(info.clone());
@@ -306,11 +295,7 @@ impl Robot {
             h.depth.pop_front();
         }
         let Some(Ok(sampling)) = &h.sampling else { return };
-        let pair = h
-            .colour
-            .iter()
-            .rev()
-            .find_map(|c| h.depth.iter().find(|d| d.header.stamp == c.header.stamp).map(|d| (c, d)));
+        let pair = h.colour.iter().rev().find_map(|c| h.depth.iter().find(|d| d.header.stamp == c.header.stamp).map(|d| (c, d)));
         let Some((c, d)) = pair else { return };
         let stamp = seconds(c.header.stamp);
         if h.frame.as_ref().is_some_and(|f| f.stamp >= stamp) {
@@ -352,12 +337,7 @@ impl Robot {
             Some(Ok(_)) => {}
         }
         if silent(h.frame_at) {
-            return Some(format!(
-                "no colour image with its depth on {} and {} for {:.1} s",
-                n.colour,
-                n.depth,
-                limit.as_secs_f64()
-            ));
+            return Some(format!("no colour image with its depth on {} and {} for {:.1} s", n.colour, n.depth, limit.as_secs_f64()));
         }
         if let Some(p) = &h.frame_problem {
             return Some(p.clone());
@@ -382,11 +362,9 @@ impl Robot {
         let odom_frame = h.odom.as_ref().map(|o| o.2.as_str()).unwrap_or("");
         match &h.gesture {
             None => Some(format!("no gesture on {}", n.gesture)),
-            Some(g) if self.now() - seconds(g.header.stamp) > self.args.max_age.max(1.0) => Some(format!(
-                "the newest gesture on {} is {:.2} s old",
-                n.gesture,
-                self.now() - seconds(g.header.stamp)
-            )),
+            Some(g) if self.now() - seconds(g.header.stamp) > self.args.max_age.max(1.0) => {
+                Some(format!("the newest gesture on {} is {:.2} s old", n.gesture, self.now() - seconds(g.header.stamp)))
+            }
             Some(g) if g.header.frame_id != odom_frame => Some(format!(
                 "gesture: the person's pose is in frame `{}`; odometry's frame `{odom_frame}` expected",
                 g.header.frame_id
@@ -418,14 +396,7 @@ impl Robot {
         }
         // a frame taken after the goal: none seen before it
         let after = self.heard.frame.as_ref().map_or(self.now(), |f| self.now().max(f.stamp + 1e-6));
-        self.episode = Some(Episode {
-            number: self.episodes,
-            turns: 0,
-            target,
-            step: 0,
-            last_action: action::NONE,
-            phase: Phase::Deciding { after },
-        });
+        self.episode = Some(Episode { number: self.episodes, turns: 0, target, step: 0, last_action: action::NONE, phase: Phase::Deciding { after } });
         say!("episode {}: to the {name}", self.episodes);
     }
 
@@ -488,8 +459,7 @@ impl Robot {
                     p.give_up(pose);
                 }
                 let fresh = self.heard.frame.as_ref().is_some_and(|f| f.stamp >= after);
-                let seen =
-                    !self.needs_person || self.heard.gesture.as_ref().is_some_and(|g| seconds(g.header.stamp) >= after);
+                let seen = !self.needs_person || self.heard.gesture.as_ref().is_some_and(|g| seconds(g.header.stamp) >= after);
                 if fresh && seen {
                     self.decide(pose)?;
                 }
@@ -521,12 +491,7 @@ impl Robot {
         self.publish_decision(Some(&a), done, "");
         let e = self.episode.as_mut().expect("an episode is under way");
         if done {
-            say!(
-                "episode {} ended after {} steps ({})",
-                e.number,
-                e.step,
-                Action::from_index(a.action).map_or("?", |a| a.name())
-            );
+            say!("episode {} ended after {} steps ({})", e.number, e.step, Action::from_index(a.action).map_or("?", |a| a.name()));
             self.episode = None;
             self.publish_twist(0.0, 0.0);
         } else {
