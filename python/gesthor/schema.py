@@ -146,3 +146,18 @@ def views(buf: np.ndarray, layout, num_envs: int, height: int, width: int):
     depth = np.frombuffer(buf, dtype=np.uint16, count=n * h * w, offset=get("depth_offset")).reshape(n, h, w)
     gesture = np.frombuffer(buf, dtype=np.float16, count=n * GESTURE_FRAMES * GESTURE_DIMS, offset=get("gesture_offset"))
     return records, rgb, depth, gesture.reshape(n, GESTURE_FRAMES, GESTURE_DIMS)
+
+
+DEPTH_MAX_M = 10.0  # depth is stored linear 0..10 m as 0..65535
+
+
+def observation(records, rgb, depth, gesture):
+    """`make_vec`'s observation, copied out of a pool's views (`views`): RGB u8, depth in
+    metres, the gesture as f32 muscle values, the target category."""
+    return {
+        "rgb": rgb.copy(),
+        "depth": depth.astype(np.float32) * np.float32(DEPTH_MAX_M / 65535.0),
+        "gesture": gesture.astype(np.float32),
+        "target": records["target_category"].astype(np.int64),
+    }
+

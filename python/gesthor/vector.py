@@ -22,7 +22,7 @@ _quiet_headless_display()  # before the native module starts a renderer
 from gesthor import _gesthor  # noqa: E402
 
 SPLITS = ("train", "val", "test")
-DEPTH_MAX_M = 10.0  # depth is stored linear 0..10 m as 0..65535
+DEPTH_MAX_M = schema.DEPTH_MAX_M
 
 
 def _toml_string(s: str) -> str:
@@ -134,12 +134,7 @@ class GesthorVectorEnv(gym.vector.VectorEnv):
         )
 
     def _observation(self):
-        return {
-            "rgb": self._rgb.copy(),
-            "depth": self._depth.astype(np.float32) * np.float32(DEPTH_MAX_M / 65535.0),
-            "gesture": self._gesture.astype(np.float32),
-            "target": self._records["target_category"].astype(np.int64),
-        }
+        return schema.observation(self._records, self._rgb, self._depth, self._gesture)
 
     def _info(self):
         """Every step: where each env is; at an episode's end (masked `_key` as Gymnasium's

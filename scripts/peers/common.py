@@ -17,7 +17,6 @@ from gesthor import _quiet_headless_display, schema
 _quiet_headless_display()  # before the native module starts a renderer
 from gesthor import _gesthor  # noqa: E402
 
-DEPTH_MAX_M = 10.0  # as gesthor.vector: depth stored linear 0..10 m as 0..65535
 SEED = 1  # farm/src/config.rs's default run.seed: evaluation pairs programs with gestures by it
 
 
@@ -91,12 +90,7 @@ class PoolVec:
         return self.pool.finished()
 
     def _observation(self):
-        return {
-            "rgb": self._rgb.copy(),
-            "depth": self._depth.astype(np.float32) * np.float32(DEPTH_MAX_M / 65535.0),
-            "gesture": self._gesture.astype(np.float32),
-            "target": self._records["target_category"].astype(np.int64),
-        }
+        return schema.observation(self._records, self._rgb, self._depth, self._gesture)
 
     def _info(self):
         r = self._records
