@@ -22,8 +22,7 @@ use crate::obs::{EnvBatch, EnvStep, ObsError};
 use crate::ppo::optim::Adam;
 use crate::ppo::overlap::Overlap;
 use crate::ppo::rollout::{FeedbackCounts, Rollout};
-pub use crate::ppo::update::lr_at;
-use crate::ppo::update::{UpdateSettings, update};
+use crate::ppo::update::{UpdateSettings, lr_at, update};
 use crate::stages::{Stage, StageClock};
 
 /// Adam's ε: 1e-5, the usual choice for PPO (torch's default is 1e-8).
