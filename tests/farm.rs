@@ -458,16 +458,16 @@ fn python_reads_one_frame_of_a_live_run() {
 /// and `episodes.jsonl` holds each program exactly once.
 #[test]
 fn evaluation_runs_each_assigned_program_once_and_ends_by_itself() {
-    use orchestrator::supervise::crew::{Crew, CrewSpec, PolicyArg};
+    use farm::serve_args::Policy;
+    use orchestrator::supervise::crew::{Crew, CrewSpec};
     let _g = serial();
     let tmp = tempfile::tempdir().unwrap();
     let cfg_path = tiny_config(tmp.path(), 2);
     let mut cfg = farm::config::RunConfig::load(&cfg_path).unwrap();
     orchestrator::supervise::launch::resolve_dataset(&mut cfg, false).unwrap();
     let (dir, config_path) =
-        orchestrator::supervise::launch::prepare_run(&tmp.path().join("eval"), &cfg, false, 2, PolicyArg::Expert)
-            .unwrap();
-    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg, 2, PolicyArg::Expert);
+        orchestrator::supervise::launch::prepare_run(&tmp.path().join("eval"), &cfg, false, 2, Policy::Expert).unwrap();
+    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg, 2, Policy::Expert);
     spec.bin_dir = Some(bin_dir());
     spec.programs = Some(vec![vec![0, 1, 2], vec![3, 4]]);
     spec.check = true;

@@ -14,7 +14,9 @@
 //! - [`checkpoints`]: where a run's checkpoints live and how they are named; [`models`]: the
 //!   trained policies the repository ships, each in a folder with its card
 //! - [`metrics`]: SR, SPL, DTS at k stops, episode results and trajectories
+//! - [`progress`]: a run's progress records (`farm.jsonl`), written by the learner
 //! - [`profile`]: where a training run's time goes (learner timeline, worker loops)
+//! - [`serve_args`]: the learner's command line, typed, for the learner and its starter alike
 //! - [`tensorboard`]: TensorBoard event files (scalars, images, text) of a run
 //! - [`files`], [`font`]: atomic writes and the one compiled-in font
 
@@ -29,8 +31,10 @@ pub mod metrics;
 pub mod models;
 pub mod process;
 pub mod profile;
+pub mod progress;
 pub mod rooms;
 pub mod seed;
+pub mod serve_args;
 pub mod stepper;
 pub mod tensorboard;
 pub mod transport;

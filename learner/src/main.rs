@@ -6,9 +6,10 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use clap::{Args, Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand};
 use farm::config::{Device as DeviceChoice, FramePath, RunConfig};
 use farm::process;
+use farm::serve_args::{Blank as BlankArg, Policy as PolicyArg, ServeArgs};
 use learner::serve::frames::FrameImports;
 use learner::serve::policy::{ExpertPolicy, Policy, RandomPolicy};
 use learner::serve::ppo_policy::{Blank, PpoPolicy};
@@ -145,80 +146,6 @@ struct PretrainEncoderArgs {
     threads: Option<i32>,
 }
 
-/// Which policy answers the workers.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-enum PolicyKind {
-    /// Uniformly random actions (seeded from the run seed).
-    Random,
-    /// The shortest-path expert's actions (workers need `--expert-hints`).
-    Expert,
-    /// The PPO agent: acts and learns.
-    Ppo,
-}
-
-/// Visual inputs to zero during evaluation.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-enum BlankKind {
-    Rgb,
-    Depth,
-    Both,
-}
-
-#[derive(Args)]
-struct ServeArgs {
-    /// Run configuration (TOML).
-    #[arg(long)]
-    config: PathBuf,
-    /// Run id (names the shared-memory services).
-    #[arg(long)]
-    run_id: String,
-    /// Worker slots 0..N to serve.
-    #[arg(long)]
-    workers: usize,
-    /// Run directory: farm.jsonl, episodes.jsonl, farm_summary.json (and checkpoints).
-    #[arg(long)]
-    run_dir: PathBuf,
-    #[arg(long, value_enum, default_value_t = PolicyKind::Random)]
-    policy: PolicyKind,
-    /// Stop after this many frames.
-    #[arg(long)]
-    max_frames: Option<u64>,
-    /// Stop after this many seconds.
-    #[arg(long)]
-    max_seconds: Option<f64>,
-    /// Evaluation: stop when every worker has finished its programs.
-    #[arg(long)]
-    eval: bool,
-    /// Fail on any lost, duplicated or malformed message (tests).
-    #[arg(long)]
-    check: bool,
-    /// Continue from the run directory's latest checkpoint.
-    #[arg(long)]
-    resume: bool,
-    /// Close a batch this many milliseconds after its first observation even if workers are missing.
-    #[arg(long, default_value_t = 1000)]
-    batch_timeout_ms: u64,
-    /// Seconds between progress records.
-    #[arg(long, default_value_t = 2.0)]
-    report_every: f64,
-    /// Evaluate this checkpoint (with `--policy ppo --eval`) instead of training.
-    #[arg(long)]
-    checkpoint: Option<PathBuf>,
-    /// Evaluation: zero these visual inputs (blind mode: both; T4.7 ablations: one).
-    #[arg(long, value_enum)]
-    blank: Option<BlankKind>,
-    /// Evaluation: take the policy's most likely action instead of sampling it.
-    #[arg(long)]
-    greedy: bool,
-    /// Before the first batch, wait up to this many seconds for every worker to connect.
-    #[arg(long, default_value_t = 60.0)]
-    start_wait: f64,
-    /// PPO training: time acting and updates stage by stage into the progress records, waiting
-    /// for the device after each stage (slower; `orchestrator bench train --stages`).
-    #[arg(long)]
-    profile_stages: bool,
-}
-
 /// The policy to serve. With `env.frames = "device"` the workers hand their frame memory over
 /// `imports` whichever policy runs; PPO takes it to read frames from, the baselines read none
 /// (the caller keeps it, and the socket open, while they serve).
@@ -234,22 +161,23 @@ fn make_policy(
             None => Box::new(p),
         }
     };
-    Ok(match (a.policy, &a.checkpoint) {
-        (PolicyKind::Random, _) => Box::new(RandomPolicy::new(cfg.run.seed)),
-        (PolicyKind::Expert, _) => Box::new(ExpertPolicy),
-        (PolicyKind::Ppo, Some(ckpt)) => {
-            let blank = match a.blank {
+    let o = &a.options;
+    Ok(match (a.policy, &o.checkpoint) {
+        (PolicyArg::Random, _) => Box::new(RandomPolicy::new(cfg.run.seed)),
+        (PolicyArg::Expert, _) => Box::new(ExpertPolicy),
+        (PolicyArg::Ppo, Some(ckpt)) => {
+            let blank = match o.blank {
                 None => Blank::default(),
-                Some(BlankKind::Rgb) => Blank { rgb: true, depth: false },
-                Some(BlankKind::Depth) => Blank { rgb: false, depth: true },
-                Some(BlankKind::Both) => Blank { rgb: true, depth: true },
+                Some(BlankArg::Rgb) => Blank { rgb: true, depth: false },
+                Some(BlankArg::Depth) => Blank { rgb: false, depth: true },
+                Some(BlankArg::Both) => Blank { rgb: true, depth: true },
             };
-            ppo(PpoPolicy::eval(cfg, a.workers, dev, ckpt, blank, a.greedy)?, imports)
+            ppo(PpoPolicy::eval(cfg, a.workers, dev, ckpt, blank, o.greedy)?, imports)
         }
-        (PolicyKind::Ppo, None) => {
+        (PolicyArg::Ppo, None) => {
             anyhow::ensure!(!a.eval, "--eval with --policy ppo needs --checkpoint");
             let p = PpoPolicy::train(cfg, a.workers, dev, &a.run_dir, a.resume)?;
-            ppo(if a.profile_stages { p.with_stage_times() } else { p }, imports)
+            ppo(if o.profile_stages { p.with_stage_times() } else { p }, imports)
         }
     })
 }
@@ -266,10 +194,10 @@ fn run_serve(a: ServeArgs, dev: tch::Device) -> anyhow::Result<()> {
         FramePath::SharedMemory => None,
     };
     let mut policy = make_policy(&a, &cfg, dev, &mut imports)?;
-    if a.resume && a.policy != PolicyKind::Ppo {
+    if a.resume && a.policy != PolicyArg::Ppo {
         tracing::info!("--resume: policy `{}` keeps no state; nothing to resume", policy.name());
     }
-    if a.profile_stages && policy.stage_times().is_none() {
+    if a.options.profile_stages && policy.stage_times().is_none() {
         tracing::info!("--profile-stages: policy `{}` does not train; no stages to time", policy.name());
     }
     let mut opts =

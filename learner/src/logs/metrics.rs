@@ -155,7 +155,7 @@ impl MetricsLog {
     }
 
     /// The farm's counters since this learner process started, at an update's frame count.
-    pub fn farm(&mut self, frames: u64, p: &crate::logs::records::Progress) -> Result<(), MetricsError> {
+    pub fn farm(&mut self, frames: u64, p: &farm::progress::Progress) -> Result<(), MetricsError> {
         if self.farm_at.is_some_and(|f| f >= frames) {
             return Ok(());
         }
@@ -178,7 +178,7 @@ impl MetricsLog {
 
     /// The farm's counters at the end, at this process's last update (the last report comes
     /// after it: waiting for a next update would lose them).
-    pub fn farm_final(&mut self, p: &crate::logs::records::Progress) -> Result<(), MetricsError> {
+    pub fn farm_final(&mut self, p: &farm::progress::Progress) -> Result<(), MetricsError> {
         match self.updated_at {
             Some(frames) => self.farm(frames, p),
             None => Ok(()),

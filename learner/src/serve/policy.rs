@@ -40,7 +40,7 @@ pub trait Policy {
     }
     /// Sees each progress record the server writes (the farm's counters), e.g. to log them
     /// beside its own metrics.
-    fn report(&mut self, _progress: &crate::logs::records::Progress) -> anyhow::Result<()> {
+    fn report(&mut self, _progress: &farm::progress::Progress) -> anyhow::Result<()> {
         Ok(())
     }
     /// The run is ending; `checkpoint` says whether to save state first (Ctrl-C: yes).

@@ -56,7 +56,7 @@ pub struct PpoPolicy {
     learning: f64,
     /// The server's latest progress record, logged with the next update (one point per update,
     /// at the update's frame count).
-    farm_progress: Option<crate::logs::records::Progress>,
+    farm_progress: Option<farm::progress::Progress>,
     /// `env.frames = "device"`: the workers' frames, imported from their GPU memory.
     imports: Option<FrameImports>,
 }
@@ -410,7 +410,7 @@ impl Policy for PpoPolicy {
         Ok(())
     }
 
-    fn report(&mut self, progress: &crate::logs::records::Progress) -> anyhow::Result<()> {
+    fn report(&mut self, progress: &farm::progress::Progress) -> anyhow::Result<()> {
         if let Mode::Train { log, .. } = &mut self.mode {
             if progress.stop_reason.is_some() {
                 log.farm_final(progress)?;

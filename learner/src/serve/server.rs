@@ -29,11 +29,12 @@ use farm::profile::{LearnerTime, Profile, WorkerTime, process_cpu_seconds};
 use farm::transport::TransportError;
 use shm_schema::{ACT_MAGIC, ActionMsg, EnvRecord, MAX_ENVS, ObsHeader, ObsShape, WorkerTiming, action, command};
 
-use crate::logs::records::{Counters, Progress, RecordError, RunRecords, Summary, WorkerSummary};
+use crate::logs::records::{RecordError, RunRecords, Summary, WorkerSummary};
 use crate::serve::batch::{WorkerBatch, WorkerObs};
 use crate::serve::integrity::{self, Expected, Verdict};
 use crate::serve::policy::Policy;
 use crate::transport::{LearnerPorts, ObsMessage};
+use farm::progress::{Counters, Progress};
 
 /// How to serve a run.
 #[derive(Clone, Debug)]

@@ -8,10 +8,13 @@ use clap::Args;
 use farm::config::RunConfig;
 use farm::process;
 
+use farm::progress::Progress;
+use farm::serve_args::Policy;
+
 use crate::report::progress::{Bar, Rate};
-use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
+use crate::supervise::crew::{Crew, CrewOutcome, CrewSpec, CrewState};
 use crate::supervise::launch::{prepare_run, resolve_dataset, resolve_encoder, sweep_dead_runs};
-use crate::supervise::run_dir;
+use crate::supervise::run_dir::{self, RunDir};
 
 /// The configuration `up` trains when no `--config` is given: the tiny CPU setup of +Both.
 pub const DEFAULT_CONFIG: &str = include_str!("../../../configs/tiny/both.toml");
@@ -30,8 +33,8 @@ pub struct UpArgs {
     /// Continue the run in this directory (its config and latest checkpoint).
     #[arg(long, value_name = "RUN_DIR")]
     pub resume: Option<PathBuf>,
-    #[arg(long, value_enum, default_value_t = PolicyArg::Ppo)]
-    pub policy: PolicyArg,
+    #[arg(long, value_enum, default_value_t = Policy::Ppo)]
+    pub policy: Policy,
     /// Stop after this many frames (default: the config's run.total_frames).
     #[arg(long, conflicts_with = "seconds")]
     pub frames: Option<u64>,
@@ -83,6 +86,40 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         crate::remote::check_endpoint(endpoint, a.insecure, "--listen")?;
     }
     process::install_termination_handler()?;
+    let (run_path, cfg) = config(&a)?;
+    let (dir, config_path) = prepare_run(&run_path, &cfg, a.resume.is_some(), a.workers, a.policy)?;
+    sweep_dead_runs();
+    let Some((spec, bar_from)) = crew_spec(&a, &dir, &config_path, &cfg)? else { return Ok(0) };
+    announce(&a, &dir, &cfg);
+    let spec_frames = spec.max_frames.map(|f| f + bar_from);
+    let mut crew = Crew::start(spec)?;
+    let bridge = match &a.listen {
+        Some(endpoint) => Some(listen(&a, endpoint, &dir.path, &dir.run_id, &cfg)?),
+        None => None,
+    };
+    let ui = Progressline::new(spec_frames, a.seconds, bar_from);
+    supervise(&mut crew, bridge.as_ref(), &ui, &dir.path)?;
+    ui.clear();
+    if let Some(b) = bridge {
+        finish_bridge(b);
+    }
+    let stopped_by_signal = process::termination_signal();
+    let out = crew.finish()?;
+    summarize(&out, &dir);
+    Ok(match (stopped_by_signal, out.learner) {
+        (Some(sig), _) => process::signal_exit_code(sig),
+        (None, Some(e)) if e.success() => 0,
+        (None, Some(e)) => {
+            eprintln!("[up] the learner {e}; see {}", dir.logs().join("learner.log").display());
+            1
+        }
+        (None, None) => 1,
+    })
+}
+
+/// The run's folder and its config: the run's own when resuming (`--set` refused), else
+/// `--config` or the default with `--set`, its dataset and encoder resolved.
+fn config(a: &UpArgs) -> anyhow::Result<(PathBuf, RunConfig)> {
     let resume = a.resume.is_some();
     let (run_path, mut cfg) = match &a.resume {
         Some(dir) => {
@@ -109,16 +146,21 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         );
     }
     resolve_dataset(&mut cfg, a.synthetic)?;
-    if !resume && a.policy == PolicyArg::Ppo {
+    if !resume && a.policy == Policy::Ppo {
         resolve_encoder(&mut cfg)?;
     }
-    let (dir, config_path) = prepare_run(&run_path, &cfg, resume, a.workers, a.policy)?;
-    sweep_dead_runs();
-    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, a.policy);
+    Ok((run_path, cfg))
+}
+
+/// The crew to start, and the frames trained before it (where a resumed run's bar starts);
+/// None when the run has trained its budget already.
+fn crew_spec(a: &UpArgs, dir: &RunDir, config_path: &Path, cfg: &RunConfig) -> anyhow::Result<Option<(CrewSpec, u64)>> {
+    let resume = a.resume.is_some();
+    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, config_path, cfg.clone(), a.workers, a.policy);
     spec.max_seconds = a.seconds;
     // A resumed run trains to its own budget: what its newest checkpoint was trained on counts
     // (--frames stays this process's frames: `study` passes what is left itself).
-    let trained = if resume && a.policy == PolicyArg::Ppo { frames_trained(&dir.path)? } else { 0 };
+    let trained = if resume && a.policy == Policy::Ppo { frames_trained(&dir.path)? } else { 0 };
     spec.max_frames = match (a.frames, a.seconds) {
         (Some(f), _) => Some(f),
         (None, Some(_)) => None,
@@ -130,15 +172,20 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
             dir.path.display(),
             cfg.run.total_frames
         );
-        return Ok(0);
+        return Ok(None);
     }
-    // a resumed run's bar counts the run's frames: those trained before, then these (a study's
-    // log after a restart reads 2061472/5000000 frames, not 61472/2998304)
-    let bar_from = if a.seconds.is_none() { trained } else { 0 };
     spec.check = a.check;
     spec.synthetic = a.synthetic;
     spec.resume = resume;
     spec.report_every = a.report_every;
+    spec.remote_slots = a.remote_workers;
+    // a resumed run's bar counts the run's frames: those trained before, then these (a study's
+    // log after a restart reads 2061472/5000000 frames, not 61472/2998304)
+    let bar_from = if a.seconds.is_none() { trained } else { 0 };
+    Ok(Some((spec, bar_from)))
+}
+
+fn announce(a: &UpArgs, dir: &RunDir, cfg: &RunConfig) {
     eprintln!(
         "[up] run {} in {}: {} workers × {} envs ({}x{}){}, policy {}{}",
         dir.run_id,
@@ -151,14 +198,17 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         a.policy.name(),
         if a.synthetic { ", synthetic envs" } else { "" }
     );
-    spec.remote_slots = a.remote_workers;
-    let spec_frames = spec.max_frames.map(|f| f + bar_from);
-    let mut crew = Crew::start(spec)?;
-    let bridge = match &a.listen {
-        Some(endpoint) => Some(listen(&a, endpoint, &dir.path, &dir.run_id, &cfg)?),
-        None => None,
-    };
-    let ui = Progressline::new(spec_frames, a.seconds, bar_from);
+}
+
+/// Ticks the crew until it ends, showing its progress: the first termination signal stops it
+/// cleanly, the second says what a third would lose, the third kills it; a failed bridge to
+/// worker hosts stops it too.
+fn supervise(
+    crew: &mut Crew,
+    bridge: Option<&crate::remote::LearnerBridge>,
+    ui: &Progressline,
+    run: &Path,
+) -> anyhow::Result<()> {
     let mut signals_seen = 0;
     while crew.tick()? == CrewState::Running {
         let n = process::termination_count();
@@ -172,29 +222,32 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
                     ));
                     crew.stop();
                 }
-                2 => ui.println(&format!("[up] {}", what_killing_loses(&crew, &dir.path))),
+                2 => ui.println(&format!("[up] {}", what_killing_loses(crew, run))),
                 _ => crew.kill_now(),
             }
         }
-        if bridge.as_ref().is_some_and(|b| b.ended()) && !crew.is_stopping() {
+        if bridge.is_some_and(|b| b.ended()) && !crew.is_stopping() {
             ui.println("[up] the bridge to worker hosts failed; stopping");
             crew.stop();
         }
-        ui.update(&crew);
+        ui.update(crew);
         std::thread::sleep(Duration::from_millis(50));
     }
-    ui.clear();
-    if let Some(b) = bridge {
-        let refused = b.counts.refused.load(std::sync::atomic::Ordering::Relaxed);
-        if let Err(e) = b.finish() {
-            eprintln!("[up] the bridge to worker hosts: {e:#}");
-        }
-        if refused > 0 {
-            eprintln!("[up] {refused} message(s) from worker hosts without a grant were dropped");
-        }
+    Ok(())
+}
+
+fn finish_bridge(b: crate::remote::LearnerBridge) {
+    let refused = b.counts.refused.load(std::sync::atomic::Ordering::Relaxed);
+    if let Err(e) = b.finish() {
+        eprintln!("[up] the bridge to worker hosts: {e:#}");
     }
-    let stopped_by_signal = process::termination_signal();
-    let out = crew.finish()?;
+    if refused > 0 {
+        eprintln!("[up] {refused} message(s) from worker hosts without a grant were dropped");
+    }
+}
+
+/// The run's last line: frames, rate, episodes, success and restarts.
+fn summarize(out: &CrewOutcome, dir: &RunDir) {
     if !out.leftovers.is_empty() {
         eprintln!("[up] removed {} shared-memory file(s) the run left behind", out.leftovers.len());
     }
@@ -202,24 +255,15 @@ pub fn run(a: UpArgs) -> anyhow::Result<i32> {
         eprintln!(
             "[up] {}: {} frames in {:.1} s ({:.1}/s), {} episodes, success {}, {} worker restart(s)",
             p.stop_reason.as_deref().unwrap_or("ended"),
-            p.frames,
+            p.totals.frames,
             out.seconds,
-            p.frames as f64 / out.seconds.max(1e-9),
-            p.episodes,
+            p.totals.frames as f64 / out.seconds.max(1e-9),
+            p.totals.episodes,
             p.success_rate.map(|s| format!("{:.1}%", 100.0 * s)).unwrap_or_else(|| "-".into()),
             out.restarts
         );
     }
     eprintln!("[up] results in {}", dir.path.display());
-    Ok(match (stopped_by_signal, out.learner) {
-        (Some(sig), _) => process::signal_exit_code(sig),
-        (None, Some(e)) if e.success() => 0,
-        (None, Some(e)) => {
-            eprintln!("[up] the learner {e}; see {}", dir.logs().join("learner.log").display());
-            1
-        }
-        (None, None) => 1,
-    })
 }
 
 /// Frames the newest usable checkpoint of a run was trained on (0 without one: the learner then
@@ -265,7 +309,7 @@ impl Progressline {
         format!(
             "{:.0} frames/s  episodes {}  success {}  workers {}/{}  restarts {}{}",
             fps,
-            p.episodes,
+            p.totals.episodes,
             p.success_rate.map(|s| format!("{:.1}%", 100.0 * s)).unwrap_or_else(|| "-".into()),
             p.workers_live,
             crew.spec().workers + crew.spec().remote_slots,
@@ -280,8 +324,8 @@ impl Progressline {
         }
         self.polled.set(Instant::now());
         let Some(p) = crew.progress() else { return };
-        let pos = if self.by_frames { self.from + p.frames } else { self.started.elapsed().as_secs() };
-        let fps = self.rate.borrow_mut().add(Instant::now(), p.frames).unwrap_or(p.fps);
+        let pos = if self.by_frames { self.from + p.totals.frames } else { self.started.elapsed().as_secs() };
+        let fps = self.rate.borrow_mut().add(Instant::now(), p.totals.frames).unwrap_or(p.fps);
         self.bar.set(pos, &Self::text(crew, &p, fps));
     }
 

@@ -12,8 +12,10 @@ use clap::Args;
 use farm::config::RunConfig;
 use farm::process;
 
-use crate::remote::{self, Codec, HostBridge, HostOptions};
-use crate::supervise::crew::{Crew, CrewSpec, CrewState, HostSlots, PolicyArg};
+use crate::remote::certs::JoinInfo;
+use crate::remote::{self, BridgeCounts, Codec, HostBridge, HostOptions, JoinGrant};
+use crate::supervise::crew::{Crew, CrewSpec, CrewState, HostSlots};
+use farm::serve_args::Policy;
 
 #[derive(Args, Debug)]
 pub struct WorkersArgs {
@@ -63,83 +65,15 @@ pub fn manifest_digest(dataset: &std::path::Path) -> anyhow::Result<String> {
     Ok(farm::files::sha256_hex(&bytes))
 }
 
-pub fn run(mut a: WorkersArgs) -> anyhow::Result<i32> {
+pub fn run(a: WorkersArgs) -> anyhow::Result<i32> {
     remote::check_endpoint(&a.connect, a.insecure, "--connect")?;
-    let (security, bundle) = match (&a.certs, a.connect.starts_with("tls/")) {
-        (Some(dir), true) => {
-            let (files, join) = remote::certs::host_files(dir)?;
-            (remote::Security::Tls { files, access: None }, Some(join))
-        }
-        (None, true) => anyhow::bail!(
-            "--connect {}: TLS needs this host's bundle (--certs DIR); `orchestrator hosts issue` makes it on the learner's host",
-            a.connect
-        ),
-        (_, false) => (remote::Security::Insecure, None),
-    };
-    if let Some(b) = &bundle {
-        anyhow::ensure!(
-            a.run_id.as_ref().is_none_or(|r| *r == b.run_id),
-            "--run-id {}: the bundle is for run {}",
-            a.run_id.as_deref().unwrap_or_default(),
-            b.run_id
-        );
-        a.run_id = Some(b.run_id.clone());
-    }
-    let run_id = a.run_id.clone().context("--run-id: the run to join is needed (`up --listen` printed it)")?;
-    let secret = a
-        .secret
-        .clone()
-        .or_else(|| bundle.as_ref().map(|b| b.secret.clone()))
-        .or_else(|| std::env::var("GESTHOR_SECRET").ok())
-        .context("--secret: the run's secret is needed (or $GESTHOR_SECRET); `up --listen` printed it")?;
+    let (security, bundle) = security(&a)?;
+    let (run_id, secret) = credentials(&a, bundle.as_ref())?;
     process::install_termination_handler()?;
     let session = remote::session(&[], std::slice::from_ref(&a.connect), &security)?;
     let host = bundle.as_ref().map(|b| b.name.clone()).unwrap_or_else(remote::hostname);
-    let asked = Instant::now();
-    let grant = loop {
-        match remote::join(&session, &run_id, &secret, a.workers as u32, &host) {
-            Ok(g) => break g,
-            Err(e) if e.to_string().contains("no learner answered") => {
-                if let Some(why) = remote::refusals::last_refusal() {
-                    anyhow::bail!(
-                        "joining run {run_id} at {}: the TLS link was refused ({why}): this host's certificate is not trusted there (revoked, or issued for another run)",
-                        a.connect
-                    );
-                }
-                anyhow::ensure!(
-                    asked.elapsed().as_secs_f64() < a.wait,
-                    "joining run {run_id} at {}: no learner answered for {:.0} s (is `up --listen` running there?)",
-                    a.connect,
-                    a.wait
-                );
-                if process::termination_signal().is_some() {
-                    return Ok(130);
-                }
-                std::thread::sleep(Duration::from_secs(1));
-            }
-            // slots of a host that just died are freed a few seconds after it vanished
-            Err(e) if e.to_string().contains("remote slots are free") && asked.elapsed().as_secs_f64() < a.wait => {
-                if process::termination_signal().is_some() {
-                    return Ok(130);
-                }
-                std::thread::sleep(Duration::from_secs(1));
-            }
-            Err(e) => return Err(e.context(format!("joining run {run_id} at {}", a.connect))),
-        }
-    };
-    let mut cfg = RunConfig::from_toml(&grant.config_toml, "(the learner's config)")?;
-    if let Some(d) = &a.dataset {
-        cfg.run.dataset = d.clone();
-    }
-    if !a.synthetic {
-        let mine = manifest_digest(&cfg.run.dataset)?;
-        anyhow::ensure!(
-            mine == grant.manifest_digest,
-            "{}: not the learner's dataset (its manifest differs); copy the learner's or pass --dataset",
-            cfg.run.dataset.display()
-        );
-        worker::dataset::Dataset::open(&cfg.run.dataset, worker::dataset::Verify::Full)?;
-    }
+    let Some(grant) = join(&a, &session, &run_id, &secret, &host)? else { return Ok(130) };
+    let cfg = host_config(&a, &grant)?;
     // Shared memory of earlier hosts on this machine that were killed (after the join: a
     // refused host says one line).
     crate::supervise::launch::sweep_dead_runs();
@@ -160,31 +94,126 @@ pub fn run(mut a: WorkersArgs) -> anyhow::Result<i32> {
         grant.first_generation
     );
     let host_slots = HostSlots { first_slot: grant.first_slot, first_generation: grant.first_generation };
-    let bridge = HostBridge::start(
-        session,
-        HostOptions {
-            run_id: run_id.clone(),
-            local_run_id: local_run_id.clone(),
-            grant,
-            workers: a.workers as u32,
-            codec: a.codec,
-        },
-    )?;
-    let mut spec = CrewSpec::new(&dir, &local_run_id, &config_path, cfg, a.workers, PolicyArg::Ppo);
+    let options =
+        HostOptions { run_id, local_run_id: local_run_id.clone(), grant, workers: a.workers as u32, codec: a.codec };
+    let bridge = HostBridge::start(session, options)?;
+    let mut spec = CrewSpec::new(&dir, &local_run_id, &config_path, cfg, a.workers, Policy::Ppo);
     spec.host = Some(host_slots);
     spec.synthetic = a.synthetic;
     let mut crew = Crew::start(spec)?;
-    let mut learner_gone = false;
+    let learner_gone = supervise(&mut crew, &bridge)?;
+    // The bridge's ports go first: ending the host's shared-memory domain needs every node gone.
     let counts = bridge.counts.clone();
-    let traffic = |restarts: u64| {
-        let n = |c: &std::sync::atomic::AtomicU64| c.load(std::sync::atomic::Ordering::Relaxed);
-        eprintln!(
-            "[workers] {} observations ({:.1} MB) sent, {} actions received, {restarts} restart(s)",
-            n(&counts.observations),
-            n(&counts.bytes) as f64 / 1e6,
-            n(&counts.actions),
+    bridge.finish()?;
+    let out = crew.finish()?;
+    // The totals last: `bench remote` reads the bytes per observation from this line.
+    traffic(&counts, out.restarts);
+    eprintln!("[workers] ended after {:.1} s, {} worker restart(s)", out.seconds, out.restarts);
+    Ok(match process::termination_signal() {
+        Some(sig) => process::signal_exit_code(sig),
+        None if learner_gone => 1,
+        None => 0,
+    })
+}
+
+/// How this host talks to the learner's: TLS with its bundle (`--certs`), or plain TCP.
+fn security(a: &WorkersArgs) -> anyhow::Result<(remote::Security, Option<JoinInfo>)> {
+    Ok(match (&a.certs, a.connect.starts_with("tls/")) {
+        (Some(dir), true) => {
+            let (files, join) = remote::certs::host_files(dir)?;
+            (remote::Security::Tls { files, access: None }, Some(join))
+        }
+        (None, true) => anyhow::bail!(
+            "--connect {}: TLS needs this host's bundle (--certs DIR); `orchestrator hosts issue` makes it on the learner's host",
+            a.connect
+        ),
+        (_, false) => (remote::Security::Insecure, None),
+    })
+}
+
+/// The run to join and its secret: from the arguments, the bundle, or $GESTHOR_SECRET.
+fn credentials(a: &WorkersArgs, bundle: Option<&JoinInfo>) -> anyhow::Result<(String, String)> {
+    if let Some(b) = bundle {
+        anyhow::ensure!(
+            a.run_id.as_ref().is_none_or(|r| *r == b.run_id),
+            "--run-id {}: the bundle is for run {}",
+            a.run_id.as_deref().unwrap_or_default(),
+            b.run_id
         );
-    };
+    }
+    let run_id = bundle
+        .map(|b| b.run_id.clone())
+        .or_else(|| a.run_id.clone())
+        .context("--run-id: the run to join is needed (`up --listen` printed it)")?;
+    let secret = a
+        .secret
+        .clone()
+        .or_else(|| bundle.map(|b| b.secret.clone()))
+        .or_else(|| std::env::var("GESTHOR_SECRET").ok())
+        .context("--secret: the run's secret is needed (or $GESTHOR_SECRET); `up --listen` printed it")?;
+    Ok((run_id, secret))
+}
+
+/// Asks the learner's host for slots, again each second while it is not up yet (or a dead
+/// host's slots are not free yet) for up to `--wait`; None when a termination signal came.
+fn join(
+    a: &WorkersArgs,
+    session: &zenoh::Session,
+    run_id: &str,
+    secret: &str,
+    host: &str,
+) -> anyhow::Result<Option<JoinGrant>> {
+    let asked = Instant::now();
+    loop {
+        match remote::join(session, run_id, secret, a.workers as u32, host) {
+            Ok(g) => return Ok(Some(g)),
+            Err(e) if e.to_string().contains("no learner answered") => {
+                if let Some(why) = remote::refusals::last_refusal() {
+                    anyhow::bail!(
+                        "joining run {run_id} at {}: the TLS link was refused ({why}): this host's certificate is not trusted there (revoked, or issued for another run)",
+                        a.connect
+                    );
+                }
+                anyhow::ensure!(
+                    asked.elapsed().as_secs_f64() < a.wait,
+                    "joining run {run_id} at {}: no learner answered for {:.0} s (is `up --listen` running there?)",
+                    a.connect,
+                    a.wait
+                );
+            }
+            // slots of a host that just died are freed a few seconds after it vanished
+            Err(e) if e.to_string().contains("remote slots are free") && asked.elapsed().as_secs_f64() < a.wait => {}
+            Err(e) => return Err(e.context(format!("joining run {run_id} at {}", a.connect))),
+        }
+        if process::termination_signal().is_some() {
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_secs(1));
+    }
+}
+
+/// The learner's config with this host's dataset, checked to be the learner's.
+fn host_config(a: &WorkersArgs, grant: &JoinGrant) -> anyhow::Result<RunConfig> {
+    let mut cfg = RunConfig::from_toml(&grant.config_toml, "(the learner's config)")?;
+    if let Some(d) = &a.dataset {
+        cfg.run.dataset = d.clone();
+    }
+    if !a.synthetic {
+        let mine = manifest_digest(&cfg.run.dataset)?;
+        anyhow::ensure!(
+            mine == grant.manifest_digest,
+            "{}: not the learner's dataset (its manifest differs); copy the learner's or pass --dataset",
+            cfg.run.dataset.display()
+        );
+        worker::dataset::Dataset::open(&cfg.run.dataset, worker::dataset::Verify::Full)?;
+    }
+    Ok(cfg)
+}
+
+/// Ticks the crew until it ends: a termination signal, the learner's host going away or the
+/// bridge ending stops it. Whether the learner's host went away.
+fn supervise(crew: &mut Crew, bridge: &HostBridge) -> anyhow::Result<bool> {
+    let mut learner_gone = false;
     let mut last_line = Instant::now();
     while crew.tick()? == CrewState::Running {
         if process::termination_signal().is_some() && !crew.is_stopping() {
@@ -201,19 +230,19 @@ pub fn run(mut a: WorkersArgs) -> anyhow::Result<i32> {
         }
         if last_line.elapsed() > Duration::from_secs(10) {
             last_line = Instant::now();
-            traffic(crew.restarts());
+            traffic(&bridge.counts, crew.restarts());
         }
         std::thread::sleep(Duration::from_millis(50));
     }
-    // The bridge's ports go first: ending the host's shared-memory domain needs every node gone.
-    bridge.finish()?;
-    let out = crew.finish()?;
-    // The totals last: `bench remote` reads the bytes per observation from this line.
-    traffic(out.restarts);
-    eprintln!("[workers] ended after {:.1} s, {} worker restart(s)", out.seconds, out.restarts);
-    Ok(match process::termination_signal() {
-        Some(sig) => process::signal_exit_code(sig),
-        None if learner_gone => 1,
-        None => 0,
-    })
+    Ok(learner_gone)
+}
+
+fn traffic(counts: &BridgeCounts, restarts: u64) {
+    let n = |c: &std::sync::atomic::AtomicU64| c.load(std::sync::atomic::Ordering::Relaxed);
+    eprintln!(
+        "[workers] {} observations ({:.1} MB) sent, {} actions received, {restarts} restart(s)",
+        n(&counts.observations),
+        n(&counts.bytes) as f64 / 1e6,
+        n(&counts.actions),
+    );
 }

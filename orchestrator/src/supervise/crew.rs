@@ -18,34 +18,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use farm::config::RunConfig;
+use farm::progress::Progress;
+use farm::serve_args::{LearnerOptions, Policy, ServeArgs};
 use farm::transport;
 use nix::sys::signal::Signal;
 use nix::unistd::Pid;
-use serde::Deserialize;
 
 use super::binaries;
 use super::child::{self, Child, Ended};
-
-/// The policy the learner serves.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum PolicyArg {
-    /// PPO: act and learn.
-    Ppo,
-    /// Uniformly random actions.
-    Random,
-    /// The shortest-path expert (workers compute it).
-    Expert,
-}
-
-impl PolicyArg {
-    pub fn name(self) -> &'static str {
-        match self {
-            PolicyArg::Ppo => "ppo",
-            PolicyArg::Random => "random",
-            PolicyArg::Expert => "expert",
-        }
-    }
-}
 
 /// Everything a farm needs to start.
 #[derive(Clone, Debug)]
@@ -56,7 +36,7 @@ pub struct CrewSpec {
     pub config_path: PathBuf,
     pub cfg: RunConfig,
     pub workers: usize,
-    pub policy: PolicyArg,
+    pub policy: Policy,
     pub max_frames: Option<u64>,
     pub max_seconds: Option<f64>,
     /// Evaluation: the programs of each worker, in order; the learner stops when all are done.
@@ -66,8 +46,8 @@ pub struct CrewSpec {
     /// Synthetic environments (farm plumbing only, no simulator).
     pub synthetic: bool,
     pub resume: bool,
-    /// Extra arguments for `learner serve` (e.g. a checkpoint to evaluate).
-    pub learner_args: Vec<OsString>,
+    /// What the learner is told beyond the above (e.g. a checkpoint to evaluate).
+    pub learner: LearnerOptions,
     /// Seconds between the learner's progress records.
     pub report_every: f64,
     /// Seconds from SIGINT to SIGTERM when stopping (SIGKILL follows at 4.5 s).
@@ -97,7 +77,7 @@ impl CrewSpec {
         config_path: &Path,
         cfg: RunConfig,
         workers: usize,
-        policy: PolicyArg,
+        policy: Policy,
     ) -> CrewSpec {
         CrewSpec {
             run_dir: run_dir.into(),
@@ -112,7 +92,7 @@ impl CrewSpec {
             check: false,
             synthetic: false,
             resume: false,
-            learner_args: vec![],
+            learner: LearnerOptions::default(),
             report_every: 2.0,
             grace: 3.0,
             bin_dir: None,
@@ -120,29 +100,6 @@ impl CrewSpec {
             host: None,
         }
     }
-}
-
-/// The learner's latest progress record (`farm.jsonl`), the fields the orchestrator shows.
-#[derive(Clone, Debug, Default, Deserialize)]
-#[serde(default)]
-pub struct Progress {
-    pub t: f64,
-    pub fps: f64,
-    pub frames: u64,
-    pub episodes: u64,
-    pub success_rate: Option<f64>,
-    pub workers_seen: usize,
-    pub workers_live: usize,
-    pub restarts: u64,
-    pub latency_ms: Option<f64>,
-    pub latency_sum_s: f64,
-    pub latency_count: u64,
-    pub lost: u64,
-    pub duplicates: u64,
-    pub corrupt: u64,
-    pub stop_reason: Option<String>,
-    /// Where the time went so far (learners that write it).
-    pub profile: Option<farm::profile::Profile>,
 }
 
 /// How a farm ended.
@@ -267,37 +224,21 @@ impl Crew {
 
     fn spawn_learner(&mut self) -> anyhow::Result<()> {
         let s = &self.spec;
-        let mut args: Vec<OsString> = vec![
-            "serve".into(),
-            "--config".into(),
-            s.config_path.clone().into(),
-            "--run-id".into(),
-            s.run_id.clone().into(),
-            "--workers".into(),
-            (s.workers + s.remote_slots).to_string().into(),
-            "--run-dir".into(),
-            s.run_dir.clone().into(),
-            "--policy".into(),
-            s.policy.name().into(),
-            "--report-every".into(),
-            s.report_every.to_string().into(),
-        ];
-        if let Some(f) = s.max_frames {
-            args.extend(["--max-frames".into(), f.to_string().into()]);
-        }
-        if let Some(t) = s.max_seconds {
-            args.extend(["--max-seconds".into(), t.to_string().into()]);
-        }
-        if s.programs.is_some() {
-            args.push("--eval".into());
-        }
-        if s.check {
-            args.push("--check".into());
-        }
-        if s.resume {
-            args.push("--resume".into());
-        }
-        args.extend(s.learner_args.iter().cloned());
+        let mut serve = ServeArgs::new(
+            s.config_path.clone(),
+            s.run_id.clone(),
+            s.workers + s.remote_slots,
+            s.run_dir.clone(),
+            s.policy,
+        );
+        serve.max_frames = s.max_frames;
+        serve.max_seconds = s.max_seconds;
+        serve.eval = s.programs.is_some();
+        serve.check = s.check;
+        serve.resume = s.resume;
+        serve.report_every = s.report_every;
+        serve.options = s.learner.clone();
+        let args: Vec<OsString> = std::iter::once("serve".into()).chain(serve.to_args()).collect();
         let log = self.log_path("learner");
         append_line(&log, &format!("=== learner, run {} ===", s.run_id));
         let child = child::spawn(&self.learner_bin, &args, &child::learner_env(), &log, Signal::SIGINT)
@@ -346,7 +287,7 @@ impl Crew {
             farm::files::write_atomic(&p, serde_json::to_string(&programs)?.as_bytes())?;
             args.extend(["--programs".into(), p.into()]);
         }
-        if s.policy == PolicyArg::Expert {
+        if s.policy == Policy::Expert {
             args.push("--expert-hints".into());
         }
         if s.synthetic {
@@ -383,6 +324,16 @@ impl Crew {
     /// Reaps what ended, restarts crashed workers, escalates a stop. Call it often (every
     /// few tens of milliseconds).
     pub fn tick(&mut self) -> anyhow::Result<CrewState> {
+        self.reap_learner();
+        let crashed = self.reap_workers();
+        self.restart(crashed);
+        self.escalate_stop();
+        let alive = self.learner.is_some() || self.workers.iter().any(|w| w.child.is_some());
+        Ok(if alive { CrewState::Running } else { CrewState::Ended })
+    }
+
+    /// A learner that ended ends the run (a failure with its log's last lines).
+    fn reap_learner(&mut self) {
         if let Some(l) = &self.learner
             && let Some(ended) = child::reap(l.pid)
         {
@@ -400,6 +351,11 @@ impl Crew {
                 self.begin_stop();
             }
         }
+    }
+
+    /// Workers that ended: done (exit 0), or crashed, to be restarted (returned) unless they
+    /// keep failing right after starting, which ends the run.
+    fn reap_workers(&mut self) -> Vec<usize> {
         let mut crashed = vec![];
         for k in 0..self.workers.len() {
             let Some(c) = &self.workers[k].child else { continue };
@@ -436,6 +392,11 @@ impl Crew {
             );
             crashed.push(k);
         }
+        crashed
+    }
+
+    /// Restarts crashed workers as their next generation, after removing what they left.
+    fn restart(&mut self, crashed: Vec<usize>) {
         if !crashed.is_empty() {
             // The dead processes could not remove their ports and segments themselves.
             if let Err(e) = transport::clean_dead_nodes(&self.spec.run_id) {
@@ -451,6 +412,10 @@ impl Crew {
                 }
             }
         }
+    }
+
+    /// A stop in progress: SIGTERM to the workers after the grace, SIGKILL at the limits.
+    fn escalate_stop(&mut self) {
         if let Some(t0) = self.stopping {
             let el = t0.elapsed();
             if el >= KILL_AFTER {
@@ -465,8 +430,6 @@ impl Crew {
                 child::signal(l, Signal::SIGKILL);
             }
         }
-        let alive = self.learner.is_some() || self.workers.iter().any(|w| w.child.is_some());
-        Ok(if alive { CrewState::Running } else { CrewState::Ended })
     }
 
     fn signal_all(&self, sig: Signal) {
@@ -629,7 +592,7 @@ mod tests {
         assert!(read_last_progress_after(dir.path(), from).is_none(), "nothing of this learner yet");
         let mut f = std::fs::OpenOptions::new().append(true).open(&log).unwrap();
         std::io::Write::write_all(&mut f, b"{\"frames\":4096}\n").unwrap();
-        assert_eq!(read_last_progress_after(dir.path(), from).unwrap().frames, 4096);
-        assert_eq!(read_last_progress(dir.path()).unwrap().frames, 4096);
+        assert_eq!(read_last_progress_after(dir.path(), from).unwrap().totals.frames, 4096);
+        assert_eq!(read_last_progress(dir.path()).unwrap().totals.frames, 4096);
     }
 }

@@ -11,8 +11,8 @@ use farm::config::{Encoder, RunConfig};
 use worker::dataset::Dataset;
 use worker::scene::Split;
 
-use super::crew::PolicyArg;
 use super::run_dir::RunDir;
+use farm::serve_args::Policy;
 
 /// Makes the dataset path absolute (children may run elsewhere), checks it is a dataset and
 /// verifies it; the opened dataset, unless `synthetic` (no dataset is read then).
@@ -78,7 +78,7 @@ pub fn prepare_run(
     cfg: &RunConfig,
     resume: bool,
     workers: usize,
-    policy: PolicyArg,
+    policy: Policy,
 ) -> anyhow::Result<(RunDir, PathBuf)> {
     let dir = RunDir::open(run_dir)?;
     let config_path = dir.config_path();

@@ -19,8 +19,10 @@ use nix::unistd::Pid;
 
 use crate::supervise::binaries;
 use crate::supervise::child;
-use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
+use crate::supervise::crew::{Crew, CrewSpec, CrewState};
 use crate::supervise::launch;
+use farm::progress::Progress;
+use farm::serve_args::Policy;
 
 /// The bench's configuration when none is given: the dissertation's 224×224 RGB-D frames.
 pub const BENCH_CONFIG: &str = r#"# Embedded configuration of `orchestrator bench farm`: 224x224 RGB-D, 4 envs per worker.
@@ -110,8 +112,8 @@ fn wait_for(
 
 fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::Result<Row> {
     let run_dir = out.join(format!("w{n}"));
-    let (dir, config_path) = launch::prepare_run(&run_dir, cfg, false, n, PolicyArg::Random)?;
-    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), n, PolicyArg::Random);
+    let (dir, config_path) = launch::prepare_run(&run_dir, cfg, false, n, Policy::Random)?;
+    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), n, Policy::Random);
     spec.synthetic = a.synthetic;
     spec.report_every = 0.5;
     spec.check = true;
@@ -120,7 +122,9 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
     let mut crew = Crew::start(spec)?;
     let result = (|| -> anyhow::Result<Row> {
         let startup = Duration::from_secs(60 + 10 * n as u64);
-        wait_for(&mut crew, startup, "first observation from every worker", |p| p.workers_seen == n && p.frames > 0)?;
+        wait_for(&mut crew, startup, "first observation from every worker", |p| {
+            p.workers_seen == n && p.totals.frames > 0
+        })?;
         let warm_until = Instant::now() + Duration::from_secs_f64(a.warmup);
         while Instant::now() < warm_until {
             crew.tick()?;
@@ -155,7 +159,7 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
         let per_worker: Vec<f64> =
             (0..n).filter(|&k| g0[k] == g1[k]).filter_map(|k| Some(100.0 * (c1[k]? - c0[k]?) / wall)).collect();
         let dt = (p1.t - p0.t).max(1e-9);
-        let dl = p1.latency_count.saturating_sub(p0.latency_count);
+        let dl = p1.totals.latency_count.saturating_sub(p0.totals.latency_count);
         let learner_cpu = match (l0, l1) {
             (Some(a), Some(b)) => 100.0 * (b - a) / wall,
             _ => f64::NAN,
@@ -169,15 +173,15 @@ fn measure(n: usize, a: &BenchFarmArgs, cfg: &RunConfig, out: &Path) -> anyhow::
         };
         Ok(Row {
             workers: n,
-            fps: (p1.frames - p0.frames) as f64 / dt,
+            fps: (p1.totals.frames - p0.totals.frames) as f64 / dt,
             worker_cpu: per_worker.iter().sum::<f64>() / per_worker.len().max(1) as f64,
             learner_cpu,
             other_cpu,
-            latency_ms: (dl > 0).then(|| 1000.0 * (p1.latency_sum_s - p0.latency_sum_s) / dl as f64),
-            frames: p1.frames - p0.frames,
+            latency_ms: (dl > 0).then(|| 1000.0 * (p1.totals.latency_sum_s - p0.totals.latency_sum_s) / dl as f64),
+            frames: p1.totals.frames - p0.totals.frames,
             window_s: dt,
             restarts: crew.restarts(),
-            integrity_errors: p1.lost + p1.duplicates + p1.corrupt,
+            integrity_errors: p1.totals.lost + p1.totals.duplicates + p1.totals.corrupt,
         })
     })();
     crew.stop();
@@ -229,6 +233,26 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
         "| workers | frames/s | × 1 worker | CPU % per worker | learner CPU % | other processes CPU % | step round trip (ms) | frames measured | restarts | integrity errors |"
     );
     let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let csv = rows_table(&mut md, rows, one);
+    let _ = writeln!(md);
+    match ceiling {
+        Ok(c) => {
+            let _ = writeln!(
+                md,
+                "Renderer-only ceiling (one process, same scene content, {} views per submit): **{c:.1} views/s**.\n",
+                cfg.env.envs_per_worker
+            );
+        }
+        Err(e) => {
+            let _ = writeln!(md, "Renderer-only ceiling: not measured ({e}).\n");
+        }
+    }
+    targets(&mut md, rows, ceiling, one, best);
+    (md, csv)
+}
+
+/// One row per worker count into `md`; the same rows as CSV, returned.
+fn rows_table(md: &mut String, rows: &[Row], one: Option<f64>) -> String {
     let mut csv = String::from(
         "workers,frames_per_s,speedup_vs_1,worker_cpu_pct,learner_cpu_pct,other_cpu_pct,step_latency_ms,frames,window_s,restarts,integrity_errors\n",
     );
@@ -264,19 +288,11 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
             r.integrity_errors
         );
     }
-    let _ = writeln!(md);
-    match ceiling {
-        Ok(c) => {
-            let _ = writeln!(
-                md,
-                "Renderer-only ceiling (one process, same scene content, {} views per submit): **{c:.1} views/s**.\n",
-                cfg.env.envs_per_worker
-            );
-        }
-        Err(e) => {
-            let _ = writeln!(md, "Renderer-only ceiling: not measured ({e}).\n");
-        }
-    }
+    csv
+}
+
+/// The farm's targets, measured: scaling to 2 and 20 workers, and the renderer's ceiling.
+fn targets(md: &mut String, rows: &[Row], ceiling: &Result<f64, String>, one: Option<f64>, best: f64) {
     let mut targets = vec![];
     if let (Some(o), Some(two)) = (one, rows.iter().find(|r| r.workers == 2)) {
         targets.push(("2 workers ≥ 1.8 × 1 worker", two.fps / o.max(1e-9), 1.8));
@@ -293,7 +309,6 @@ pub fn report(rows: &[Row], ceiling: &Result<f64, String>, cfg: &RunConfig, a: &
             let _ = writeln!(md, "| {name} | {v:.2} | {} |", if v >= want { "yes" } else { "no" });
         }
     }
-    (md, csv)
 }
 
 pub fn run(a: BenchFarmArgs) -> anyhow::Result<()> {

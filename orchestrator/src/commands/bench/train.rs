@@ -18,8 +18,10 @@ use farm::process;
 use farm::profile::{Profile, StageTimes};
 
 use crate::commands::up;
-use crate::supervise::crew::{Crew, CrewSpec, CrewState, PolicyArg, Progress};
+use crate::supervise::crew::{Crew, CrewSpec, CrewState};
 use crate::supervise::launch;
+use farm::progress::Progress;
+use farm::serve_args::Policy;
 
 #[derive(Args, Debug)]
 pub struct BenchTrainArgs {
@@ -174,13 +176,11 @@ fn stages_table(md: &mut String, s: &StageTimes) {
 /// Runs the crew until it ends by itself at `frames` (or is interrupted).
 fn train(a: &BenchTrainArgs, cfg: &RunConfig, out: &std::path::Path) -> anyhow::Result<(Progress, f64)> {
     let run_dir = out.join("run");
-    let (dir, config_path) = launch::prepare_run(&run_dir, cfg, false, a.workers, PolicyArg::Ppo)?;
-    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, PolicyArg::Ppo);
+    let (dir, config_path) = launch::prepare_run(&run_dir, cfg, false, a.workers, Policy::Ppo)?;
+    let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg.clone(), a.workers, Policy::Ppo);
     spec.max_frames = Some(a.frames);
     spec.report_every = 1.0;
-    if a.stages {
-        spec.learner_args.push("--profile-stages".into());
-    }
+    spec.learner.profile_stages = a.stages;
     let start = Instant::now();
     let mut crew = Crew::start(spec)?;
     let mut last_line = Instant::now();
@@ -191,7 +191,7 @@ fn train(a: &BenchTrainArgs, cfg: &RunConfig, out: &std::path::Path) -> anyhow::
         if last_line.elapsed() > Duration::from_secs(10)
             && let Some(p) = crew.progress()
         {
-            eprintln!("[bench] {} of {} frames, {:.0} frames/s", p.frames, a.frames, p.fps);
+            eprintln!("[bench] {} of {} frames, {:.0} frames/s", p.totals.frames, a.frames, p.fps);
             last_line = Instant::now();
         }
         std::thread::sleep(Duration::from_millis(50));
@@ -224,13 +224,13 @@ pub fn run(a: BenchTrainArgs) -> anyhow::Result<()> {
     let out = a.out.clone().unwrap_or_else(|| crate::supervise::run_dir::default_path("bench-train"));
     let (p, wall) = train(&a, &cfg, &out)?;
     let metrics: Vec<serde_json::Value> = farm::files::read_jsonl(&out.join("run/metrics.jsonl")).unwrap_or_default();
-    let mut profile = p.profile.unwrap_or_default();
+    let mut profile = p.profile;
     if profile.learner.update_s == 0.0 {
         // a learner that writes no profile still reports each update's time
         profile.learner.update_s = metrics.iter().filter_map(|m| m["update_seconds"].as_f64()).sum();
     }
     let bench = TrainBench {
-        frames: p.frames,
+        frames: p.totals.frames,
         // the learner's own clock: from its start to its last record (process start-up excluded)
         seconds: if p.t > 0.0 { p.t } else { wall },
         updates: metrics.len() as u64,

@@ -1,11 +1,11 @@
 //! One pass of an evaluation: the farm runs the chosen programs, each exactly once, with the
 //! checkpoint's inputs as the pass asks (all, blind, RGB or depth alone, another room's gesture).
 
-use std::ffi::OsString;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use farm::metrics::EpisodeResult;
+use farm::serve_args::{Blank, LearnerOptions};
 
 use super::passes::read_episodes;
 use super::plan::{Plan, assign};
@@ -30,7 +30,7 @@ pub(super) fn run_pass(plan: &Plan, mode: EvalMode, workers: usize) -> anyhow::R
     let mut spec = CrewSpec::new(&dir.path, &dir.run_id, &config_path, cfg, workers, plan.policy);
     spec.programs = Some(assign(&plan.programs, workers));
     if let Some(c) = &plan.checkpoint {
-        spec.learner_args = learner_args(c, mode, plan.greedy);
+        spec.learner = learner_options(c, mode, plan.greedy);
     }
     let t = Instant::now();
     let mut crew = Crew::start(spec)?;
@@ -41,7 +41,7 @@ pub(super) fn run_pass(plan: &Plan, mode: EvalMode, workers: usize) -> anyhow::R
         if polled.elapsed() >= Duration::from_millis(500) {
             polled = Instant::now();
             if let Some(p) = crew.progress() {
-                bar.set(p.episodes, &format!("{:.0} frames/s", p.fps));
+                bar.set(p.totals.episodes, &format!("{:.0} frames/s", p.fps));
             }
         }
         std::thread::sleep(Duration::from_millis(20));
@@ -60,22 +60,15 @@ pub(super) fn run_pass(plan: &Plan, mode: EvalMode, workers: usize) -> anyhow::R
     Ok((eps, secs))
 }
 
-/// The learner's arguments for `mode`'s pass of `checkpoint`: the inputs it zeroes.
-fn learner_args(checkpoint: &Path, mode: EvalMode, greedy: bool) -> Vec<OsString> {
-    let mut args: Vec<OsString> = vec!["--checkpoint".into(), PathBuf::from(checkpoint).into_os_string()];
+/// The learner's options for `mode`'s pass of `checkpoint`: the inputs it zeroes.
+fn learner_options(checkpoint: &Path, mode: EvalMode, greedy: bool) -> LearnerOptions {
     let blank = match mode {
         EvalMode::Normal | EvalMode::OtherGesture => None,
-        EvalMode::Blind => Some("both"),
-        EvalMode::RgbOnly => Some("depth"),
-        EvalMode::DepthOnly => Some("rgb"),
+        EvalMode::Blind => Some(Blank::Both),
+        EvalMode::RgbOnly => Some(Blank::Depth),
+        EvalMode::DepthOnly => Some(Blank::Rgb),
     };
-    if let Some(b) = blank {
-        args.extend(["--blank".into(), b.into()]);
-    }
-    if greedy {
-        args.push("--greedy".into());
-    }
-    args
+    LearnerOptions { checkpoint: Some(checkpoint.into()), blank, greedy, profile_stages: false }
 }
 
 /// Each program's first episode (a restarted worker may repeat programs it had begun); every

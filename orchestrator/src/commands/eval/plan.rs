@@ -12,8 +12,8 @@ use worker::scene::Split;
 
 use super::args::EvalArgs;
 use crate::report::tables::EvalMode;
-use crate::supervise::crew::PolicyArg;
 use crate::supervise::launch::resolve_dataset;
+use farm::serve_args::Policy;
 
 /// What an evaluation runs: the checkpoint and its run's config set for evaluation, the
 /// programs, the passes, and where the tables go.
@@ -30,7 +30,7 @@ pub(super) struct Plan {
     pub(super) index: Vec<Program>,
     pub(super) programs: Vec<u64>,
     pub(super) modes: Vec<EvalMode>,
-    pub(super) policy: PolicyArg,
+    pub(super) policy: Policy,
     pub(super) greedy: bool,
     pub(super) label: String,
     pub(super) out: PathBuf,
@@ -206,11 +206,11 @@ fn modes_for(cfg: &RunConfig, baseline: bool, asked: &[String]) -> anyhow::Resul
 }
 
 /// The policy the farm runs for an evaluation of `checkpoint` (none: the Random baseline).
-fn policy(checkpoint: Option<&Path>, expert: bool) -> PolicyArg {
+fn policy(checkpoint: Option<&Path>, expert: bool) -> Policy {
     match (checkpoint, expert) {
-        (_, true) => PolicyArg::Expert,
-        (None, false) => PolicyArg::Random,
-        (Some(_), false) => PolicyArg::Ppo,
+        (_, true) => Policy::Expert,
+        (None, false) => Policy::Random,
+        (Some(_), false) => Policy::Ppo,
     }
 }
 
