@@ -270,48 +270,68 @@ const T44: [[&[f64]; 3]; 4] = [
 /// Writes `T4.3.md/.csv` … `T4.7.md/.csv` into `out` for the tables the results can fill.
 pub fn write(out: &Path, results: &[RunResult]) -> anyhow::Result<()> {
     let data = Loaded::new(results)?;
-    let per_type_note = "The dissertation trains one model per scene type for this table; \"one per type\" rows are such \
-                         models (`--per-scene-type`), \"all types, broken down\" rows are the models trained in every \
-                         room evaluated on that type's rooms only.";
-    let mut tables = Vec::new();
+    let tables = [t43(), t44(), t45(), t46(), pointing(), t47()];
+    for (name, caption, lines, columns) in tables {
+        if let Some((md, csv)) = table(name, &caption, &lines, &columns, &data) {
+            farm::files::write_atomic(&out.join(format!("{name}.md")), md.as_bytes())?;
+            farm::files::write_atomic(&out.join(format!("{name}.csv")), csv.as_bytes())?;
+        }
+    }
+    Ok(())
+}
 
+/// One table: its name, caption, rows (with the dissertation's figures) and columns.
+type Spec = (&'static str, String, Vec<Line>, Vec<Column>);
+
+const PER_TYPE_NOTE: &str = "The dissertation trains one model per scene type for this table; \"one per type\" rows are \
+                             such models (`--per-scene-type`), \"all types, broken down\" rows are the models trained in \
+                             every room evaluated on that type's rooms only.";
+
+/// SR and SPL per scene type on train, val and test.
+fn t43() -> Spec {
     let mut c43 = Vec::new();
     for m in [Metric::Sr, Metric::Spl] {
         for f in [Fold::Train, Fold::Val, Fold::Test] {
             c43.push(col(format!("{} {} (%)", m.name(), f.name()), f, "normal", "all", "1", m));
         }
     }
-    tables.push((
+    (
         "T4.3",
         format!(
             "SR and SPL at the first stop per scene type on train, val and test: the selected checkpoint on a \
              spread of each split's programs (val: the evaluation that selected it, so biased upward). \
-             {per_type_note} {CELL}"
+             {PER_TYPE_NOTE} {CELL}"
         ),
         per_type_lines(&T43),
         c43,
-    ));
+    )
+}
 
+/// SR and SPL per scene type at 1, 2, 3 and unlimited stops.
+fn t44() -> Spec {
     let mut c44 = Vec::new();
     for m in [Metric::Sr, Metric::Spl] {
         for (k, head) in [("1", "1"), ("2", "2"), ("3", "3"), ("inf", "∞")] {
             c44.push(col(format!("{} {head}", m.name()), Fold::Test, "normal", "all", k, m));
         }
     }
-    tables.push((
+    (
         "T4.4",
-        format!("SR and SPL (%) on test per scene type at 1, 2, 3 and unlimited (∞) stops. {per_type_note} {CELL}"),
+        format!("SR and SPL (%) on test per scene type at 1, 2, 3 and unlimited (∞) stops. {PER_TYPE_NOTE} {CELL}"),
         per_type_lines(&T44),
         c44,
-    ));
+    )
+}
 
+/// SR and SPL by the number of instances of the target category.
+fn t45() -> Spec {
     let mut c45 = Vec::new();
     for m in [Metric::Sr, Metric::Spl] {
         for b in ["1", "2", "3+"] {
             c45.push(col(format!("{} {b}", m.name()), Fold::Test, "normal", b, "1", m));
         }
     }
-    tables.push((
+    (
         "T4.5",
         format!(
             "SR and SPL (%) on test at the first stop by the number of instances of the target category in the room \
@@ -324,16 +344,21 @@ pub fn write(out: &Path, results: &[RunResult]) -> anyhow::Result<()> {
             ("both", &[55.2, 47.5, 36.5, 19.4, 20.3, 11.4]),
         ]),
         c45,
-    ));
+    )
+}
 
-    let first = |mode: &'static str| {
-        vec![
-            col("SR (%)", Fold::Test, mode, "all", "1", Metric::Sr),
-            col("SPL (%)", Fold::Test, mode, "all", "1", Metric::Spl),
-            col("DTS (m)", Fold::Test, mode, "all", "1", Metric::Dts),
-        ]
-    };
-    tables.push((
+/// T4.6's and T4.7's columns: SR, SPL and DTS on test at the first stop, in `mode`.
+fn first(mode: &'static str) -> Vec<Column> {
+    vec![
+        col("SR (%)", Fold::Test, mode, "all", "1", Metric::Sr),
+        col("SPL (%)", Fold::Test, mode, "all", "1", Metric::Spl),
+        col("DTS (m)", Fold::Test, mode, "all", "1", Metric::Dts),
+    ]
+}
+
+/// Blind mode.
+fn t46() -> Spec {
+    (
         "T4.6",
         format!(
             "Blind mode: the models of T4.2 on test at the first stop with their visual inputs zeroed at evaluation \
@@ -347,11 +372,14 @@ pub fn write(out: &Path, results: &[RunResult]) -> anyhow::Result<()> {
             ("both", &[22.64, 16.3, 2.578]),
         ]),
         first("blind"),
-    ));
+    )
+}
 
+/// Own gesture against another room's.
+fn pointing() -> Spec {
     let sr =
         |head: &str, mode: &'static str, stops: &'static str| col(head, Fold::Test, mode, "all", stops, Metric::Sr);
-    tables.push((
+    (
         "pointing",
         "Is where the arm points read? (beyond the dissertation) The models shown the referencing gesture, on test: \
          SR (%) with each program's own gesture and with another room's (the program half the split on; the person \
@@ -366,11 +394,14 @@ pub fn write(out: &Path, results: &[RunResult]) -> anyhow::Result<()> {
             sr("SR ∞, own gesture", "normal", "inf"),
             sr("SR ∞, another room's", "other_gesture", "inf"),
         ],
-    ));
+    )
+}
 
+/// RGB only, depth only, RGB-D.
+fn t47() -> Spec {
     let mut t47 = lines(&[("rgb_sem_both", &[41.4, 23.2, 1.988]), ("depth_sem_both", &[41.0, 24.8, 2.012])]);
     t47.push(Line { scene_type: None, stem: "both", label: "RGBD+Semantic+Both", dissertation: &[49.2, 28.7, 1.976] });
-    tables.push((
+    (
         "T4.7",
         format!(
             "Visual inputs: +Both trained separately with RGB only, depth only, and RGB-D (the frozen encoder's other \
@@ -378,15 +409,7 @@ pub fn write(out: &Path, results: &[RunResult]) -> anyhow::Result<()> {
         ),
         t47,
         first("normal"),
-    ));
-
-    for (name, caption, lines, columns) in tables {
-        if let Some((md, csv)) = table(name, &caption, &lines, &columns, &data) {
-            farm::files::write_atomic(&out.join(format!("{name}.md")), md.as_bytes())?;
-            farm::files::write_atomic(&out.join(format!("{name}.csv")), csv.as_bytes())?;
-        }
-    }
-    Ok(())
+    )
 }
 
 #[cfg(test)]

@@ -29,311 +29,36 @@
 //! study continues from a clone on a machine without OUT.
 
 pub mod ablations;
+mod args;
 mod lanes;
 mod paired;
+mod plan;
 mod progress;
 pub mod records;
+mod stages;
 pub mod steps;
 pub mod summary;
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use anyhow::Context;
-use clap::Args;
-use farm::config::{Method, RunConfig};
-use farm::rooms::{SceneId, SceneType, Split};
+use farm::config::RunConfig;
+use farm::rooms::Split;
 
-use progress::{Kind, Lane, Progress};
-use steps::{Eval, evaluate, orchestrator, s};
-use summary::{METHODS, RunResult, StudyMethod};
-
-#[derive(Args, Debug, Clone)]
-pub struct StudyArgs {
-    /// Folder of run configs named after the methods (vision_only, vis_sem, referencing,
-    /// intervention, both, random; T4.7's rgb_sem_both and depth_sem_both), e.g. configs/tiny.
-    #[arg(long)]
-    pub configs: PathBuf,
-    /// Seeds per method (1..=N, each the config's seed plus k − 1).
-    #[arg(long, default_value_t = 3)]
-    pub seeds: u64,
-    /// Frames to train each run for.
-    #[arg(long)]
-    pub frames: u64,
-    /// The study folder (created; an existing one is continued).
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Only these methods (config file stems), comma-separated, trained in this order (seed by
-    /// seed); default: every one present, in T4.2's order.
-    #[arg(long, value_delimiter = ',')]
-    pub methods: Vec<String>,
-    /// Also train VisSem, +Referencing and +Intervention once per scene type, in that type's
-    /// rooms only, as the dissertation does for T4.3/T4.4 (12 more runs per seed).
-    #[arg(long)]
-    pub per_scene_type: bool,
-    #[arg(long, default_value_t = 4, value_parser = crate::commands::values::workers)]
-    pub workers: usize,
-    /// Checkpoints per run to choose from on val (evenly spaced; the last one always).
-    #[arg(long, default_value_t = 5)]
-    pub checkpoints: u64,
-    /// Val programs per checkpoint evaluation (spread over the val rooms); as many train
-    /// programs evaluate the selected checkpoint on train (T4.3).
-    #[arg(long, default_value_t = 500)]
-    pub val_programs: usize,
-    /// Test programs per evaluation (spread over the test rooms).
-    #[arg(long, default_value_t = 1000)]
-    pub test_programs: usize,
-    /// Override a config value, e.g. `--set ppo.lr=1e-4` (repeatable; checked as the file is;
-    /// the effective config is the one written into each run directory).
-    #[arg(long = "set", value_name = "KEY=VALUE")]
-    pub set: Vec<String>,
-    /// Train and evaluate every method on this dataset instead of the configs' `run.dataset`
-    /// (e.g. one built with `dataset build --pointing realistic`).
-    #[arg(long)]
-    pub dataset: Option<PathBuf>,
-    /// Also write the tables and figures here (e.g. docs/study), with each finished model's
-    /// record (its result, evaluation tables and training curve; no checkpoints): a model
-    /// recorded here is taken as done, so a clone continues the study without OUT.
-    #[arg(long)]
-    pub publish: Option<PathBuf>,
-    /// Models trained at once, each its own crew of --workers workers and a learner, all on this
-    /// machine's cores and GPU, publishing into the one --out (and --publish); 1: one after
-    /// another. It changes only the wall time: each model keeps its config, seed and frame
-    /// budget. On a machine of few cores (two) more than 1 mostly makes the crews compete for
-    /// the same cores.
-    #[arg(long, default_value_t = 1, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..))]
-    pub parallel: usize,
-}
-
-/// One training run of the study.
-#[derive(Clone, Debug)]
-pub struct Run {
-    pub method: StudyMethod,
-    /// Trained, selected and tested in this type's rooms only (`--per-scene-type`).
-    pub scene_type: Option<SceneType>,
-    pub seed_index: u64,
-    pub cfg: RunConfig,
-    pub dir: PathBuf,
-    pub config_path: PathBuf,
-}
-
-impl Run {
-    /// The passes of its test evaluation: normal and blind (T4.6), and where the policy is shown
-    /// the referencing gesture, another room's gesture (is where the arm points read?).
-    fn test_modes(&self) -> &'static [&'static str] {
-        if self.cfg.run.method.shows_referencing() {
-            &["normal", "blind", "other_gesture"]
-        } else {
-            &["normal", "blind"]
-        }
-    }
-
-    /// Frames one PPO update consumes.
-    fn frames_per_update(&self, workers: usize) -> u64 {
-        (self.cfg.ppo.rollout * workers * self.cfg.env.envs_per_worker) as u64
-    }
-
-    /// Updates a complete run has made.
-    fn updates_needed(&self, workers: usize) -> u64 {
-        (self.cfg.run.total_frames / self.frames_per_update(workers)).max(1)
-    }
-
-    fn latest_update(&self) -> u64 {
-        farm::checkpoints::list(&farm::checkpoints::dir_of(&self.dir)).last().map_or(0, |(u, _)| *u)
-    }
-
-    fn trained(&self, workers: usize) -> bool {
-        self.latest_update() >= self.updates_needed(workers)
-    }
-
-    /// The checkpoints val chooses from: the evenly spaced ones and the final one. A checkpoint
-    /// written when the run was stopped part-way is not among them, so a study that was stopped
-    /// and continued chooses from the same candidates as one that ran through.
-    fn candidates(&self, workers: usize) -> Vec<PathBuf> {
-        let (every, last) = (self.cfg.checkpoint.every_updates.max(1), self.updates_needed(workers));
-        farm::checkpoints::list(&farm::checkpoints::dir_of(&self.dir))
-            .into_iter()
-            .filter(|(u, _)| u % every == 0 || *u >= last)
-            .map(|(_, ckpt)| ckpt)
-            .collect()
-    }
-
-    fn select_dir(&self, ckpt: &Path) -> PathBuf {
-        self.dir.join("select").join(ckpt.file_stem().unwrap_or_default())
-    }
-
-    /// The rooms of `split` this run is evaluated in (`--scenes`; empty: all of them).
-    fn rooms(&self, split: Split) -> Vec<String> {
-        self.scene_type.map_or_else(Vec::new, |t| rooms_of(t, split))
-    }
-
-    /// The run's folder and record name, e.g. `both-seed1`.
-    fn file_name(&self) -> String {
-        self.dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
-    }
-
-    fn name(&self) -> String {
-        let rooms = self.scene_type.map(|t| format!(" in {} rooms", t.name())).unwrap_or_default();
-        format!("{}{rooms} seed {}", self.method.label, self.seed_index)
-    }
-}
-
-fn rooms_of(t: SceneType, split: Split) -> Vec<String> {
-    SceneId::of_split(split).filter(|s| s.scene_type == t).map(SceneId::name).collect()
-}
-
-/// The methods T4.3/T4.4 train once per scene type.
-const PER_SCENE_TYPE: [&str; 3] = ["vis_sem", "referencing", "intervention"];
-
-/// What the study will do, from the config folder: its learning runs and Random's seeds.
-pub fn plan(a: &StudyArgs) -> anyhow::Result<(Vec<Run>, Option<RunConfig>)> {
-    anyhow::ensure!(a.seeds > 0, "--seeds: at least one");
-    anyhow::ensure!(a.frames > 0, "--frames: give a positive count");
-    anyhow::ensure!(a.checkpoints > 0, "--checkpoints: at least one");
-    for m in &a.methods {
-        anyhow::ensure!(
-            summary::method(m).is_some(),
-            "--methods: `{m}` is not one of {}",
-            METHODS.map(|m| m.stem).join(", ")
-        );
-    }
-    let mut runs = Vec::new();
-    let mut random = None;
-    // T4.2's order, or the order asked for (the first methods of a long study finish first)
-    let order: Vec<StudyMethod> = match a.methods.is_empty() {
-        true => METHODS.to_vec(),
-        false => a.methods.iter().filter_map(|m| summary::method(m)).collect(),
-    };
-    for sm in order {
-        let stem = sm.stem;
-        let path = a.configs.join(format!("{stem}.toml"));
-        if !path.is_file() {
-            anyhow::ensure!(a.methods.is_empty(), "--methods {stem}: no {}", path.display());
-            continue;
-        }
-        let mut cfg = RunConfig::load(&path)?.with_overrides(&a.set)?;
-        if let Some(d) = &a.dataset {
-            cfg.run.dataset = d.clone();
-        }
-        anyhow::ensure!(
-            cfg.run.method == sm.method,
-            "{}: run.method is {:?}, the file name says {stem}",
-            path.display(),
-            cfg.run.method
-        );
-        if sm.method == Method::Random {
-            random = Some(cfg);
-            continue;
-        }
-        anyhow::ensure!(
-            (cfg.model.rgb, cfg.model.depth) == (sm.rgb, sm.depth),
-            "{}: model.rgb = {}, model.depth = {}; {stem} needs {} and {}",
-            path.display(),
-            cfg.model.rgb,
-            cfg.model.depth,
-            sm.rgb,
-            sm.depth
-        );
-        let types: Vec<Option<SceneType>> = std::iter::once(None)
-            .chain(SceneType::ALL.into_iter().map(Some).filter(|_| a.per_scene_type && PER_SCENE_TYPE.contains(&stem)))
-            .collect();
-        for t in types {
-            for k in 1..=a.seeds {
-                let mut c = cfg.clone();
-                c.run.seed = cfg.run.seed + k - 1;
-                c.run.total_frames = a.frames;
-                // every training room (of the type), as §4.4.1 (the tiny configs pick 8 for
-                // short single runs)
-                c.run.scenes = t.map_or_else(Vec::new, |t| rooms_of(t, Split::Train));
-                let name = match t {
-                    Some(t) => format!("{stem}-{}-seed{k}", t.name().to_ascii_lowercase()),
-                    None => format!("{stem}-seed{k}"),
-                };
-                let mut run = Run {
-                    method: sm,
-                    scene_type: t,
-                    seed_index: k,
-                    cfg: c,
-                    dir: a.out.join("runs").join(&name),
-                    config_path: a.out.join("configs").join(format!("{name}.toml")),
-                };
-                // keep every checkpoint, `checkpoints` of them evenly spaced (the final one is
-                // written at the end of the run whatever the spacing)
-                run.cfg.checkpoint.keep = 0;
-                run.cfg.checkpoint.every_updates = (run.updates_needed(a.workers) / a.checkpoints).max(1);
-                runs.push(run);
-            }
-        }
-    }
-    // seed by seed: a study stopped part-way has every method at its first seeds (stable: the
-    // methods keep T4.2's order within a seed)
-    runs.sort_by_key(|r| r.seed_index);
-    anyhow::ensure!(
-        !runs.is_empty() || random.is_some(),
-        "{}: no config named after a method of T4.2 or T4.7 ({}.toml)",
-        a.configs.display(),
-        METHODS.map(|m| m.stem).join(".toml, ")
-    );
-    Ok((runs, random))
-}
-
-/// Trains `run` to its frame budget: from scratch, or on from its newest checkpoint.
-fn train(a: &StudyArgs, run: &Run) -> anyhow::Result<()> {
-    let fpu = run.frames_per_update(a.workers);
-    let left = run.updates_needed(a.workers) - run.latest_update();
-    // one round past the last update boundary, so that the last update runs
-    let frames = (left * fpu + (a.workers * run.cfg.env.envs_per_worker) as u64).to_string();
-    let workers = a.workers.to_string();
-    let log = run.dir.with_extension("log");
-    if run.latest_update() > 0 {
-        orchestrator(
-            &["up".into(), "--resume".into(), s(&run.dir), "--workers".into(), workers, "--frames".into(), frames],
-            &log,
-        )
-    } else {
-        if run.dir.exists() {
-            // a run killed before its first checkpoint: nothing in it to keep
-            std::fs::remove_dir_all(&run.dir).with_context(|| format!("clearing {}", run.dir.display()))?;
-        }
-        let args = [
-            "up",
-            "--config",
-            &s(&run.config_path),
-            "--run-dir",
-            &s(&run.dir),
-            "--workers",
-            &workers,
-            "--frames",
-            &frames,
-        ];
-        orchestrator(&args.map(String::from), &log)
-    }
-}
+pub use args::StudyArgs;
+use plan::{Layout, Run, plan};
+use progress::{Kind, Lane, StepBar};
+use steps::{Eval, evaluate, s};
+use summary::RunResult;
 
 pub fn run(a: StudyArgs) -> anyhow::Result<()> {
     farm::process::install_termination_handler()?;
     let (runs, random) = plan(&a)?;
-    std::fs::create_dir_all(a.out.join("configs"))?;
-    for r in &runs {
-        if !r.config_path.is_file() {
-            farm::files::write_atomic(&r.config_path, r.cfg.to_toml().as_bytes())
-                .with_context(|| format!("writing {}", r.config_path.display()))?;
-        }
-    }
+    write_configs(&runs)?;
     let random_seeds = if random.is_some() { a.seeds } else { 0 };
-    // per run: train, select (one step for all of its checkpoints), test, train split; then
-    // Random's evaluations
-    let mut steps = Vec::new();
-    for r in &runs {
-        let left = r.updates_needed(a.workers).saturating_sub(r.latest_update()) * r.frames_per_update(a.workers);
-        steps.push((Kind::Train, left as f64));
-        steps.push((Kind::Eval, ((a.checkpoints + 1) as usize * a.val_programs) as f64));
-        steps.push((Kind::Eval, (a.test_programs * r.test_modes().len()) as f64));
-        steps.push((Kind::Eval, a.val_programs as f64));
-    }
-    steps.extend((0..random_seeds).map(|_| (Kind::Eval, a.test_programs as f64)));
+    let steps = planned_steps(&a, &runs, random_seeds);
     let lanes = a.parallel.min(runs.len()).max(1);
-    let progress = Progress::new(&steps, lanes);
+    let progress = StepBar::new(&steps, lanes);
     eprintln!(
         "[study] {} runs ({} frames each, {} workers{}) and Random × {random_seeds} seeds in {}",
         runs.len(),
@@ -352,7 +77,7 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
     lanes::run(
         &jobs,
         lanes,
-        |lane, (run, planned)| model(&a, run, planned, settings, &progress.lane(lane)),
+        |lane, (run, planned)| stages::model(&a, run, planned, settings, &progress.lane(lane)),
         |i, r| {
             done[i] = Some(r);
             let results: Vec<RunResult> = done.iter().flatten().cloned().collect();
@@ -369,35 +94,10 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
         },
     )?;
     let mut results: Vec<RunResult> = done.into_iter().flatten().collect();
-    let lane = progress.lane(0);
     if let Some(cfg) = &random {
+        let lane = progress.lane(0);
         for k in 1..=a.seeds {
-            let mut c = cfg.clone();
-            c.run.seed = cfg.run.seed + k - 1;
-            let name = format!("random-seed{k}");
-            if let Some(p) = &a.publish
-                && let Some(r) = records::read(p, &name, &c, settings)?
-            {
-                lane.step(Kind::Eval, a.test_programs as f64, None, "recorded");
-                results.push(r);
-                continue;
-            }
-            let path = a.out.join("configs").join(format!("{name}.toml"));
-            farm::files::write_atomic(&path, c.to_toml().as_bytes())?;
-            let e = Eval {
-                what: vec!["--config".into(), s(&path)],
-                split: Split::Test,
-                programs: a.test_programs,
-                modes: &["normal"],
-                rooms: vec![],
-                out: a.out.join("random").join(format!("seed{k}")),
-            };
-            evaluate(a.workers, &e, &lane, &format!("Random seed {k} on test"))?;
-            let mut r = RunResult::read("random", None, k, Path::new("-"), f64::NAN, &e.out.join("tables.csv"))?;
-            if let Some(p) = &a.publish {
-                r = records::write(p, &name, &c, settings, &r, None)?;
-            }
-            results.push(r);
+            results.push(random_seed(&a, cfg, k, settings, &lane)?);
         }
     }
     progress.finish();
@@ -406,107 +106,65 @@ pub fn run(a: StudyArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// One model's pipeline, as `lane`: train it, select its checkpoint on val, test that one and
-/// evaluate it on train, record it (`--publish`); a model recorded there is taken as it is.
-fn model(
+/// Each run's config, as its children read it (written once: a continued study keeps them).
+fn write_configs(runs: &[Run]) -> anyhow::Result<()> {
+    for r in runs {
+        if !r.config_path.is_file() {
+            farm::files::write_atomic(&r.config_path, r.cfg.to_toml().as_bytes())
+                .with_context(|| format!("writing {}", r.config_path.display()))?;
+        }
+    }
+    Ok(())
+}
+
+/// The work of every step, for the ETA: per run train, select (one step for all of its
+/// checkpoints), test, train split; then Random's evaluations.
+fn planned_steps(a: &StudyArgs, runs: &[Run], random_seeds: u64) -> Vec<(Kind, f64)> {
+    let mut steps = Vec::new();
+    for r in runs {
+        let left = r.updates_needed(a.workers).saturating_sub(r.latest_update()) * r.frames_per_update(a.workers);
+        steps.push((Kind::Train, left as f64));
+        steps.push((Kind::Eval, ((a.checkpoints + 1) as usize * a.val_programs) as f64));
+        steps.push((Kind::Eval, (a.test_programs * r.test_modes().len()) as f64));
+        steps.push((Kind::Eval, a.val_programs as f64));
+    }
+    steps.extend((0..random_seeds).map(|_| (Kind::Eval, a.test_programs as f64)));
+    steps
+}
+
+/// Random with the config's seed plus `k` − 1, on test (or as recorded under `--publish`).
+fn random_seed(
     a: &StudyArgs,
-    run: &Run,
-    planned: &[(Kind, f64)],
+    cfg: &RunConfig,
+    k: u64,
     settings: records::Settings,
     lane: &Lane,
 ) -> anyhow::Result<RunResult> {
-    let name = run.name();
+    let mut c = cfg.clone();
+    c.run.seed = cfg.run.seed + k - 1;
+    let name = format!("random-seed{k}");
     if let Some(p) = &a.publish
-        && let Some(r) = records::read(p, &run.file_name(), &run.cfg, settings)?
+        && let Some(r) = records::read(p, &name, &c, settings)?
     {
-        for (k, (kind, work)) in planned.iter().enumerate() {
-            lane.step(*kind, *work, None, if k == 0 { "recorded" } else { "" });
-        }
-        eprintln!("[study] {name}: recorded in {}", p.join("records").join(run.file_name()).display());
-        records::add_outcomes(p, &run.file_name(), &r, &run.dir.join("test"))?;
+        lane.step(Kind::Eval, a.test_programs as f64, None, "recorded");
         return Ok(r);
     }
-    let trained = run.trained(a.workers);
-    let t = Instant::now();
-    if !trained {
-        lane.doing(&format!("training {name}"));
-        train(a, run)?;
-        anyhow::ensure!(run.trained(a.workers), "{}: the run ended before its last update", run.dir.display());
-    }
-    lane.step(Kind::Train, planned[0].1, (!trained).then(|| t.elapsed().as_secs_f64()), &format!("trained {name}"));
-
-    let (mut ran, mut work) = (false, 0.0);
-    let mut best: Option<(f64, PathBuf, u64)> = None;
-    let mut val_curve = Vec::new();
-    let t = Instant::now();
-    lane.doing(&format!("selecting {name} on val"));
-    for ckpt in run.candidates(a.workers) {
-        let e = Eval {
-            what: vec!["--checkpoint".into(), s(&ckpt)],
-            split: Split::Val,
-            programs: a.val_programs,
-            modes: &["normal"],
-            rooms: run.rooms(Split::Val),
-            out: run.select_dir(&ckpt),
-        };
-        ran |= e.run(a.workers)?;
-        work += e.work();
-        let sr1 = summary::first_stop(&e.out.join("tables.csv"))?.sr;
-        let frames = farm::checkpoints::frames(&ckpt).map_err(|e| anyhow::anyhow!("{}: {e}", ckpt.display()))?;
-        val_curve.push((frames, sr1));
-        if best.as_ref().is_none_or(|(b, _, _)| sr1 >= *b) {
-            best = Some((sr1, ckpt, frames));
-        }
-    }
-    let (val_sr1, chosen, chosen_frames) = best.with_context(|| format!("{}: no checkpoint", run.dir.display()))?;
-    lane.step(Kind::Eval, work, ran.then(|| t.elapsed().as_secs_f64()), &format!("selected {name} on val"));
-
-    // the test and train evaluations are of the selected checkpoint: redone when val chose another
-    let on = |split: Split, programs: usize, modes: &'static [&'static str], dir: &str| Eval {
-        what: vec!["--checkpoint".into(), s(&chosen)],
-        split,
-        programs,
-        modes,
-        rooms: run.rooms(split),
-        out: run.dir.join(dir),
+    let path = Layout(&a.out).config(&name);
+    farm::files::write_atomic(&path, c.to_toml().as_bytes())?;
+    let e = Eval {
+        what: vec!["--config".into(), s(&path)],
+        split: Split::Test,
+        programs: a.test_programs,
+        modes: &["normal"],
+        rooms: vec![],
+        out: Layout(&a.out).random(k),
     };
-    let (test, fit) = (
-        on(Split::Test, a.test_programs, run.test_modes(), "test"),
-        on(Split::Train, a.val_programs, &["normal"], "train"),
-    );
-    for e in [&test, &fit] {
-        let stale = std::fs::read_to_string(e.out.join("checkpoint")).ok().is_some_and(|c| c.trim() != s(&chosen));
-        if stale {
-            std::fs::remove_dir_all(&e.out)?;
-        }
+    evaluate(a.workers, &e, lane, &format!("Random seed {k} on test"))?;
+    let r = RunResult::read("random", None, k, Path::new("-"), f64::NAN, &e.out.join("tables.csv"))?;
+    match &a.publish {
+        Some(p) => records::write(p, &name, &c, settings, &r, None),
+        None => Ok(r),
     }
-    evaluate(a.workers, &test, lane, &format!("tested {name}"))?;
-    farm::files::write_atomic(&test.out.join("checkpoint"), s(&chosen).as_bytes())?;
-    evaluate(a.workers, &fit, lane, &format!("evaluated {name} on train"))?;
-    farm::files::write_atomic(&fit.out.join("checkpoint"), s(&chosen).as_bytes())?;
-
-    let mut r = RunResult::read(
-        run.method.stem,
-        run.scene_type,
-        run.seed_index,
-        // named inside the study folder, as its record keeps it
-        chosen.strip_prefix(&a.out).unwrap_or(&chosen),
-        val_sr1,
-        &test.out.join("tables.csv"),
-    )?;
-    r.val_tables = Some(run.select_dir(&chosen).join("tables.csv"));
-    r.train_tables = Some(fit.out.join("tables.csv"));
-    r.val_curve = val_curve;
-    let update = farm::checkpoints::update_of(&chosen).unwrap_or(0);
-    r.budget = Some(summary::Budget {
-        frames: chosen_frames,
-        adam_steps: update * (run.cfg.ppo.epochs * run.cfg.ppo.minibatches) as u64,
-        frames_per_update: run.frames_per_update(a.workers),
-    });
-    if let Some(p) = &a.publish {
-        r = records::write(p, &run.file_name(), &run.cfg, settings, &r, Some(&run.dir.join("metrics.jsonl")))?;
-    }
-    Ok(r)
 }
 
 /// Writes T4.2–T4.7 of the models evaluated so far into the study folder (and `--publish`);
@@ -555,112 +213,4 @@ fn report(
         tables(p, &all, &curves)?;
     }
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn args(dir: &Path) -> StudyArgs {
-        StudyArgs {
-            configs: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../configs/tiny"),
-            seeds: 2,
-            frames: 40_960,
-            out: dir.to_path_buf(),
-            methods: vec![],
-            per_scene_type: false,
-            workers: 4,
-            checkpoints: 5,
-            val_programs: 100,
-            test_programs: 100,
-            dataset: None,
-            publish: None,
-            set: Vec::new(),
-            parallel: 1,
-        }
-    }
-
-    #[test]
-    fn the_plan_has_every_learning_method_per_seed_and_random_apart() {
-        let dir = tempfile::tempdir().unwrap();
-        let (runs, random) = plan(&args(dir.path())).unwrap();
-        assert_eq!(runs.len(), 7 * 2, "T4.2's five learning methods and T4.7's two variants");
-        assert!(random.is_some());
-        let order: Vec<(&str, u64)> = runs.iter().map(|r| (r.method.stem, r.seed_index)).collect();
-        assert_eq!(&order[..2], [("vision_only", 1), ("vis_sem", 1)], "seed by seed, in T4.2's order");
-        let mut asked = args(dir.path());
-        asked.methods = vec!["both".into(), "vis_sem".into()];
-        let (runs2, random) = plan(&asked).unwrap();
-        let order: Vec<(&str, u64)> = runs2.iter().map(|r| (r.method.stem, r.seed_index)).collect();
-        assert_eq!(order, [("both", 1), ("vis_sem", 1), ("both", 2), ("vis_sem", 2)], "in the order asked for");
-        assert!(random.is_none());
-        let both2 = runs.iter().find(|r| r.method.stem == "both" && r.seed_index == 2).unwrap();
-        assert_eq!(both2.cfg.run.seed, 2, "seeds 1 and 2 from the config's seed 1");
-        assert_eq!(both2.cfg.run.total_frames, 40_960);
-        // 4 workers × 8 envs × 128 steps = 4,096 frames an update: 10 updates, one checkpoint in 2
-        assert_eq!(
-            (both2.updates_needed(4), both2.cfg.checkpoint.every_updates, both2.cfg.checkpoint.keep),
-            (10, 2, 0)
-        );
-        assert!(both2.dir.ends_with("runs/both-seed2"));
-        assert!(both2.cfg.run.scenes.is_empty(), "the study trains in all 80 training rooms");
-    }
-
-    #[test]
-    fn val_chooses_from_the_spaced_and_final_checkpoints_not_one_written_at_a_stop() {
-        let dir = tempfile::tempdir().unwrap();
-        let (runs, _) = plan(&args(dir.path())).unwrap();
-        let run = &runs[0];
-        // 10 updates, one checkpoint in 2; the run was stopped at update 3 and continued
-        let ckpts = farm::checkpoints::dir_of(&run.dir);
-        std::fs::create_dir_all(&ckpts).unwrap();
-        for u in [2, 3, 4, 6, 8, 10] {
-            std::fs::write(farm::checkpoints::path(&ckpts, u), b"").unwrap();
-        }
-        let chosen_from: Vec<u64> =
-            run.candidates(4).iter().map(|p| farm::checkpoints::update_of(p).unwrap()).collect();
-        assert_eq!(chosen_from, [2, 4, 6, 8, 10], "as a study that ran through");
-    }
-
-    #[test]
-    fn t47_variants_and_per_scene_type_runs_are_planned_apart() {
-        let dir = tempfile::tempdir().unwrap();
-        let mut a = args(dir.path());
-        a.seeds = 1;
-        a.per_scene_type = true;
-        let (runs, _) = plan(&a).unwrap();
-        // 7 models in every room (T4.2's five, T4.7's two), 3 methods × 4 scene types
-        assert_eq!(runs.len(), 7 + 12, "{:?}", runs.iter().map(|r| r.dir.clone()).collect::<Vec<_>>());
-        let rgb = runs.iter().find(|r| r.method.stem == "rgb_sem_both").unwrap();
-        assert!(rgb.cfg.model.rgb && !rgb.cfg.model.depth && rgb.cfg.run.method == Method::Both);
-        let bath =
-            runs.iter().find(|r| r.method.stem == "intervention" && r.scene_type == Some(SceneType::Bathroom)).unwrap();
-        assert!(bath.dir.ends_with("runs/intervention-bathroom-seed1"));
-        assert_eq!(bath.cfg.run.scenes.len(), 20);
-        assert!(bath.cfg.run.scenes.iter().all(|s| SceneId::parse(s).unwrap().scene_type == SceneType::Bathroom));
-        assert_eq!(
-            bath.rooms(Split::Test),
-            ["FloorPlan426", "FloorPlan427", "FloorPlan428", "FloorPlan429", "FloorPlan430"]
-        );
-        assert!(runs.iter().all(|r| r.scene_type.is_none() || PER_SCENE_TYPE.contains(&r.method.stem)));
-        // a variant whose inputs contradict its name
-        std::fs::create_dir_all(dir.path().join("c")).unwrap();
-        let both = std::fs::read_to_string(a.configs.join("both.toml")).unwrap();
-        std::fs::write(dir.path().join("c/depth_sem_both.toml"), both).unwrap();
-        a.configs = dir.path().join("c");
-        let e = plan(&a).unwrap_err().to_string();
-        assert!(e.contains("depth_sem_both.toml") && e.contains("model.rgb = true"), "{e}");
-    }
-
-    #[test]
-    fn unknown_or_missing_methods_are_one_clear_error() {
-        let dir = tempfile::tempdir().unwrap();
-        let mut a = args(dir.path());
-        a.methods = vec!["bothh".into()];
-        assert!(plan(&a).unwrap_err().to_string().contains("`bothh`"));
-        a.configs = dir.path().to_path_buf();
-        a.methods = vec![];
-        let e = plan(&a).unwrap_err().to_string();
-        assert!(e.contains("no config named after a method"), "{e}");
-    }
 }

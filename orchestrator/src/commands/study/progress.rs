@@ -21,7 +21,7 @@ const PRIOR_SECONDS: [f64; 2] = [1.0 / 1000.0, 1.0 / 15.0];
 /// Where the study is, with an ETA summed per kind of step from each kind's rate in this
 /// invocation: a bar on a terminal, one line per step otherwise (studies run for hours, mostly
 /// unattended, into logs). The lanes report through it at once.
-pub struct Progress {
+pub struct StepBar {
     state: Mutex<State>,
     /// Models in flight at once.
     lanes: usize,
@@ -39,13 +39,13 @@ struct State {
 
 /// One lane's view of the progress.
 pub struct Lane<'a> {
-    progress: &'a Progress,
+    progress: &'a StepBar,
     id: usize,
 }
 
-impl Progress {
+impl StepBar {
     /// For `plan`'s steps, run `lanes` at a time.
-    pub fn new(plan: &[(Kind, f64)], lanes: usize) -> Progress {
+    pub fn new(plan: &[(Kind, f64)], lanes: usize) -> StepBar {
         let mut left = [0.0; 2];
         for (k, w) in plan {
             left[*k as usize] += w;
@@ -62,7 +62,7 @@ impl Progress {
         });
         let lanes = lanes.max(1);
         let state = State { done: 0, steps: plan.len(), left, spent: [(0.0, 0.0); 2], now: vec![String::new(); lanes] };
-        Progress { state: Mutex::new(state), lanes, bar }
+        StepBar { state: Mutex::new(state), lanes, bar }
     }
 
     pub fn lane(&self, id: usize) -> Lane<'_> {
@@ -147,12 +147,12 @@ mod tests {
     #[test]
     fn lanes_finish_the_work_that_many_times_as_fast() {
         let plan = [(Kind::Train, 1000.0), (Kind::Train, 1000.0), (Kind::Eval, 100.0)];
-        let (one, two) = (Progress::new(&plan, 1), Progress::new(&plan, 2));
+        let (one, two) = (StepBar::new(&plan, 1), StepBar::new(&plan, 2));
         for p in [&one, &two] {
             // 1,000 frames in 10 s a lane
             p.lane(0).step(Kind::Train, 1000.0, Some(10.0), "trained");
         }
-        let eta = |p: &Progress| p.eta(&p.state());
+        let eta = |p: &StepBar| p.eta(&p.state());
         // the frames left at the measured rate, Random's programs at the prior rate
         assert_eq!(eta(&one), 10.0 + 100.0 / 15.0);
         assert_eq!(eta(&two), 5.0 + 100.0 / 15.0);

@@ -248,6 +248,30 @@ pub fn learning_curves(runs: &[(String, PathBuf)]) -> anyhow::Result<Vec<crate::
 pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pending: &[String]) -> anyhow::Result<()> {
     let summaries: Vec<(StudyMethod, Summary)> =
         METHODS.into_iter().filter_map(|m| summary(results, m.stem).map(|s| (m, s))).collect();
+    let with_val_curves = figures(out, results, runs, &summaries)?;
+    let (mut md, csv) = t42(&summaries);
+    orderings(&mut md, &summaries);
+    runs_table(&mut md, out, results);
+    first_stops(&mut md, results);
+    budget(&mut md, results);
+    still_to_do(&mut md, pending);
+    let _ = writeln!(md, "\n![SR and SPL](sr_spl.png)\n\n![learning curves](learning_curves.png)");
+    if with_val_curves {
+        let _ = writeln!(md, "\n![val SR against frames](val_curves.png)");
+    }
+    farm::files::write_atomic(&out.join("T4.2.md"), md.as_bytes())?;
+    farm::files::write_atomic(&out.join("T4.2.csv"), csv.as_bytes())?;
+    study_json(out, results)
+}
+
+/// sr_spl.png, learning_curves.png (with training curves) and val_curves.png (with val curves
+/// of more than one checkpoint; whether it was drawn).
+fn figures(
+    out: &Path,
+    results: &[RunResult],
+    runs: &[(String, PathBuf)],
+    summaries: &[(StudyMethod, Summary)],
+) -> anyhow::Result<bool> {
     let groups: Vec<(String, Vec<(f64, f64)>)> =
         summaries.iter().map(|(m, s)| (m.label.to_string(), vec![s.sr, s.spl])).collect();
     crate::report::plot::grouped_bars(
@@ -296,6 +320,11 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
             &val_curves,
         )?;
     }
+    Ok(!val_curves.is_empty())
+}
+
+/// T4.2 itself, as Markdown (the file's start) and CSV.
+fn t42(summaries: &[(StudyMethod, Summary)]) -> (String, String) {
     let mut md = String::new();
     let mut csv = String::from(
         "method,seeds,sr_mean,sr_std,spl_mean,spl_std,dts_mean,dts_std,sr_inf_mean,dissertation_sr,dissertation_spl,dissertation_dts\n",
@@ -310,7 +339,7 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
         md,
         "| method | seeds | SR (%) | SPL (%) | DTS (m) | SR ∞ (%) | dissertation SR / SPL / DTS |\n|---|---:|---:|---:|---:|---:|---:|"
     );
-    for (m, s) in &summaries {
+    for (m, s) in summaries {
         let Some(d) = dissertation(m.stem) else { continue };
         let (((srm, srs), (splm, spls)), ((dtsm, dtss), (infm, infs))) = ((s.sr, s.spl), (s.dts, s.sr_inf));
         let _ = writeln!(
@@ -324,6 +353,11 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
             m.label, s.seeds, d.sr, d.spl, d.dts
         );
     }
+    (md, csv)
+}
+
+/// Which of T4.2's orderings hold on our test split.
+fn orderings(md: &mut String, summaries: &[(StudyMethod, Summary)]) {
     let _ = writeln!(
         md,
         "\n## T4.2's orderings on our test split\n\nHolds when our mean SR at the first stop is higher by more than the larger of the two \
@@ -345,6 +379,10 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
         };
         let _ = writeln!(md, "| {} > {} | {ma:.1} ± {sa:.1} vs {mb:.1} ± {sb:.1} | {verdict} |", x.0.label, y.0.label);
     }
+}
+
+/// Every model: its selected checkpoint, val and test SR.
+fn runs_table(md: &mut String, out: &Path, results: &[RunResult]) {
     let _ = writeln!(
         md,
         "\n## Runs\n\n| method | rooms | seed | selected checkpoint | val SR 1 stop (%) | test SR 1 stop (%) |\n|---|---|---:|---|---:|---:|"
@@ -361,6 +399,10 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
         let _ =
             writeln!(md, "| {} | {rooms} | {} | {checkpoint} | {val} | {:.1} |", r.label(), r.seed, r.test_first.sr);
     }
+}
+
+/// Whether each method stops near the target or like a timer.
+fn first_stops(md: &mut String, results: &[RunResult]) {
     let _ = writeln!(
         md,
         "\n## When to stop (test, first stop)\n\nA policy that knows where the target is stops near it: the share of \
@@ -397,6 +439,10 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
             step.1
         );
     }
+}
+
+/// The selected checkpoints' frames and Adam steps beside the dissertation's.
+fn budget(md: &mut String, results: &[RunResult]) {
     let d = DISSERTATION_BUDGET;
     let _ = writeln!(
         md,
@@ -420,6 +466,9 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
             b.adam_steps as f64 / d.adam_steps as f64
         );
     }
+}
+
+fn still_to_do(md: &mut String, pending: &[String]) {
     if !pending.is_empty() {
         let _ = writeln!(
             md,
@@ -429,12 +478,10 @@ pub fn write(out: &Path, results: &[RunResult], runs: &[(String, PathBuf)], pend
             let _ = writeln!(md, "- {p}");
         }
     }
-    let _ = writeln!(md, "\n![SR and SPL](sr_spl.png)\n\n![learning curves](learning_curves.png)");
-    if !val_curves.is_empty() {
-        let _ = writeln!(md, "\n![val SR against frames](val_curves.png)");
-    }
-    farm::files::write_atomic(&out.join("T4.2.md"), md.as_bytes())?;
-    farm::files::write_atomic(&out.join("T4.2.csv"), csv.as_bytes())?;
+}
+
+/// study.json: every model's result, its paths relative to the folder.
+fn study_json(out: &Path, results: &[RunResult]) -> anyhow::Result<()> {
     // paths inside the folder relative to it, so that it reads the same wherever it is copied
     let inside = |p: &Path| p.strip_prefix(out).map_or(p.to_path_buf(), Path::to_path_buf);
     let relative: Vec<RunResult> = results
