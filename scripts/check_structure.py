@@ -4,6 +4,7 @@
     python3 scripts/check_structure.py [--root DIR]      # every check; exit 1 on a violation
     python3 scripts/check_structure.py --graph CRATE     # the crate's file dependency edges
     python3 scripts/check_structure.py --sizes           # non-test line counts, files over 400 lines
+    python3 scripts/check_structure.py --fns [N]         # functions over N lines of code (default 60)
     python3 scripts/check_structure.py --self-test       # the script's own tests, on mini-crates
 
 Rule 1: no import cycle between the source files of a crate.
@@ -43,7 +44,12 @@ Rule 4: every relative link of the Markdown files (the root's *.md and every *.m
     file names one of its headings (GitHub's slugs). Links inside code (fenced blocks, `spans`)
     and to other sites (http:, mailto:) are not checked.
 
-Test code is ignored by rules 1 and 2: every item under `#[cfg(test)]` (or `#[cfg(all(test, ..))]`):
+Rule 5: no function of a package's src/ folder over MAX_FN_LINES lines of code (lines holding
+    a token between its body's braces, the braces included: blank and comment-only lines do not
+    count), except those in FN_ALLOWLIST, each with its reason. Integration tests, benches and
+    examples are not held to it.
+
+Test code is ignored by rules 1, 2 and 5: every item under `#[cfg(test)]` (or `#[cfg(all(test, ..))]`):
 `#[cfg(test)] mod tests { .. }`, the files of `#[cfg(test)] mod tests;` (and their submodules),
 a `#[cfg(test)]` fn, impl, const or use, also one inside a fn body. Test code may look
 anywhere. (`#[test]` functions outside such a module are not test code for this script.)
@@ -91,6 +97,17 @@ MAX_FILES_UNDER: dict[str, int] = {
 # Files allowed over MAX_LINES: data tables only. Path relative to the workspace root -> a
 # one-line reason, e.g.  "worker/src/scene/catalog.rs": "object catalogue: one row per category",
 SIZE_ALLOWLIST: dict[str, str] = {
+}
+
+# Rule 5: the most lines of code of one function body under a package's src/ ("a screen").
+MAX_FN_LINES = 80
+
+# Functions allowed over MAX_FN_LINES: 'path::Owner::name' (path relative to the workspace root)
+# -> why it reads best as one piece.
+FN_ALLOWLIST: dict[str, str] = {
+    'learner/src/net/pth.rs::unpickle': "the pickle machine: one match arm per opcode, as pickle.py reads",
+    'worker/src/gesture/intervention.rs::choreography': "the 20 intervention gestures, one match arm each: a table",
+    'worker/src/render/pipeline.rs::Pipeline::new': "wgpu's descriptors of the one render pipeline, declared in order",
 }
 
 # ---------------------------------------------------------------------------------------------
@@ -359,6 +376,8 @@ class Analyzer:
         self.packages: list[Package] = []
         # (src, dst) -> list of (priority, line, text)
         self.edges: dict[tuple[str, str], list[tuple[int, int, str]]] = defaultdict(list)
+        # (file, first line) -> (name with its owner, lines of code of its body)
+        self.fns: dict[tuple[Path, int], tuple[str, int]] = {}
 
     # -- files --------------------------------------------------------------------------------
     def rel(self, p: Path) -> str:
@@ -782,6 +801,7 @@ class Parser:
                 self.parse_items(j + 3, self.close(j + 2), child, None, True)
         elif kw == 'fn' and name_ok:
             define(nx, 'fn')
+            self.record_fn(j, e, f'{owner}::{nx}' if owner else nx)
             self.scan(j + 2, e, mod, f'{owner}::{nx}' if owner else nx)
         elif kw in ('struct', 'enum', 'union', 'type') and name_ok:
             define(nx, kw)
@@ -825,6 +845,15 @@ class Parser:
         else:
             label = owner or (f'{kw}!' if nx == '!' else '(item)')
             self.scan(j, e, mod, label)
+
+    def record_fn(self, j: int, e: int, name: str):
+        b = self.body_brace(j + 2, e)
+        if b < 0:
+            return
+        lines = set()
+        for tk in self.T[b:self.close(b) + 1]:
+            lines.update(range(tk.line, tk.end + 1))
+        self.an.fns[(self.path, self.T[j].line)] = (name, len(lines))
 
     # -- code ---------------------------------------------------------------------------------
     def skip_angle(self, k: int, e: int) -> int:
@@ -1063,6 +1092,16 @@ def crowded_folders(root: Path) -> list[tuple[str, int, int]]:
     return out
 
 
+def long_fns(an: Analyzer, limit: int) -> list[tuple[str, int]]:
+    """('path::name', lines) of the functions under a package's src/ over `limit` lines, longest first."""
+    srcs = [p.dir / 'src' for p in an.packages]
+    out = []
+    for (path, _line), (name, n) in an.fns.items():
+        if n > limit and any(path.is_relative_to(d) for d in srcs) and path not in an.test_files:
+            out.append((f'{an.rel(path)}::{name}', n))
+    return sorted(out, key=lambda x: (-x[1], x[0]))
+
+
 def limits_text() -> str:
     stricter = ''.join(f'; {n} under {d.rstrip("/")}/' for d, n in sorted(MAX_LINES_UNDER.items()))
     return f'{MAX_LINES}{stricter}'
@@ -1227,19 +1266,29 @@ def run_checks(root: Path, out=sys.stdout) -> int:
             w(f'  {rel}/: {n} .rs files (limit {limit})\n')
     for rel, nt in stale:
         w(f'note: SIZE_ALLOWLIST entry {rel} is {"missing" if nt is None else f"at {nt} lines, under the limit"}; remove it\n')
+    fns = [(k, n) for k, n in long_fns(an, MAX_FN_LINES) if k not in FN_ALLOWLIST]
+    if fns:
+        w(f'functions over {MAX_FN_LINES} lines of code ({len(fns)}):\n')
+        for k, n in fns:
+            w(f'  {k}: {n} lines\n')
+    listed = {k for k, _ in long_fns(an, MAX_FN_LINES)}
+    for k in FN_ALLOWLIST:
+        if k not in listed:
+            w(f'note: FN_ALLOWLIST entry {k} is missing or within {MAX_FN_LINES} lines; remove it\n')
     links = broken_links(an.root)
     if links:
         w(f'Markdown links that do not resolve ({len(links)}):\n')
         for line in links:
             w(f'  {line}\n')
-    if cycles or big or crowded or links:
+    if cycles or big or crowded or fns or links:
         w(f'FAIL: {len(cycles)} import cycle(s), {len(big)} file(s) over their non-test line limit '
           f'({limits_text()}), {len(crowded)} folder(s) over their file limit, '
-          f'{len(links)} broken Markdown link(s)\n')
+          f'{len(fns)} function(s) over {MAX_FN_LINES} lines, {len(links)} broken Markdown link(s)\n')
         return 1
     folders = ', '.join(f'{n} .rs files per folder under {d}/' for d, n in sorted(MAX_FILES_UNDER.items()))
     w(f'ok: {len(an.packages)} crates, {n_files} files, no import cycles, '
       f'no file over its non-test line limit ({limits_text()}), at most {folders}, '
+      f'no function over {MAX_FN_LINES} lines ({len(FN_ALLOWLIST)} named exceptions), '
       f'every relative Markdown link resolves\n')
     return 0
 
@@ -1295,6 +1344,9 @@ def _workspace(base: Path, crates: dict[str, dict[str, str]]):
 def self_test() -> int:
     import io
     failures = []
+    # the mini-workspaces have none of the workspace's long functions
+    saved = dict(FN_ALLOWLIST)
+    FN_ALLOWLIST.clear()
 
     def check(name: str, cond: bool, detail: str = ''):
         print(f'  {"ok  " if cond else "FAIL"} {name}')
@@ -1446,6 +1498,25 @@ def self_test() -> int:
               and 'README.md:11: docs/old.md (no such file)' in text
               and '3 broken Markdown link(s)' in text and 'gone.md (' not in text.replace('docs/gone.md (', ''), text)
 
+        # 9. Rule 5: function length, counted in lines of code, src/ only, test code skipped.
+        ws = base / 'fns'
+        body = lambda n: ''.join(f'    let x{k} = {k};\n\n    // why\n' for k in range(n - 2))
+        long_fn = 'pub fn long() {\n' + body(MAX_FN_LINES + 1) + '}\n'
+        _workspace(ws, {'fl': {
+            'src/lib.rs': 'pub mod a;\n#[cfg(test)]\nmod tests {\n    fn t() {\n' + body(MAX_FN_LINES + 5) + '    }\n}\n',
+            'src/a.rs': long_fn + 'pub struct S;\nimpl S {\n    pub fn fits(&self) {\n' + body(MAX_FN_LINES) + '    }\n'
+                        '    pub fn over(&self) {\n' + body(MAX_FN_LINES + 2) + '    }\n}\n',
+            'tests/it.rs': long_fn,
+        }})
+        buf = io.StringIO()
+        rc = run_checks(ws, buf)
+        text = buf.getvalue()
+        check('functions over the limit are reported with their lines of code, src/ only',
+              rc == 1 and f'fl/src/a.rs::long: {MAX_FN_LINES + 1} lines' in text
+              and f'fl/src/a.rs::S::over: {MAX_FN_LINES + 2} lines' in text
+              and 'fits' not in text and 'it.rs' not in text and 'lib.rs' not in text, text)
+
+    FN_ALLOWLIST.update(saved)
     print('self-test: ' + ('ok' if not failures else f'{len(failures)} FAILED'))
     return 1 if failures else 0
 
@@ -1458,6 +1529,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--graph', metavar='CRATE', help="print the crate's file dependency edges")
     ap.add_argument('--sizes', action='store_true',
                     help=f'print the non-test line counts of the files over {SIZES_OVER} lines')
+    ap.add_argument('--fns', metavar='N', type=int, nargs='?', const=60,
+                    help='print the functions under src/ over N lines of code (default 60)')
     ap.add_argument('--self-test', action='store_true', help="run the script's own tests")
     a = ap.parse_args(argv)
     if a.self_test:
@@ -1466,6 +1539,10 @@ def main(argv: list[str] | None = None) -> int:
         return print_graph(a.root, a.graph)
     if a.sizes:
         return print_sizes(a.root)
+    if a.fns is not None:
+        for k, n in long_fns(analyze(a.root), a.fns):
+            print(f'{n:5d}  {k}{"  (allowed)" if k in FN_ALLOWLIST else ""}')
+        return 0
     return run_checks(a.root)
 
 

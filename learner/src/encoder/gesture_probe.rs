@@ -192,62 +192,15 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
     let want = truth.index_select(0, &held_t);
     let average = degrees(&y.index_select(0, &train_t).mean_dim(0, true, Kind::Double)).expand_as(&want);
     let side_of = |deg: &Tensor| deg.sign();
-    let right_share = |deg: &Tensor, want: &Tensor| mean(&side_of(deg).eq_tensor(&side_of(want)));
     let left = mean(&side_of(&truth.index_select(0, &train_t)).lt(0.0));
     let common = if left > 0.5 { -1.0 } else { 1.0 };
     let baseline_side = mean(&side_of(&want).eq(common));
     let ahead_share = mean(&want.abs().le(45.0));
 
+    let sets = Sets { y: &y, truth: &truth, train: &train_t, held: &held_t, fit: &fit_t, choose: &choose_t };
     let mut probes = Vec::new();
-    for Input { name, columns, frames } in inputs(&t) {
-        let x = standardise(&columns, &train_t).to_kind(Kind::Double);
-        let d = x.size()[1] as f64;
-        let rows = |on: &Tensor| x.index_select(0, on);
-        // ridge: penalty on the chosen fifth, then fitted on every training program
-        let r = Ridge::new(&rows(&fit_t), &y.index_select(0, &fit_t));
-        let (xc, wc) = (rows(&choose_t), truth.index_select(0, &choose_t));
-        let e = |l: f64| mean(&angle_error(&degrees(&r.predict(&xc, l * d)), &wc));
-        let lambda = *PENALTIES.iter().min_by(|&&a, &&b| e(a).total_cmp(&e(b))).expect("penalties");
-        let ridge =
-            degrees(&Ridge::new(&rows(&train_t), &y.index_select(0, &train_t)).predict(&rows(&held_t), lambda * d));
-        let split = (&fit_t, &choose_t, &held_t);
-        let (mlp, epochs) = fit_probe(&x, &y, &truth, split, o, |root, d| {
-            nn::seq()
-                .add(nn::linear(root / "l1", d, HIDDEN, Default::default()))
-                .add_fn(|t| t.relu())
-                .add(nn::linear(root / "l2", HIDDEN, HIDDEN, Default::default()))
-                .add_fn(|t| t.relu())
-                .add(nn::linear(root / "out", HIDDEN, 2, Default::default()))
-        });
-        let per_frame = frames.map(|f| {
-            let o = &GestureProbeOptions { epochs: o.per_frame_epochs, ..o.clone() };
-            let (bearing, epochs) = fit_probe(&f, &y, &truth, split, o, |root, d| {
-                let net = GestureNet::new(&(root / "gesture"), GestureNetwork::PerFrame, d, 0, HIDDEN);
-                let out = nn::linear(root / "out", HIDDEN, 2, Default::default());
-                nn::func(move |g| net.forward(g).apply(&out))
-            });
-            PerFrameProbe { error_deg: mean(&angle_error(&bearing, &want)), side: right_share(&bearing, &want), epochs }
-        });
-        let p = InputProbe {
-            input: name.to_string(),
-            features: d as usize,
-            ridge_error_deg: mean(&angle_error(&ridge, &want)),
-            ridge_side: right_share(&ridge, &want),
-            ridge_lambda: lambda,
-            mlp_error_deg: mean(&angle_error(&mlp, &want)),
-            mlp_side: right_share(&mlp, &want),
-            mlp_epochs: epochs,
-            per_frame,
-        };
-        let per_frame = p
-            .per_frame
-            .as_ref()
-            .map_or(String::new(), |f| format!(", per frame {:.1}° (side {:.3})", f.error_deg, f.side));
-        println!(
-            "{name}: ridge {:.1}° (side {:.3}), MLP {:.1}° (side {:.3}, {} epochs){per_frame}",
-            p.ridge_error_deg, p.ridge_side, p.mlp_error_deg, p.mlp_side, p.mlp_epochs
-        );
-        probes.push(p);
+    for input in inputs(&t) {
+        probes.push(one_input(o, input, &sets));
     }
     let report = GestureProbeReport {
         seed: o.seed,
@@ -261,6 +214,71 @@ pub fn probe_gesture(o: &GestureProbeOptions, out: &Path) -> Result<GestureProbe
     super::probe::write_report(out, &report, &report.table())
         .map_err(|(file, message)| GestureProbeError { file, message })?;
     Ok(report)
+}
+
+/// The programs' targets (as unit vectors and in degrees) and the index sets of the splits.
+struct Sets<'a> {
+    y: &'a Tensor,
+    truth: &'a Tensor,
+    train: &'a Tensor,
+    held: &'a Tensor,
+    /// The training rooms' four fifths that fit, and the fifth that chooses.
+    fit: &'a Tensor,
+    choose: &'a Tensor,
+}
+
+/// The probes of one input: ridge, an MLP, and (for frames) the per-frame network.
+fn one_input(o: &GestureProbeOptions, Input { name, columns, frames }: Input, s: &Sets) -> InputProbe {
+    let (y, truth) = (s.y, s.truth);
+    let (train_t, held_t, fit_t, choose_t) = (s.train, s.held, s.fit, s.choose);
+    let want = truth.index_select(0, held_t);
+    let side_of = |deg: &Tensor| deg.sign();
+    let right_share = |deg: &Tensor, want: &Tensor| mean(&side_of(deg).eq_tensor(&side_of(want)));
+    let x = standardise(&columns, train_t).to_kind(Kind::Double);
+    let d = x.size()[1] as f64;
+    let rows = |on: &Tensor| x.index_select(0, on);
+    // ridge: penalty on the chosen fifth, then fitted on every training program
+    let r = Ridge::new(&rows(fit_t), &y.index_select(0, fit_t));
+    let (xc, wc) = (rows(choose_t), truth.index_select(0, choose_t));
+    let e = |l: f64| mean(&angle_error(&degrees(&r.predict(&xc, l * d)), &wc));
+    let lambda = *PENALTIES.iter().min_by(|&&a, &&b| e(a).total_cmp(&e(b))).expect("penalties");
+    let ridge = degrees(&Ridge::new(&rows(train_t), &y.index_select(0, train_t)).predict(&rows(held_t), lambda * d));
+    let split = (fit_t, choose_t, held_t);
+    let (mlp, epochs) = fit_probe(&x, y, truth, split, o, |root, d| {
+        nn::seq()
+            .add(nn::linear(root / "l1", d, HIDDEN, Default::default()))
+            .add_fn(|t| t.relu())
+            .add(nn::linear(root / "l2", HIDDEN, HIDDEN, Default::default()))
+            .add_fn(|t| t.relu())
+            .add(nn::linear(root / "out", HIDDEN, 2, Default::default()))
+    });
+    let per_frame = frames.map(|f| {
+        let o = &GestureProbeOptions { epochs: o.per_frame_epochs, ..o.clone() };
+        let (bearing, epochs) = fit_probe(&f, y, truth, split, o, |root, d| {
+            let net = GestureNet::new(&(root / "gesture"), GestureNetwork::PerFrame, d, 0, HIDDEN);
+            let out = nn::linear(root / "out", HIDDEN, 2, Default::default());
+            nn::func(move |g| net.forward(g).apply(&out))
+        });
+        PerFrameProbe { error_deg: mean(&angle_error(&bearing, &want)), side: right_share(&bearing, &want), epochs }
+    });
+    let p = InputProbe {
+        input: name.to_string(),
+        features: d as usize,
+        ridge_error_deg: mean(&angle_error(&ridge, &want)),
+        ridge_side: right_share(&ridge, &want),
+        ridge_lambda: lambda,
+        mlp_error_deg: mean(&angle_error(&mlp, &want)),
+        mlp_side: right_share(&mlp, &want),
+        mlp_epochs: epochs,
+        per_frame,
+    };
+    let per_frame =
+        p.per_frame.as_ref().map_or(String::new(), |f| format!(", per frame {:.1}° (side {:.3})", f.error_deg, f.side));
+    println!(
+        "{name}: ridge {:.1}° (side {:.3}), MLP {:.1}° (side {:.3}, {} epochs){per_frame}",
+        p.ridge_error_deg, p.ridge_side, p.mlp_error_deg, p.mlp_side, p.mlp_epochs
+    );
+    p
 }
 
 /// A network probe (built by `build` from the inputs' last dimension, seeded): fitted on `fit`

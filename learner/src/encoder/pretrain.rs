@@ -573,11 +573,35 @@ fn room_names(floorplans: impl Iterator<Item = u16>) -> Vec<String> {
 /// per epoch with the held-out figures.
 pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, PretrainError> {
     let set = FrameSet::read(&o.frames)?;
-    let h = set.header.clone();
-    let file = o.frames.display().to_string();
-    let unusable = |message: String| PretrainError::Unusable { file: file.clone(), message };
+    let info = check(o, &set)?;
+    let data = Data::new(&set);
+    if data.train.is_empty() {
+        return Err(unusable(o, "no frames outside the held-out rooms to train on".into()));
+    }
+    tch::set_num_threads(o.threads);
+    let vs = nn::VarStore::new(dev);
+    let root = vs.root();
+    let h = &set.header;
+    let model = crate::device::seeded(farm::seed::mix(o.seed, &[KEY_INIT]) as i64, || {
+        Model::new(&root, o.objective, o.trunk, info.feature_channels, h.grid as i64)
+    });
+    let started = Instant::now();
+    let held = train(o, &model, &vs, &data, &info, (h.height, h.width), dev);
+    let training_seconds = started.elapsed().as_secs_f64();
+    let rgb_only = evaluate(&model, &data, &data.held, (1.0, 0.0), dev);
+    let depth_only = evaluate(&model, &data, &data.held, (0.0, 1.0), dev);
+    write(o, &set, &data, &vs, &info, [held, rgb_only, depth_only], training_seconds)
+}
+
+fn unusable(o: &PretrainOptions, message: String) -> PretrainError {
+    PretrainError::Unusable { file: o.frames.display().to_string(), message }
+}
+
+/// The trunk's shapes for the frame set, or why the set or the options cannot be pretrained on.
+fn check(o: &PretrainOptions, set: &FrameSet) -> Result<EncoderInfo, PretrainError> {
+    let h = &set.header;
     if o.objective == Objective::Semantic && h.classes != CLASSES {
-        return Err(unusable(format!("{} classes, the encoder's labels have {CLASSES}", h.classes)));
+        return Err(unusable(o, format!("{} classes, the encoder's labels have {CLASSES}", h.classes)));
     }
     if o.trunk == Trunk::Resnet18 && o.objective != Objective::Contrast {
         return Err(PretrainError::Options(format!(
@@ -588,37 +612,38 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
     let info = o.trunk.info(h.width, h.height);
     let stride = info.stride;
     if h.width as i64 % stride != 0 || h.height as i64 % stride != 0 || h.width as i64 / STRIDE < h.grid as i64 {
-        return Err(unusable(format!(
-            "frames of {}×{} with {} cells: for the {} trunk the size must be a multiple of {stride} and give at \
-             least one feature per cell",
-            h.width, h.height, h.grid, o.trunk
-        )));
+        return Err(unusable(
+            o,
+            format!(
+                "frames of {}×{} with {} cells: for the {} trunk the size must be a multiple of {stride} and give \
+                 at least one feature per cell",
+                h.width, h.height, h.grid, o.trunk
+            ),
+        ));
     }
-    let data = Data::new(&set);
-    if data.train.is_empty() {
-        return Err(unusable("no frames outside the held-out rooms to train on".into()));
-    }
-    tch::set_num_threads(o.threads);
-    let vs = nn::VarStore::new(dev);
-    let root = vs.root();
-    let model = crate::device::seeded(farm::seed::mix(o.seed, &[KEY_INIT]) as i64, || {
-        Model::new(&root, o.objective, o.trunk, info.feature_channels, h.grid as i64)
-    });
-    let cells = (h.height as i64 / stride, h.width as i64 / stride);
-    // The ResNet sees RGB and depth as images of their own: none is dropped.
-    let (drop_rgb, drop_depth) = match o.trunk {
-        Trunk::Rgbd => (o.drop_rgb, o.drop_depth),
-        Trunk::Resnet18 => (0.0, 0.0),
-    };
-    let mut opt = nn::Adam::default().build(&vs, o.lr).expect("adam");
+    Ok(info)
+}
+
+/// The epochs: each shuffles the training frames, takes Adam steps on batches of them at a
+/// linearly decaying rate, and reports the held-out figures. Returns the last of those.
+fn train(
+    o: &PretrainOptions,
+    model: &Model,
+    vs: &nn::VarStore,
+    data: &Data,
+    info: &EncoderInfo,
+    (height, width): (u32, u32),
+    dev: Device,
+) -> HeldOut {
+    let cells = (height as i64 / info.stride, width as i64 / info.stride);
+    let mut opt = nn::Adam::default().build(vs, o.lr).expect("adam");
     let mut class_weights = vec![1f32; CLASSES as usize];
     class_weights[CLASS_OTHER as usize] = o.other_weight as f32;
     let class_weights = Tensor::from_slice(&class_weights).to_device(dev);
-    let steps_per_epoch = data.train.len().div_ceil(o.batch);
-    let total_steps = (steps_per_epoch * o.epochs).max(1);
+    let total_steps = (data.train.len().div_ceil(o.batch) * o.epochs).max(1);
     let started = Instant::now();
     let mut step = 0usize;
-    let mut held = HeldOut::default();
+    let mut held = None;
     for epoch in 0..o.epochs {
         let mut rng = farm::seed::rng(o.seed, &[KEY_EPOCH, epoch as u64]);
         let mut order = data.train.clone();
@@ -626,102 +651,143 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
         let mut loss_sum = 0.0;
         for chunk in order.chunks(o.batch) {
             opt.set_lr(o.lr * (1.0 - 0.9 * step as f64 / total_steps as f64));
-            let b = chunk.len();
-            let (mut keep_rgb, mut keep_depth, mut flip) = (vec![1f32; b], vec![1f32; b], vec![false; b]);
-            let mut hidden = vec![0f32; b * (cells.0 * cells.1) as usize];
-            for k in 0..b {
-                let u: f64 = rng.random();
-                if u < drop_rgb {
-                    keep_rgb[k] = 0.0;
-                } else if u < drop_rgb + drop_depth {
-                    keep_depth[k] = 0.0;
-                }
-                flip[k] = rng.random_bool(0.5);
-            }
-            if o.objective == Objective::Reconstruct && o.mask > 0.0 {
-                hidden.iter_mut().for_each(|c| *c = if rng.random_bool(o.mask) { 1.0 } else { 0.0 });
-            }
-            // contrast: per view, each frame's jitter and hidden cells
-            let mut views: Vec<(Vec<f32>, Vec<f32>)> = Vec::new();
-            let mut anchors: Vec<i64> = Vec::new();
-            if o.objective == Objective::Contrast {
-                let (g, off, dg) = JITTER;
-                for _ in 0..2 {
-                    let mut j = Vec::with_capacity(b * 5);
-                    for _ in 0..b {
-                        j.extend((0..3).map(|_| rng.random_range(1.0 - g..1.0 + g) as f32));
-                        j.push(rng.random_range(-off..off) as f32);
-                        j.push(rng.random_range(1.0 - dg..1.0 + dg) as f32);
-                    }
-                    let hide =
-                        (0..hidden.len()).map(|_| if rng.random_bool(CONTRAST_HIDE) { 1.0 } else { 0.0 }).collect();
-                    views.push((j, hide));
-                }
-                let rows = hidden.len() * o.trunk.images_per_frame();
-                anchors =
-                    rand::seq::index::sample(&mut rng, rows, ANCHORS.min(rows)).into_iter().map(|k| k as i64).collect();
-            }
-            let i = Tensor::from_slice(chunk);
-            let whole = encoder_input(&data.rgb.index_select(0, &i), &data.depth.index_select(0, &i)).to_device(dev);
-            // Mirror the chosen frames left–right (labels with them below).
-            let f = Tensor::from_slice(&flip).to_device(dev);
-            let whole = whole.flip([3]).where_self(&f.view([b as i64, 1, 1, 1]), &whole);
-            let x = drop_channels(
-                &whole,
-                &Tensor::from_slice(&keep_rgb).to_device(dev),
-                &Tensor::from_slice(&keep_depth).to_device(dev),
-            );
-            let loss = match o.objective {
-                Objective::Reconstruct => {
-                    let hide = Tensor::from_slice(&hidden).view([b as i64, cells.0, cells.1]).to_device(dev);
-                    (model.reconstruct(&hide_cells(&x, &hide, stride)) - &whole).abs().mean(Kind::Float)
-                }
-                Objective::Contrast => {
-                    let keep =
-                        (Tensor::from_slice(&keep_rgb).to_device(dev), Tensor::from_slice(&keep_depth).to_device(dev));
-                    let z: Vec<Tensor> = views
-                        .iter()
-                        .map(|(jitter, hide)| {
-                            let v = drop_channels(&jittered(&whole, jitter), &keep.0, &keep.1);
-                            let hide = Tensor::from_slice(hide).view([b as i64, cells.0, cells.1]).to_device(dev);
-                            model.project(&hide_cells(&v, &hide, stride), (true, true))
-                        })
-                        .collect();
-                    info_nce(&z[0], &z[1], &Tensor::from_slice(&anchors).to_device(dev)).0
-                }
-                Objective::Semantic => {
-                    let mut class = data.class.index_select(0, &i).to_device(dev);
-                    let mut cell_depth = data.cell_depth.index_select(0, &i).to_device(dev);
-                    class = class.flip([2]).where_self(&f.view([b as i64, 1, 1]), &class);
-                    cell_depth = cell_depth.flip([2]).where_self(&f.view([b as i64, 1, 1]), &cell_depth);
-                    let (logits, depth) = model.semantic(&x);
-                    let ce = logits.cross_entropy_loss(&class, Some(&class_weights), Reduction::Mean, -100, 0.0);
-                    ce + (depth - cell_depth).abs().mean(Kind::Float) * o.depth_weight
-                }
-            };
+            let draws = Draws::new(o, &mut rng, chunk.len(), cells);
+            let loss = batch_loss(o, model, data, chunk, &draws, &class_weights, info.stride, dev);
             opt.backward_step(&loss);
-            loss_sum += loss.double_value(&[]) * b as f64;
+            loss_sum += loss.double_value(&[]) * chunk.len() as f64;
             step += 1;
         }
-        held = evaluate(&model, &data, &data.held, (1.0, 1.0), dev);
+        let h = evaluate(model, data, &data.held, (1.0, 1.0), dev);
         let spent = started.elapsed().as_secs_f64();
         println!(
-            "epoch {:>2}/{}: loss {:.4}; held-out {held}; {spent:.0} s, about {:.0} s left",
+            "epoch {:>2}/{}: loss {:.4}; held-out {h}; {spent:.0} s, about {:.0} s left",
             epoch + 1,
             o.epochs,
             loss_sum / data.train.len() as f64,
             spent / (epoch + 1) as f64 * (o.epochs - epoch - 1) as f64
         );
+        held = Some(h);
     }
-    if o.epochs == 0 {
-        held = evaluate(&model, &data, &data.held, (1.0, 1.0), dev);
-    }
-    let training_seconds = started.elapsed().as_secs_f64();
-    let rgb_only = evaluate(&model, &data, &data.held, (1.0, 0.0), dev);
-    let depth_only = evaluate(&model, &data, &data.held, (0.0, 1.0), dev);
+    held.unwrap_or_else(|| evaluate(model, data, &data.held, (1.0, 1.0), dev))
+}
 
+/// One batch's random draws, in the order the seed's stream gives them: per frame a channel
+/// drop and a flip; the hidden cells (reconstruction); per contrast view each frame's jitter and
+/// hidden cells, then the anchor cells.
+struct Draws {
+    keep_rgb: Vec<f32>,
+    keep_depth: Vec<f32>,
+    flip: Vec<bool>,
+    hidden: Vec<f32>,
+    /// Feature cells of a frame (rows, columns): the hidden cells' shape.
+    cells: (i64, i64),
+    /// Contrast: per view, each frame's jitter and hidden cells.
+    views: Vec<(Vec<f32>, Vec<f32>)>,
+    anchors: Vec<i64>,
+}
+
+impl Draws {
+    fn new(o: &PretrainOptions, rng: &mut impl Rng, b: usize, cells: (i64, i64)) -> Draws {
+        // The ResNet sees RGB and depth as images of their own: none is dropped.
+        let (drop_rgb, drop_depth) = match o.trunk {
+            Trunk::Rgbd => (o.drop_rgb, o.drop_depth),
+            Trunk::Resnet18 => (0.0, 0.0),
+        };
+        let (mut keep_rgb, mut keep_depth, mut flip) = (vec![1f32; b], vec![1f32; b], vec![false; b]);
+        let mut hidden = vec![0f32; b * (cells.0 * cells.1) as usize];
+        for k in 0..b {
+            let u: f64 = rng.random();
+            if u < drop_rgb {
+                keep_rgb[k] = 0.0;
+            } else if u < drop_rgb + drop_depth {
+                keep_depth[k] = 0.0;
+            }
+            flip[k] = rng.random_bool(0.5);
+        }
+        if o.objective == Objective::Reconstruct && o.mask > 0.0 {
+            hidden.iter_mut().for_each(|c| *c = if rng.random_bool(o.mask) { 1.0 } else { 0.0 });
+        }
+        let (mut views, mut anchors) = (Vec::new(), Vec::new());
+        if o.objective == Objective::Contrast {
+            let (g, off, dg) = JITTER;
+            for _ in 0..2 {
+                let mut j = Vec::with_capacity(b * 5);
+                for _ in 0..b {
+                    j.extend((0..3).map(|_| rng.random_range(1.0 - g..1.0 + g) as f32));
+                    j.push(rng.random_range(-off..off) as f32);
+                    j.push(rng.random_range(1.0 - dg..1.0 + dg) as f32);
+                }
+                let hide = (0..hidden.len()).map(|_| if rng.random_bool(CONTRAST_HIDE) { 1.0 } else { 0.0 }).collect();
+                views.push((j, hide));
+            }
+            let rows = hidden.len() * o.trunk.images_per_frame();
+            anchors = rand::seq::index::sample(rng, rows, ANCHORS.min(rows)).into_iter().map(|k| k as i64).collect();
+        }
+        Draws { keep_rgb, keep_depth, flip, hidden, cells, views, anchors }
+    }
+}
+
+/// The objective's loss on the frames `chunk`, augmented by `d`.
+#[allow(clippy::too_many_arguments)]
+fn batch_loss(
+    o: &PretrainOptions,
+    model: &Model,
+    data: &Data,
+    chunk: &[i64],
+    d: &Draws,
+    class_weights: &Tensor,
+    stride: i64,
+    dev: Device,
+) -> Tensor {
+    let b = chunk.len() as i64;
+    let i = Tensor::from_slice(chunk);
+    let whole = encoder_input(&data.rgb.index_select(0, &i), &data.depth.index_select(0, &i)).to_device(dev);
+    // Mirror the chosen frames left–right (labels with them below).
+    let f = Tensor::from_slice(&d.flip).to_device(dev);
+    let whole = whole.flip([3]).where_self(&f.view([b, 1, 1, 1]), &whole);
+    let keep = (Tensor::from_slice(&d.keep_rgb).to_device(dev), Tensor::from_slice(&d.keep_depth).to_device(dev));
+    let x = drop_channels(&whole, &keep.0, &keep.1);
+    let hidden = |hide: &[f32]| Tensor::from_slice(hide).view([b, d.cells.0, d.cells.1]).to_device(dev);
+    match o.objective {
+        Objective::Reconstruct => {
+            (model.reconstruct(&hide_cells(&x, &hidden(&d.hidden), stride)) - &whole).abs().mean(Kind::Float)
+        }
+        Objective::Contrast => {
+            let z: Vec<Tensor> = d
+                .views
+                .iter()
+                .map(|(jitter, hide)| {
+                    let v = drop_channels(&jittered(&whole, jitter), &keep.0, &keep.1);
+                    model.project(&hide_cells(&v, &hidden(hide), stride), (true, true))
+                })
+                .collect();
+            info_nce(&z[0], &z[1], &Tensor::from_slice(&d.anchors).to_device(dev)).0
+        }
+        Objective::Semantic => {
+            let mut class = data.class.index_select(0, &i).to_device(dev);
+            let mut cell_depth = data.cell_depth.index_select(0, &i).to_device(dev);
+            class = class.flip([2]).where_self(&f.view([b, 1, 1]), &class);
+            cell_depth = cell_depth.flip([2]).where_self(&f.view([b, 1, 1]), &cell_depth);
+            let (logits, depth) = model.semantic(&x);
+            let ce = logits.cross_entropy_loss(&class, Some(class_weights), Reduction::Mean, -100, 0.0);
+            ce + (depth - cell_depth).abs().mean(Kind::Float) * o.depth_weight
+        }
+    }
+}
+
+/// Writes the weights and the report beside them; `held`: all inputs, RGB only, depth only.
+fn write(
+    o: &PretrainOptions,
+    set: &FrameSet,
+    data: &Data,
+    vs: &nn::VarStore,
+    info: &EncoderInfo,
+    [held, rgb_only, depth_only]: [HeldOut; 3],
+    training_seconds: f64,
+) -> Result<PretrainReport, PretrainError> {
+    let h = &set.header;
     let weights_path = with_ext(&o.out, "safetensors");
-    let bytes = weights_bytes(&vs, "trunk", &info)
+    let bytes = weights_bytes(vs, "trunk", info)
         .map_err(|m| PretrainError::Unusable { file: weights_path.display().to_string(), message: m })?;
     let write_error = |p: &Path, e: std::io::Error| PretrainError::Unusable {
         file: p.display().to_string(),
@@ -738,7 +804,7 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
             Objective::Contrast => CONTRAST_HIDE,
             Objective::Semantic => 0.0,
         },
-        frame_set: file.clone(),
+        frame_set: o.frames.display().to_string(),
         width: h.width,
         height: h.height,
         grid: h.grid,
@@ -766,13 +832,16 @@ pub fn pretrain(o: &PretrainOptions, dev: Device) -> Result<PretrainReport, Pret
     farm::files::write_atomic(&json_path, json.as_bytes()).map_err(|e| write_error(&json_path, e))?;
     let persons = set.flags.iter().filter(|&&f| f & FLAG_PERSON != 0).count();
     println!(
-        "encoder: {} ({} training frames, {} held-out, {} with the person) in {:.0} s\n  held-out: {held}\n  \
-         RGB only: {rgb_only}\n  depth only: {depth_only}\n  sha256 {}",
+        "encoder: {} ({} training frames, {} held-out, {} with the person) in {:.0} s\n  held-out: {}\n  \
+         RGB only: {}\n  depth only: {}\n  sha256 {}",
         weights_path.display(),
         report.training_frames,
         report.held_out_frames,
         persons,
         training_seconds,
+        report.held_out,
+        report.held_out_rgb_only,
+        report.held_out_depth_only,
         report.sha256
     );
     Ok(report)

@@ -308,51 +308,10 @@ pub fn probe(o: &ProbeOptions, out: &Path) -> Result<ProbeReport, ProbeError> {
             facing_held.len()
         )));
     }
-    let val_room = |i: i64| set.rooms[i as usize] % 5 == 0;
-    // the middle cell of a frame's person cells (row, column)
-    let person_centre = |i: i64| {
-        let g = h.grid as usize;
-        let cells = &set.cell_class[i as usize * g * g..(i as usize + 1) * g * g];
-        let at: Vec<usize> = (0..g * g).filter(|&k| cells[k] == CLASS_PERSON).collect();
-        let mean = |f: fn(usize, usize) -> usize| {
-            (at.iter().map(|&k| f(k, g)).sum::<usize>() as f64 / at.len().max(1) as f64).round() as i64
-        };
-        (mean(|k, g| k / g), mean(|k, g| k % g))
-    };
+    let facing = (facing_train.as_slice(), facing_held.as_slice());
     let mut probes = Vec::new();
     for (name, weights) in &o.encoders {
-        let vs = nn::VarStore::new(Device::Cpu);
-        let (f, sha256) = match weights {
-            Some(path) => {
-                let trunk = RgbdEncoder::new(&(vs.root() / "trunk"));
-                load_weights(path, &vs, "trunk", (h.width, h.height))?;
-                let bytes = std::fs::read(path).map_err(|e| ProbeError::Unusable {
-                    file: path.display().to_string(),
-                    message: format!("cannot read: {e}"),
-                })?;
-                (features(&set, Some(&trunk)), Some(sha256_hex(&bytes)))
-            }
-            None => (features(&set, None), None),
-        };
-        let (both, targets, person) = category_probe(&f, &class, &train, &held, o);
-        let [err, base, side, lambda] =
-            facing_probe(&f, &person_centre, &set.person_facing, &facing_train, &facing_held, &val_room);
-        let p = Probe {
-            encoder: name.clone(),
-            sha256,
-            category_targets_and_person: both,
-            category_targets: targets,
-            category_person: person,
-            facing_error_deg: err,
-            facing_baseline_deg: base,
-            facing_side_accuracy: side,
-            facing_ridge: lambda,
-        };
-        println!(
-            "{name}: category {both:.3} (targets {targets:.3}, person {person:.3}); facing error {err:.1}° \
-             (always the mean {base:.1}°), side {side:.3}"
-        );
-        probes.push(p);
+        probes.push(one_encoder(o, &set, name, weights.as_deref(), &class, (&train, &held), facing)?);
     }
     let report = ProbeReport {
         frame_set: file.clone(),
@@ -366,6 +325,62 @@ pub fn probe(o: &ProbeOptions, out: &Path) -> Result<ProbeReport, ProbeError> {
     };
     write_report(out, &report, &report.table()).map_err(|(file, message)| ProbeError::Unusable { file, message })?;
     Ok(report)
+}
+
+/// The probes of one encoder's features (`weights`; None: the raw pixels).
+fn one_encoder(
+    o: &ProbeOptions,
+    set: &FrameSet,
+    name: &str,
+    weights: Option<&Path>,
+    class: &Tensor,
+    (train, held): (&[i64], &[i64]),
+    (facing_train, facing_held): (&[i64], &[i64]),
+) -> Result<Probe, ProbeError> {
+    let h = &set.header;
+    let val_room = |i: i64| set.rooms[i as usize] % 5 == 0;
+    // the middle cell of a frame's person cells (row, column)
+    let person_centre = |i: i64| {
+        let g = h.grid as usize;
+        let cells = &set.cell_class[i as usize * g * g..(i as usize + 1) * g * g];
+        let at: Vec<usize> = (0..g * g).filter(|&k| cells[k] == CLASS_PERSON).collect();
+        let mean = |f: fn(usize, usize) -> usize| {
+            (at.iter().map(|&k| f(k, g)).sum::<usize>() as f64 / at.len().max(1) as f64).round() as i64
+        };
+        (mean(|k, g| k / g), mean(|k, g| k % g))
+    };
+    let vs = nn::VarStore::new(Device::Cpu);
+    let (f, sha256) = match weights {
+        Some(path) => {
+            let trunk = RgbdEncoder::new(&(vs.root() / "trunk"));
+            load_weights(path, &vs, "trunk", (h.width, h.height))?;
+            let bytes = std::fs::read(path).map_err(|e| ProbeError::Unusable {
+                file: path.display().to_string(),
+                message: format!("cannot read: {e}"),
+            })?;
+            (features(set, Some(&trunk)), Some(sha256_hex(&bytes)))
+        }
+        None => (features(set, None), None),
+    };
+    let (both, targets, person) = category_probe(&f, class, train, held, o);
+    let [err, base, side, lambda] =
+        facing_probe(&f, &person_centre, &set.person_facing, facing_train, facing_held, &val_room);
+    let p = Probe {
+        encoder: name.to_string(),
+        sha256,
+        category_targets_and_person: both,
+        category_targets: targets,
+        category_person: person,
+        facing_error_deg: err,
+        facing_baseline_deg: base,
+        facing_side_accuracy: side,
+        facing_ridge: lambda,
+    };
+    println!(
+        "{name}: category {both:.3} (targets {targets:.3}, person {person:.3}); facing error {err:.1}° \
+         (always the mean {base:.1}°), side {side:.3}"
+    );
+    Ok(p)
 }
 
 /// A probe's report as `OUT.json` and its table as `OUT.md` (each written atomically), and the

@@ -70,30 +70,10 @@ pub fn check(
     payload: &[u8],
 ) -> Verdict {
     let (h, k) = (header, worker);
-    let view = ObsShape::of_header(h).and_then(|s| ObsView::new(s, payload));
-    let bad = if h.magic != OBS_MAGIC || h.version != SCHEMA_VERSION {
-        Some(format!("magic {:#x} version {}", h.magic, h.version))
-    } else if h.worker_id as usize != k {
-        Some(format!("header says worker {}", h.worker_id))
-    } else {
-        match &view {
-            Err(e) => Some(e.to_string()),
-            Ok(v) if v.shape() != shape => Some(format!(
-                "{} envs of {}x{}, the run config says {} of {}x{}",
-                v.shape().num_envs,
-                v.shape().width,
-                v.shape().height,
-                shape.num_envs,
-                shape.width,
-                shape.height
-            )),
-            Ok(_) => None,
-        }
+    let view = match well_formed(worker, shape, header, payload) {
+        Ok(v) => v,
+        Err(why) => return Verdict::Corrupt(why),
     };
-    if let Some(why) = bad {
-        return Verdict::Corrupt(why);
-    }
-    let view = view.expect("checked above");
     let mut next = expected.clone();
     let mut accepted = Accepted {
         next: Expected::default(),
@@ -138,7 +118,38 @@ pub fn check(
             .issues
             .push(format!("worker {k}: observation {} arrived before the previous one was answered", h.step));
     }
-    // The counter of each env.
+    env_counters(k, &view, &mut next, &mut accepted);
+    next.last_step = Some(h.step);
+    accepted.next = next;
+    Verdict::Accept(accepted)
+}
+
+/// The message's view, or why it is corrupt: a bad magic or version, another worker's id, a
+/// layout that does not parse or is not the run's.
+fn well_formed<'a>(worker: usize, shape: &ObsShape, h: &ObsHeader, payload: &'a [u8]) -> Result<ObsView<'a>, String> {
+    if h.magic != OBS_MAGIC || h.version != SCHEMA_VERSION {
+        return Err(format!("magic {:#x} version {}", h.magic, h.version));
+    }
+    if h.worker_id as usize != worker {
+        return Err(format!("header says worker {}", h.worker_id));
+    }
+    let v = ObsShape::of_header(h).and_then(|s| ObsView::new(s, payload)).map_err(|e| e.to_string())?;
+    if v.shape() != shape {
+        return Err(format!(
+            "{} envs of {}x{}, the run config says {} of {}x{}",
+            v.shape().num_envs,
+            v.shape().width,
+            v.shape().height,
+            shape.num_envs,
+            shape.width,
+            shape.height
+        ));
+    }
+    Ok(v)
+}
+
+/// The counter of each env: a step again counts as a duplicate, a gap as lost steps.
+fn env_counters(k: usize, view: &ObsView, next: &mut Expected, accepted: &mut Accepted) {
     next.next_env_step.resize(view.records().len(), None);
     for (e, r) in view.records().iter().enumerate() {
         if let Some(want) = next.next_env_step[e]
@@ -153,9 +164,6 @@ pub fn check(
         }
         next.next_env_step[e] = Some(r.env_step + 1);
     }
-    next.last_step = Some(h.step);
-    accepted.next = next;
-    Verdict::Accept(accepted)
 }
 
 #[cfg(test)]

@@ -225,8 +225,28 @@ pub fn write_stats(
         *by_split.keys().next().context("the dataset has no split")?
     };
     let main = &by_split[&main_split];
+    types_and_objects(main, main_split, out)?;
+    instances(by_split, out)?;
+    distances(by_split, out)?;
+    let mut md = splits_table(by_split, build);
+    md += &pointing_lines(by_split, build, lines);
+    md += &nearest_table(ranks);
+    md += "\n![scene types](fig3_8_scene_types.png)\n![object types](fig3_9_object_types.png)\n![instances](fig3_11_instances.png)\n![geodesic](fig3_12a_geodesic.png)\n![robot-person](fig3_12b_robot_person.png)\n";
+    farm::files::write_atomic(&out.join("summary.md"), md.as_bytes())?;
+    Ok(md)
+}
 
-    // Fig. 3.8: programs per scene type.
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len().max(1) as f64
+}
+
+/// The share of programs whose target category has more than one instance in the room.
+fn multi_share(progs: &[Program]) -> f64 {
+    progs.iter().filter(|p| p.instances > 1).count() as f64 / progs.len().max(1) as f64
+}
+
+/// Figs. 3.8 and 3.9: programs per scene type and per object type, of the main split.
+fn types_and_objects(main: &[Program], main_split: Split, out: &Path) -> anyhow::Result<()> {
     let per_type: Vec<(String, f64)> = SceneType::ALL
         .iter()
         .map(|t| (t.name().to_string(), main.iter().filter(|p| p.scene_type == *t).count() as f64))
@@ -249,18 +269,19 @@ pub fn write_stats(
         "programs",
         &per_cat,
     )?;
+    Ok(())
+}
 
-    // Fig. 3.11: instances of the target category, per split.
+/// Fig. 3.11: instances of the target category, per split.
+fn instances(by_split: &BTreeMap<Split, Vec<Program>>, out: &Path) -> anyhow::Result<()> {
     let buckets = ["1 instance", "2 instances", "3 instances", "4+ instances"];
     let mut groups: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
-    let mut shares = Vec::new();
     for (s, progs) in by_split {
         let mut c = [0f64; 4];
         for p in progs {
             c[(p.instances.clamp(1, 4) - 1) as usize] += 1.0;
         }
-        let multi = progs.iter().filter(|p| p.instances > 1).count() as f64 / progs.len().max(1) as f64;
-        shares.push((s.name(), multi));
+        let multi = multi_share(progs);
         groups.push((format!("{} ({:.0}% multi)", s.name(), 100.0 * multi), c.map(|n| (n, 0.0)).to_vec()));
     }
     plot::grouped_bars(
@@ -270,11 +291,13 @@ pub fn write_stats(
         &buckets,
         &groups,
     )?;
+    Ok(())
+}
 
-    // Fig. 3.12: geodesic robot start → target's centre (the dissertation's measure: to a
-    // success-region cell, then straight; `worker::dataset::starts`) and Euclidean robot–person.
+/// Fig. 3.12: geodesic robot start → target's centre (the dissertation's measure: to a
+/// success-region cell, then straight; `worker::dataset::starts`) and Euclidean robot–person.
+fn distances(by_split: &BTreeMap<Split, Vec<Program>>, out: &Path) -> anyhow::Result<()> {
     let all: Vec<&Program> = by_split.values().flatten().collect();
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     let geo: Vec<f64> = all.iter().map(|p| p.target_geodesic as f64).collect();
     let rh: Vec<f64> = all.iter().map(|p| p.robot_human_distance as f64).collect();
     plot::histogram(
@@ -291,9 +314,11 @@ pub fn write_stats(
         &rh,
         0.25,
     )?;
+    Ok(())
+}
 
-    let acc: Vec<f64> = all.iter().map(|p| p.gesture_accuracy as f64).collect();
-    let right = all.iter().filter(|p| p.hand == Hand::Right).count() as f64 / all.len().max(1) as f64;
+/// The summary's start: how robots start, and per split its programs, rooms and distances.
+fn splits_table(by_split: &BTreeMap<Split, Vec<Program>>, build: &worker::dataset::BuildParams) -> String {
     let starts = match build.starts {
         Starts::Dissertation => format!(
             "`dissertation`: weighted d^{}·exp(−β·d) by their geodesic distance d to the target's centre, β solved per program for a mean of {:.2} m (§3.3.2: 1.52 m), starts already successful allowed",
@@ -313,20 +338,32 @@ pub fn write_stats(
         let g: Vec<f64> = progs.iter().map(|p| p.geodesic as f64).collect();
         let d: Vec<f64> = progs.iter().map(|p| p.robot_human_distance as f64).collect();
         let successful = progs.iter().filter(|p| p.starts_successful).count() as f64 / progs.len().max(1) as f64;
-        let multi = shares.iter().find(|x| x.0 == s.name()).map_or(0.0, |x| x.1);
         md += &format!(
             "| {} | {} | {} | {:.1}% | {:.2} | {:.2} | {:.1}% | {:.2} |\n",
             s.name(),
             progs.len(),
             rooms.len(),
-            100.0 * multi,
+            100.0 * multi_share(progs),
             mean(&t),
             mean(&g),
             100.0 * successful,
             mean(&d)
         );
     }
-    md += &format!(
+    md
+}
+
+/// The referencing gestures: their accuracy and hand, and how far the pointing arm's lines pass
+/// from the target per split.
+fn pointing_lines(
+    by_split: &BTreeMap<Split, Vec<Program>>,
+    build: &worker::dataset::BuildParams,
+    lines: &BTreeMap<Split, Vec<[f32; 2]>>,
+) -> String {
+    let all: Vec<&Program> = by_split.values().flatten().collect();
+    let acc: Vec<f64> = all.iter().map(|p| p.gesture_accuracy as f64).collect();
+    let right = all.iter().filter(|p| p.hand == Hand::Right).count() as f64 / all.len().max(1) as f64;
+    let mut md = format!(
         "\nReferencing gestures (pointing level `{}`): mean gesture accuracy {:.2} (fraction of frames whose pointing ray passes within {} m of the target), right hand {:.0}%.\n",
         build.pointing.name(),
         mean(&acc),
@@ -346,8 +383,5 @@ pub fn write_stats(
         md +=
             &format!("| {} | {:.2} | {:.1} | {:.1} | {:.0}% |\n", s.name(), acc, median(0), median(1), 100.0 * within);
     }
-    md += &nearest_table(ranks);
-    md += "\n![scene types](fig3_8_scene_types.png)\n![object types](fig3_9_object_types.png)\n![instances](fig3_11_instances.png)\n![geodesic](fig3_12a_geodesic.png)\n![robot-person](fig3_12b_robot_person.png)\n";
-    farm::files::write_atomic(&out.join("summary.md"), md.as_bytes())?;
-    Ok(md)
+    md
 }

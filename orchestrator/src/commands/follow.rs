@@ -13,7 +13,7 @@
 //! OUT/result.json what the terminal says
 //! ```
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
@@ -25,6 +25,8 @@ use farm::metrics::{EpisodeResult, spl};
 use worker::dataset::build::with_poses;
 use worker::dataset::{Dataset, Verify, write_subset};
 use worker::gesture::motion::read_csv;
+use worker::program::Program;
+use worker::scene::Split;
 
 use super::eval::{EvalArgs, read_episodes};
 use crate::report::trajectory;
@@ -73,6 +75,36 @@ pub struct FollowResult {
 }
 
 pub fn run(a: FollowArgs) -> anyhow::Result<()> {
+    let (split, p, one) = one_program(&a)?;
+    let ev = a.out.join("eval");
+    evaluate(&a, split, &one, &ev)?;
+    let result = follow_result(&a, &ev)?;
+    let outcome = match (result.success_first_stop, result.success) {
+        (true, _) => "success at the first stop".to_string(),
+        (false, true) => "success after more stops".to_string(),
+        (false, false) => "failure".to_string(),
+    };
+    picture(&a, split, &one, &ev, &format!("{} → {}: {outcome}", a.program, p.target.name()), &result.gif)?;
+    farm::files::write_atomic(&a.out.join("result.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
+    let stop = match result.first_stop {
+        Some((step, d)) => format!("first stop at step {step}, {d:.2} m from the target"),
+        None => "never stopped".into(),
+    };
+    println!(
+        "{} ({}): {outcome}; {stop}; SR at the first stop {}, SPL {:.2}; {} steps; {}",
+        a.program,
+        a.motion.as_ref().map_or("its own gesture".into(), |m| m.display().to_string()),
+        result.success_first_stop as u8,
+        result.spl_first_stop,
+        result.steps,
+        result.gif.display()
+    );
+    Ok(())
+}
+
+/// The program asked for, with the person and robot where asked and the gesture given, written
+/// as a dataset of its own (OUT/dataset): its split, the program and the dataset's folder.
+fn one_program(a: &FollowArgs) -> anyhow::Result<(Split, Program, PathBuf)> {
     let (split, i) = super::program::parse_ref(&a.program)
         .with_context(|| format!("--program: `{}` is not SPLIT:INDEX (e.g. val:17)", a.program))?;
     // the person's gesture first: the file they named is the likelier mistake
@@ -96,7 +128,11 @@ pub fn run(a: FollowArgs) -> anyhow::Result<()> {
     let one = a.out.join("dataset");
     write_subset(&one, &ds, split, &[(p.clone(), motion)]).with_context(|| format!("writing {}", one.display()))?;
 
-    let ev = a.out.join("eval");
+    Ok((split, p, one))
+}
+
+/// The checkpoint's one episode on the one program (OUT/eval).
+fn evaluate(a: &FollowArgs, split: Split, one: &Path, ev: &Path) -> anyhow::Result<()> {
     super::eval::run(EvalArgs {
         checkpoint: Some(a.checkpoint.clone()),
         expert: false,
@@ -105,21 +141,25 @@ pub fn run(a: FollowArgs) -> anyhow::Result<()> {
         split: split.name().into(),
         workers: 1,
         config: None,
-        dataset: Some(one.clone()),
+        dataset: Some(one.to_path_buf()),
         max_programs: None,
         modes: vec!["normal".into()],
         dts_threshold: 1.5,
-        out: Some(ev.clone()),
+        out: Some(ev.to_path_buf()),
         label: None,
         trajectories: 0,
         set: vec![],
         compare: vec![],
     })?;
+    Ok(())
+}
 
+/// What the episode did.
+fn follow_result(a: &FollowArgs, ev: &Path) -> anyhow::Result<FollowResult> {
     let episodes: Vec<EpisodeResult> = read_episodes(&ev.join("normal/episodes.jsonl"))?;
     let e = episodes.first().with_context(|| format!("{}: no episode", ev.display()))?;
     let first = e.stops.first();
-    let result = FollowResult {
+    Ok(FollowResult {
         program: a.program.clone(),
         motion: a.motion.clone(),
         success_first_stop: first.is_some_and(|s| s.success),
@@ -128,23 +168,19 @@ pub fn run(a: FollowArgs) -> anyhow::Result<()> {
         success: e.success,
         steps: e.steps,
         gif: a.out.join("follow.gif"),
-    };
+    })
+}
 
-    // the picture: the robot's view along the episode beside the map of its path
+/// The robot's view along the episode beside the map of its path, as a GIF.
+fn picture(a: &FollowArgs, split: Split, one: &Path, ev: &Path, title: &str, gif: &Path) -> anyhow::Result<()> {
     let (_, run_dir) = super::eval::locate(&a.checkpoint)?;
     let mut cfg = RunConfig::load(&run_dir.join("config.toml"))?;
     cfg.run.split = split;
-    let one_ds = Dataset::open(&one, Verify::Quick)?;
+    let one_ds = Dataset::open(one, Verify::Quick)?;
     let trajs = trajectory::read(&ev.join("normal/trajectories.jsonl"))?;
     let t = trajs.first().with_context(|| format!("{}: no trajectory", ev.display()))?;
     let p1 = one_ds.program(split, 0).context("the one program")?;
-    let outcome = match (result.success_first_stop, result.success) {
-        (true, _) => "success at the first stop".to_string(),
-        (false, true) => "success after more stops".to_string(),
-        (false, false) => "failure".to_string(),
-    };
-    let title = format!("{} → {}: {outcome}", a.program, p.target.name());
-    let map = trajectory::map(&one_ds, &p1, t, &title)?;
+    let map = trajectory::map(&one_ds, &p1, t, title)?;
     let map_png = a.out.join("map.png");
     map.save_png(&map_png)?;
     let map_img = image::open(&map_png)?.to_rgb8();
@@ -165,21 +201,6 @@ pub fn run(a: FollowArgs) -> anyhow::Result<()> {
             f
         })
         .collect();
-    trajectory::write_gif(&result.gif, &frames, 150)?;
-    farm::files::write_atomic(&a.out.join("result.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
-
-    let stop = match result.first_stop {
-        Some((step, d)) => format!("first stop at step {step}, {d:.2} m from the target"),
-        None => "never stopped".into(),
-    };
-    println!(
-        "{} ({}): {outcome}; {stop}; SR at the first stop {}, SPL {:.2}; {} steps; {}",
-        a.program,
-        a.motion.as_ref().map_or("its own gesture".into(), |m| m.display().to_string()),
-        result.success_first_stop as u8,
-        result.spl_first_stop,
-        result.steps,
-        result.gif.display()
-    );
+    trajectory::write_gif(gif, &frames, 150)?;
     Ok(())
 }

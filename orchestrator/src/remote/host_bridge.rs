@@ -99,120 +99,178 @@ fn host_side(
     counts: &BridgeCounts,
 ) -> anyhow::Result<()> {
     let zerr = |what: &'static str| move |e: zenoh::Error| anyhow::anyhow!("{what}: {e}");
-    let token = o.grant.token;
-    let _alive =
-        session.liveliness().declare_token(host_key(&o.run_id, token)).wait().map_err(zerr("liveliness token"))?;
+    let _alive = session
+        .liveliness()
+        .declare_token(host_key(&o.run_id, o.grant.token))
+        .wait()
+        .map_err(zerr("liveliness token"))?;
     let learner =
         session.liveliness().declare_subscriber(learner_key(&o.run_id)).wait().map_err(zerr("learner liveliness"))?;
     let bell = Doorbell::new()?;
     let (_acts, acts) = bell.subscribe(&session, act_key_all(&o.run_id))?;
     let (_reopen, reopen) = bell.subscribe(&session, reopen_key(&o.run_id))?;
-    // Since when the learner is away, how long it may be (longer after it said it reopens its
-    // listener with new trust), and since when it is back.
-    let mut away: Option<(Instant, Duration)> = None;
-    let mut back: Option<Instant> = None;
-    let mut told = false;
-    let n = o.workers as usize;
-    // Per slot: the last observation sent (its generation, step and bytes) and whether an
-    // answer came; the newest answer delivered.
-    let mut last_obs: Vec<Option<(u32, u64, Vec<u8>)>> = vec![None; n];
-    let mut answered = vec![true; n];
-    let mut last_act: Vec<Option<(u32, u64)>> = vec![None; n];
-    let mut resent = Instant::now();
     // Wakes on an answer from the learner (the bell) or an observation of a local worker.
     let ws = wait_set()?;
     let _bell = ws.attach_notification(&bell.door).map_err(|e| anyhow::anyhow!("watching the bell: {e:?}"))?;
     let _observations = ws
         .attach_notification(ports.observation_events())
         .map_err(|e| anyhow::anyhow!("watching the workers: {e:?}"))?;
-    let first = o.grant.first_slot;
+    let mut side = Side::new(&session, &o, counts);
     while !stop.load(Ordering::Relaxed) {
         wait(&ws)?;
         bell.answer();
         let _ = ports.observation_events().try_wait(|_| {});
         while reopen.try_recv().is_ok() {
-            told = true;
+            side.told = true;
         }
         while let Ok(Some(s)) = learner.try_recv() {
-            match (s.kind(), told) {
-                (SampleKind::Delete, true) => away = Some((Instant::now(), REOPEN_GRACE)),
-                (SampleKind::Delete, false) => away = Some((Instant::now(), LINK_GRACE)),
-                // back: messages in flight may have been lost with the link
-                (SampleKind::Put, _) => (away, back, told) = (None, Some(Instant::now()), false),
-            }
+            side.learner_presence(s.kind());
         }
-        if let Some((t, grace)) = away
-            && t.elapsed() > grace
-        {
-            away = None;
-            // A link Zenoh replaced can report the learner gone while it is there: ask.
-            if learner_alive(&session, &o.run_id) {
-                back = Some(Instant::now());
-            } else {
-                if grace == REOPEN_GRACE {
-                    eprintln!(
-                        "[workers] the learner's host did not take this host back within {} s of reopening its listener (its certificate revoked?)",
-                        REOPEN_GRACE.as_secs()
-                    );
-                }
-                gone.store(true, Ordering::Relaxed);
-            }
+        if side.learner_lost() {
+            gone.store(true, Ordering::Relaxed);
         }
-        let put = |k: usize, bytes: Vec<u8>| {
-            session
-                .put(obs_key(&o.run_id, first + k as u32), bytes)
-                .congestion_control(CongestionControl::Block)
-                // not batched: every step waits for this message
-                .express(true)
-                .wait()
-                .map_err(zerr("sending an observation"))
-        };
-        for k in 0..n {
-            while let Some(m) = ports.receive(k)? {
-                let bytes = encode_obs(o.codec, token, m.header(), m.payload());
-                let len = bytes.len();
-                put(k, bytes.clone())?;
-                last_obs[k] = Some((m.header().generation, m.header().step, bytes));
-                answered[k] = false;
-                counts.observations.fetch_add(1, Ordering::Relaxed);
-                counts.bytes.fetch_add(len as u64, Ordering::Relaxed);
-            }
-        }
-        // Messages in flight when a link dropped are lost: after the learner is back, a slot still
-        // waiting sends its last observation again (each second, for ten), and the learner
-        // forwards it if it never came, or answers it again if its answer was what got lost.
-        if let Some(t) = back {
-            if t.elapsed() > Duration::from_secs(10) {
-                back = None;
-            } else if t.elapsed() > Duration::from_millis(500) && resent.elapsed() > Duration::from_secs(1) {
-                resent = Instant::now();
-                for k in (0..n).filter(|&k| !answered[k]) {
-                    if let Some((_, _, bytes)) = &last_obs[k] {
-                        put(k, bytes.clone())?;
-                    }
-                }
-            }
-        }
+        side.send_observations(&ports)?;
+        side.resend_unanswered()?;
         while let Ok(s) = acts.try_recv() {
-            let slot = slot_of(s.key_expr().as_str());
-            match (slot, decode_act(&s.payload().to_bytes())) {
-                (Some(k), Some((t, m))) if t == token && (first..first + o.workers).contains(&k) => {
-                    let i = (k - first) as usize;
-                    // an answer sent again after a reopen that had already come
-                    if last_act[i].is_some_and(|(g, step)| g == m.generation && m.step <= step) {
-                        continue;
-                    }
-                    last_act[i] = Some((m.generation, m.step));
-                    answered[i] = last_obs[i].as_ref().is_none_or(|(g, step, _)| *g == m.generation && *step <= m.step);
-                    ports.send(i, m)?;
-                    counts.actions.fetch_add(1, Ordering::Relaxed);
-                }
-                (Some(k), _) if !(first..first + o.workers).contains(&k) => {} // another host's slot
-                _ => {
-                    counts.refused.fetch_add(1, Ordering::Relaxed);
-                }
-            }
+            side.deliver(&s, &ports)?;
         }
     }
     Ok(())
+}
+
+/// The host's side of the bridge between its rounds: whether the learner is there, and what
+/// went through each slot last.
+struct Side<'a> {
+    session: &'a zenoh::Session,
+    o: &'a HostOptions,
+    counts: &'a BridgeCounts,
+    /// Since when the learner is away, how long it may be (longer after it said it reopens its
+    /// listener with new trust), and since when it is back.
+    away: Option<(Instant, Duration)>,
+    back: Option<Instant>,
+    /// The learner said it reopens its listener.
+    told: bool,
+    /// Per slot: the last observation sent (its generation, step and bytes) and whether an
+    /// answer came; the newest answer delivered.
+    last_obs: Vec<Option<(u32, u64, Vec<u8>)>>,
+    answered: Vec<bool>,
+    last_act: Vec<Option<(u32, u64)>>,
+    resent: Instant,
+}
+
+impl<'a> Side<'a> {
+    fn new(session: &'a zenoh::Session, o: &'a HostOptions, counts: &'a BridgeCounts) -> Side<'a> {
+        let n = o.workers as usize;
+        Side {
+            session,
+            o,
+            counts,
+            away: None,
+            back: None,
+            told: false,
+            last_obs: vec![None; n],
+            answered: vec![true; n],
+            last_act: vec![None; n],
+            resent: Instant::now(),
+        }
+    }
+
+    fn put(&self, k: usize, bytes: Vec<u8>) -> anyhow::Result<()> {
+        self.session
+            .put(obs_key(&self.o.run_id, self.o.grant.first_slot + k as u32), bytes)
+            .congestion_control(CongestionControl::Block)
+            // not batched: every step waits for this message
+            .express(true)
+            .wait()
+            .map_err(|e| anyhow::anyhow!("sending an observation: {e}"))
+    }
+
+    fn learner_presence(&mut self, kind: SampleKind) {
+        match (kind, self.told) {
+            (SampleKind::Delete, true) => self.away = Some((Instant::now(), REOPEN_GRACE)),
+            (SampleKind::Delete, false) => self.away = Some((Instant::now(), LINK_GRACE)),
+            // back: messages in flight may have been lost with the link
+            (SampleKind::Put, _) => (self.away, self.back, self.told) = (None, Some(Instant::now()), false),
+        }
+    }
+
+    /// Whether the learner has been away past its grace (and is not there when asked).
+    fn learner_lost(&mut self) -> bool {
+        let Some((t, grace)) = self.away else { return false };
+        if t.elapsed() <= grace {
+            return false;
+        }
+        self.away = None;
+        // A link Zenoh replaced can report the learner gone while it is there: ask.
+        if learner_alive(self.session, &self.o.run_id) {
+            self.back = Some(Instant::now());
+            return false;
+        }
+        if grace == REOPEN_GRACE {
+            eprintln!(
+                "[workers] the learner's host did not take this host back within {} s of reopening its listener (its certificate revoked?)",
+                REOPEN_GRACE.as_secs()
+            );
+        }
+        true
+    }
+
+    /// Sends each local worker's observations to the learner's host.
+    fn send_observations(&mut self, ports: &LearnerPorts) -> anyhow::Result<()> {
+        for k in 0..self.o.workers as usize {
+            while let Some(m) = ports.receive(k)? {
+                let bytes = encode_obs(self.o.codec, self.o.grant.token, m.header(), m.payload());
+                let len = bytes.len();
+                self.put(k, bytes.clone())?;
+                self.last_obs[k] = Some((m.header().generation, m.header().step, bytes));
+                self.answered[k] = false;
+                self.counts.observations.fetch_add(1, Ordering::Relaxed);
+                self.counts.bytes.fetch_add(len as u64, Ordering::Relaxed);
+            }
+        }
+        Ok(())
+    }
+
+    /// Messages in flight when a link dropped are lost: after the learner is back, a slot still
+    /// waiting sends its last observation again (each second, for ten), and the learner
+    /// forwards it if it never came, or answers it again if its answer was what got lost.
+    fn resend_unanswered(&mut self) -> anyhow::Result<()> {
+        let Some(t) = self.back else { return Ok(()) };
+        if t.elapsed() > Duration::from_secs(10) {
+            self.back = None;
+        } else if t.elapsed() > Duration::from_millis(500) && self.resent.elapsed() > Duration::from_secs(1) {
+            self.resent = Instant::now();
+            for k in (0..self.o.workers as usize).filter(|&k| !self.answered[k]) {
+                if let Some((_, _, bytes)) = &self.last_obs[k] {
+                    self.put(k, bytes.clone())?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Hands an action for one of this host's slots to its worker, once.
+    fn deliver(&mut self, s: &zenoh::sample::Sample, ports: &LearnerPorts) -> anyhow::Result<()> {
+        let (first, token) = (self.o.grant.first_slot, self.o.grant.token);
+        let slot = slot_of(s.key_expr().as_str());
+        match (slot, decode_act(&s.payload().to_bytes())) {
+            (Some(k), Some((t, m))) if t == token && (first..first + self.o.workers).contains(&k) => {
+                let i = (k - first) as usize;
+                // an answer sent again after a reopen that had already come
+                if self.last_act[i].is_some_and(|(g, step)| g == m.generation && m.step <= step) {
+                    return Ok(());
+                }
+                self.last_act[i] = Some((m.generation, m.step));
+                self.answered[i] =
+                    self.last_obs[i].as_ref().is_none_or(|(g, step, _)| *g == m.generation && *step <= m.step);
+                ports.send(i, m)?;
+                self.counts.actions.fetch_add(1, Ordering::Relaxed);
+            }
+            (Some(k), _) if !(first..first + self.o.workers).contains(&k) => {} // another host's slot
+            _ => {
+                self.counts.refused.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        Ok(())
+    }
 }

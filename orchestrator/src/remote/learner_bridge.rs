@@ -186,9 +186,8 @@ fn learner_side(
     counts: &BridgeCounts,
     opened: std::sync::mpsc::Sender<Result<(), String>>,
 ) -> anyhow::Result<()> {
-    let zerr = |what: &'static str| move |e: zenoh::Error| anyhow::anyhow!("{what}: {e}");
     let bell = Doorbell::new()?;
-    let mut l = match Listener::open(&o, &bell) {
+    let l = match Listener::open(&o, &bell) {
         Ok(l) => {
             let _ = opened.send(Ok(()));
             l
@@ -198,11 +197,33 @@ fn learner_side(
             return Ok(());
         }
     };
-    let mut trust_checked = Instant::now();
-    let mut reopened: Option<Instant> = None;
-    // One stand-in worker per remote slot, in the learner's shared memory. Its ports need the
-    // learner's obs_ready, made when the learner starts: ask again each second until then (or
-    // until the run ends, should the learner never start).
+    let Some(ports) = open_slots(&o, stop) else { return Ok(()) };
+    // Wakes on a remote observation (the bell) or an answer of the learner (its event per slot).
+    let ws = wait_set()?;
+    let _bell = ws.attach_notification(&bell.door).map_err(|e| anyhow::anyhow!("watching the bell: {e:?}"))?;
+    let _answers = ports
+        .iter()
+        .map(|p| ws.attach_notification(p.action_events()))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| anyhow::anyhow!("watching the learner's answers: {e:?}"))?;
+    let mut side = Side::new(&o, l, counts);
+    while !stop.load(Ordering::Relaxed) {
+        wait(&ws)?;
+        bell.answer();
+        side.check_trust(&bell)?;
+        side.settle_rejoins();
+        side.admit_joins()?;
+        side.track_hosts();
+        side.forward_observations(&ports)?;
+        side.answer(&ports)?;
+    }
+    Ok(())
+}
+
+/// One stand-in worker per remote slot, in the learner's shared memory. Its ports need the
+/// learner's obs_ready, made when the learner starts: asks again each second until then (None
+/// when the run ends first, should the learner never start).
+fn open_slots(o: &ListenOptions, stop: &AtomicBool) -> Option<Vec<WorkerPorts>> {
     let open = || -> anyhow::Result<Vec<WorkerPorts>> {
         (o.first_slot..o.first_slot + o.slots)
             .map(|k| {
@@ -212,71 +233,105 @@ fn learner_side(
             })
             .collect()
     };
-    let ports = loop {
+    loop {
         match open() {
-            Ok(p) => break p,
+            Ok(p) => return Some(p),
             Err(_) if !stop.load(Ordering::Relaxed) => continue,
-            Err(_) => return Ok(()),
+            Err(_) => return None,
         }
-    };
-    // Wakes on a remote observation (the bell) or an answer of the learner (its event per slot).
-    let ws = wait_set()?;
-    let _bell = ws.attach_notification(&bell.door).map_err(|e| anyhow::anyhow!("watching the bell: {e:?}"))?;
-    let _answers = ports
-        .iter()
-        .map(|p| ws.attach_notification(p.action_events()))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| anyhow::anyhow!("watching the learner's answers: {e:?}"))?;
-    let mut holders = Holders { first_slot: o.first_slot, held: vec![None; o.slots as usize], joins: 0 };
-    // Hosts whose presence vanished, since when: a link Zenoh replaces comes back at once.
-    let mut leaving: Vec<(u64, Instant)> = Vec::new();
-    // Per remote slot: the newest observation forwarded (generation, step) and the last answer
-    // sent, for a host that sends an observation again after a reopen (`host_bridge`).
-    let mut forwarded: Vec<Option<(u32, u64)>> = vec![None; o.slots as usize];
-    let mut answers: Vec<Option<Vec<u8>>> = vec![None; o.slots as usize];
-    let send_act = |session: &zenoh::Session, k: u32, bytes: Vec<u8>| {
-        session
-            .put(act_key(&o.run_id, k), bytes)
+    }
+}
+
+/// The learner's side of the bridge between its rounds: who holds which slot, which hosts are
+/// leaving, and what went through each slot last.
+struct Side<'a> {
+    o: &'a ListenOptions,
+    l: Listener,
+    counts: &'a BridgeCounts,
+    holders: Holders,
+    trust_checked: Instant,
+    /// When the TLS listener was last reopened (hosts it lost get `REJOIN_GRACE` to come back).
+    reopened: Option<Instant>,
+    /// Hosts whose presence vanished, since when: a link Zenoh replaces comes back at once.
+    leaving: Vec<(u64, Instant)>,
+    /// Per remote slot: the newest observation forwarded (generation, step) and the last answer
+    /// sent, for a host that sends an observation again after a reopen (`host_bridge`).
+    forwarded: Vec<Option<(u32, u64)>>,
+    answers: Vec<Option<Vec<u8>>>,
+}
+
+impl<'a> Side<'a> {
+    fn new(o: &'a ListenOptions, l: Listener, counts: &'a BridgeCounts) -> Side<'a> {
+        let n = o.slots as usize;
+        Side {
+            o,
+            l,
+            counts,
+            holders: Holders { first_slot: o.first_slot, held: vec![None; n], joins: 0 },
+            trust_checked: Instant::now(),
+            reopened: None,
+            leaving: Vec::new(),
+            forwarded: vec![None; n],
+            answers: vec![None; n],
+        }
+    }
+
+    fn send_act(&self, k: u32, bytes: Vec<u8>) -> anyhow::Result<()> {
+        self.l
+            .session
+            .put(act_key(&self.o.run_id, k), bytes)
             .congestion_control(CongestionControl::Block)
             // not batched: every step waits for this message
             .express(true)
             .wait()
-            .map_err(zerr("sending actions"))
-    };
-    while !stop.load(Ordering::Relaxed) {
-        wait(&ws)?;
-        bell.answer();
-        if trust_checked.elapsed() > Duration::from_secs(1) {
-            trust_checked = Instant::now();
-            if l.trust_changed() {
-                // Hosts wait for the learner to come back instead of ending their workers.
-                let _ = l.session.put(reopen_key(&o.run_id), Vec::<u8>::new()).express(true).wait();
-                // closing drops what is still queued: let the notice leave first
-                std::thread::sleep(Duration::from_millis(300));
-                let _ = l.session.close().wait();
-                l = Listener::open(&o, &bell)?;
-                reopened = Some(Instant::now());
-                let (trusted, revoked) = certs::hosts(o.tls_run.as_deref().expect("a TLS run"))?;
-                eprintln!(
-                    "[up] reopened the TLS listener; trusted hosts now: {} (revoked: {})",
-                    if trusted.is_empty() { "none".into() } else { trusted.join(", ") },
-                    if revoked.is_empty() { "none".into() } else { revoked.join(", ") },
-                );
+            .map_err(|e| anyhow::anyhow!("sending actions: {e}"))
+    }
+
+    /// Once a second: when the run's trusted hosts changed, reopens the TLS listener with them.
+    fn check_trust(&mut self, bell: &Doorbell) -> anyhow::Result<()> {
+        if self.trust_checked.elapsed() <= Duration::from_secs(1) {
+            return Ok(());
+        }
+        self.trust_checked = Instant::now();
+        if !self.l.trust_changed() {
+            return Ok(());
+        }
+        // Hosts wait for the learner to come back instead of ending their workers.
+        let _ = self.l.session.put(reopen_key(&self.o.run_id), Vec::<u8>::new()).express(true).wait();
+        // closing drops what is still queued: let the notice leave first
+        std::thread::sleep(Duration::from_millis(300));
+        let _ = self.l.session.close().wait();
+        self.l = Listener::open(self.o, bell)?;
+        self.reopened = Some(Instant::now());
+        let (trusted, revoked) = certs::hosts(self.o.tls_run.as_deref().expect("a TLS run"))?;
+        eprintln!(
+            "[up] reopened the TLS listener; trusted hosts now: {} (revoked: {})",
+            if trusted.is_empty() { "none".into() } else { trusted.join(", ") },
+            if revoked.is_empty() { "none".into() } else { revoked.join(", ") },
+        );
+        Ok(())
+    }
+
+    /// After a reopen's grace: frees the slots of hosts that did not come back.
+    fn settle_rejoins(&mut self) {
+        if !self.reopened.is_some_and(|t| t.elapsed() > REJOIN_GRACE) {
+            return;
+        }
+        self.reopened = None;
+        let alive = self.l.hosts_alive(&self.o.run_id);
+        for t in self.holders.tokens() {
+            if !alive.contains(&t) {
+                let n = self.holders.release(t);
+                eprintln!("[up] a worker host did not come back after the reopen: {n} remote slot(s) free");
             }
         }
-        if reopened.is_some_and(|t| t.elapsed() > REJOIN_GRACE) {
-            reopened = None;
-            let alive = l.hosts_alive(&o.run_id);
-            for t in holders.tokens() {
-                if !alive.contains(&t) {
-                    let n = holders.release(t);
-                    eprintln!("[up] a worker host did not come back after the reopen: {n} remote slot(s) free");
-                }
-            }
-        }
-        while let Ok(Some(q)) = l.joins.try_recv() {
+    }
+
+    /// Grants or refuses each join request waiting.
+    fn admit_joins(&mut self) -> anyhow::Result<()> {
+        while let Ok(Some(q)) = self.l.joins.try_recv() {
             let payload = q.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
-            match grant(&o, &mut holders, &payload) {
+            match grant(self.o, &mut self.holders, &payload) {
                 Ok((g, req)) => {
                     eprintln!(
                         "[up] worker host {} joined: {} workers as slots {}..{}",
@@ -293,64 +348,79 @@ fn learner_side(
                 }
             }
         }
-        while let Ok(Some(s)) = l.hosts.try_recv() {
+        Ok(())
+    }
+
+    /// Follows the hosts' presence; frees the slots of a host gone for longer than `LINK_GRACE`.
+    fn track_hosts(&mut self) {
+        while let Ok(Some(s)) = self.l.hosts.try_recv() {
             let token = token_of(s.key_expr().as_str());
             match (s.kind(), token) {
-                (SampleKind::Delete, Some(t)) => leaving.push((t, Instant::now())),
-                (SampleKind::Put, Some(t)) => leaving.retain(|(l, _)| *l != t),
+                (SampleKind::Delete, Some(t)) => self.leaving.push((t, Instant::now())),
+                (SampleKind::Put, Some(t)) => self.leaving.retain(|(l, _)| *l != t),
                 _ => {}
             }
         }
         let expired: Vec<u64> =
-            leaving.extract_if(.., |(_, since)| since.elapsed() > LINK_GRACE).map(|(t, _)| t).collect();
+            self.leaving.extract_if(.., |(_, since)| since.elapsed() > LINK_GRACE).map(|(t, _)| t).collect();
         // A link Zenoh replaced can report a host gone while it is there: ask.
-        let alive = if expired.is_empty() { Vec::new() } else { l.hosts_alive(&o.run_id) };
+        let alive = if expired.is_empty() { Vec::new() } else { self.l.hosts_alive(&self.o.run_id) };
         for t in expired.into_iter().filter(|t| !alive.contains(t)) {
-            let n = holders.release(t);
+            let n = self.holders.release(t);
             if n > 0 {
                 eprintln!("[up] a worker host left: {n} remote slot(s) free until a host joins again");
             }
         }
-        while let Ok(s) = l.obs.try_recv() {
+    }
+
+    /// Hands each remote observation of a slot's holder to the learner, once; the rest is refused.
+    fn forward_observations(&mut self, ports: &[WorkerPorts]) -> anyhow::Result<()> {
+        let o = self.o;
+        while let Ok(s) = self.l.obs.try_recv() {
             let bytes = s.payload().to_bytes();
             match (slot_of(s.key_expr().as_str()), decode_obs(&bytes)) {
                 (Some(k), Ok((token, header, payload)))
-                    if holders.holder(k) == Some(token)
+                    if self.holders.holder(k) == Some(token)
                         && header.worker_id == k
                         && payload.len() == o.layout.total_len as usize =>
                 {
                     let i = (k - o.first_slot) as usize;
-                    if forwarded[i].is_some_and(|(g, step)| g == header.generation && header.step <= step) {
+                    if self.forwarded[i].is_some_and(|(g, step)| g == header.generation && header.step <= step) {
                         // sent again after a reopen: the learner has it; its answer may be lost
-                        if let Some(a) = &answers[i] {
-                            send_act(&l.session, k, a.clone())?;
+                        if let Some(a) = &self.answers[i] {
+                            self.send_act(k, a.clone())?;
                         }
                         continue;
                     }
-                    forwarded[i] = Some((header.generation, header.step));
+                    self.forwarded[i] = Some((header.generation, header.step));
                     ports[i].forward(&header, &payload)?;
-                    counts.observations.fetch_add(1, Ordering::Relaxed);
-                    counts.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
+                    self.counts.observations.fetch_add(1, Ordering::Relaxed);
+                    self.counts.bytes.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                 }
                 _ => {
-                    counts.refused.fetch_add(1, Ordering::Relaxed);
+                    self.counts.refused.fetch_add(1, Ordering::Relaxed);
                 }
             }
         }
+        Ok(())
+    }
+
+    /// Sends the learner's answers to the hosts holding their slots.
+    fn answer(&mut self, ports: &[WorkerPorts]) -> anyhow::Result<()> {
         for (i, p) in ports.iter().enumerate() {
-            let k = o.first_slot + i as u32;
+            let k = self.o.first_slot + i as u32;
             let _ = p.action_events().try_wait(|_| {});
             while let Some(m) = p.try_action()? {
-                if let Some(token) = holders.holder(k) {
+                if let Some(token) = self.holders.holder(k) {
                     let bytes = encode_act(token, &m);
-                    answers[i] = Some(bytes.clone());
-                    send_act(&l.session, k, bytes)?;
-                    counts.actions.fetch_add(1, Ordering::Relaxed);
+                    self.answers[i] = Some(bytes.clone());
+                    self.send_act(k, bytes)?;
+                    self.counts.actions.fetch_add(1, Ordering::Relaxed);
                 }
             }
         }
+        Ok(())
     }
-    Ok(())
 }
 
 /// Checks a join request and grants slots, or says why not.

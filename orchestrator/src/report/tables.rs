@@ -103,6 +103,19 @@ impl Evaluation<'_> {
     /// Markdown with every table this evaluation supports.
     pub fn markdown(&self) -> String {
         let mut md = String::new();
+        self.md_header(&mut md);
+        self.md_stops(&mut md);
+        self.md_first_stop(&mut md);
+        self.md_per_scene_type(&mut md);
+        self.md_by_instances(&mut md);
+        self.md_blind(&mut md);
+        self.md_other_gesture(&mut md);
+        self.md_vision(&mut md);
+        md
+    }
+
+    /// The title, the success rule and how SPL's shortest paths held.
+    fn md_header(&self, md: &mut String) {
         let normal = EvalMode::Normal;
         let n = self.passes.get(&normal).map_or(0, |v| v.len());
         writeln!(md, "# Evaluation: {} on {} ({} episodes)\n", self.label, self.split, n).unwrap();
@@ -119,7 +132,11 @@ impl Evaluation<'_> {
              successful episodes were shorter than their l_i.\n"
         )
         .unwrap();
+    }
 
+    /// SR, SPL and DTS at 1, 2, 3 and unlimited stops.
+    fn md_stops(&self, md: &mut String) {
+        let normal = EvalMode::Normal;
         writeln!(md, "## Navigation performance at 1, 2, 3 and unlimited stops (T4.2 at the first stop)\n").unwrap();
         writeln!(md, "| stops | SR (%) | SPL (%) | DTS (m) |\n|---|---:|---:|---:|").unwrap();
         for (k, name) in STOPS {
@@ -127,7 +144,11 @@ impl Evaluation<'_> {
                 writeln!(md, "| {name} | {:.1} | {:.1} | {:.3} |", s.sr, s.spl, s.dts).unwrap();
             }
         }
+    }
 
+    /// Where the policy stops the first time.
+    fn md_first_stop(&self, md: &mut String) {
+        let normal = EvalMode::Normal;
         if let Some(eps) = self.passes.get(&normal) {
             let f = FirstStops::of(eps, 1.0);
             let (sr, (lo, hi)) = f.sr();
@@ -147,7 +168,11 @@ impl Evaluation<'_> {
             )
             .unwrap();
         }
+    }
 
+    /// T4.3 / T4.4's breakdown by scene type.
+    fn md_per_scene_type(&self, md: &mut String) {
+        let normal = EvalMode::Normal;
         writeln!(md, "\n## Per scene type (T4.3 / T4.4)\n").unwrap();
         writeln!(md, "| scene type | episodes | SR 1 | SR 2 | SR 3 | SR ∞ | SPL 1 | SPL 2 | SPL 3 | SPL ∞ |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|").unwrap();
         for t in SceneType::ALL {
@@ -165,7 +190,11 @@ impl Evaluation<'_> {
             }
             writeln!(md, "|").unwrap();
         }
+    }
 
+    /// T4.5: by instances of the target category.
+    fn md_by_instances(&self, md: &mut String) {
+        let normal = EvalMode::Normal;
         writeln!(md, "\n## By instances of the target category in the room, first stop (T4.5)\n").unwrap();
         writeln!(md, "| instances | episodes | SR (%) | SPL (%) | DTS (m) |\n|---|---:|---:|---:|---:|").unwrap();
         for b in ["1", "2", "3+"] {
@@ -175,7 +204,11 @@ impl Evaluation<'_> {
                 }
             }
         }
+    }
 
+    /// T4.6: blind mode beside normal.
+    fn md_blind(&self, md: &mut String) {
+        let normal = EvalMode::Normal;
         if let Some(s) = self.scores(EvalMode::Blind, Some(1), |_| true) {
             writeln!(md, "\n## Blind mode: visual inputs zeroed, first stop (T4.6)\n").unwrap();
             writeln!(md, "| mode | SR (%) | SPL (%) | DTS (m) |\n|---|---:|---:|---:|").unwrap();
@@ -184,7 +217,11 @@ impl Evaluation<'_> {
             }
             writeln!(md, "| blind | {:.1} | {:.1} | {:.3} |", s.sr, s.spl, s.dts).unwrap();
         }
+    }
 
+    /// Own gesture against another program's.
+    fn md_other_gesture(&self, md: &mut String) {
+        let normal = EvalMode::Normal;
         if let (Some(own), Some(other)) = (self.passes.get(&normal), self.passes.get(&EvalMode::OtherGesture)) {
             writeln!(md, "\n## Another program's gesture: is where the arm points read?\n").unwrap();
             writeln!(
@@ -204,7 +241,11 @@ impl Evaluation<'_> {
             md.push('\n');
             md.push_str(&paired(&[("its own gesture".into(), own), ("another program's".into(), other)]));
         }
+    }
 
+    /// T4.7: RGB or depth alone.
+    fn md_vision(&self, md: &mut String) {
+        let normal = EvalMode::Normal;
         let rgb = self.scores(EvalMode::RgbOnly, Some(1), |_| true);
         let depth = self.scores(EvalMode::DepthOnly, Some(1), |_| true);
         if rgb.is_some() || depth.is_some() {
@@ -216,7 +257,6 @@ impl Evaluation<'_> {
                 }
             }
         }
-        md
     }
 
     /// Random at the first stop beside the dissertation's (T4.2: SR 8.7%, SPL 7.1%): the task's

@@ -83,6 +83,16 @@ pub fn markdown(a: Models<'_>, b: Models<'_>, facts: &ProgramFacts<'_>) -> Optio
     if all.is_empty() {
         return None;
     }
+    let mut md = per_seed(la, lb, &all);
+    where_each_wins(&mut md, la, lb, &all, &classings(la, lb, facts));
+    Some(md)
+}
+
+/// A class of programs: (its place in the table, its name).
+type Class<'p> = Box<dyn Fn(&Pair<'p>) -> Option<(usize, String)> + 'p>;
+
+/// Each seed's pairs (and all seeds') at the first and at unlimited stops, with McNemar's z.
+fn per_seed(la: &str, lb: &str, all: &[(u64, Pair<'_>)]) -> String {
     let seeds: Vec<u64> = {
         let mut s: Vec<u64> = all.iter().map(|(s, _)| *s).collect();
         s.dedup();
@@ -111,11 +121,13 @@ pub fn markdown(a: Models<'_>, b: Models<'_>, facts: &ProgramFacts<'_>) -> Optio
             .unwrap();
         }
     }
+    md
+}
 
-    // where each wins, at the first stop, over every seed's pairs
-    // a class is (its place in the table, its name)
-    type Class<'p> = Box<dyn Fn(&Pair<'p>) -> Option<(usize, String)> + 'p>;
-    let mut classings: Vec<(String, Class<'_>)> = vec![
+/// The ways programs are split into classes: the gestures at the start, an intervention before
+/// the first stop, and where known the target's nearness and its category's instances.
+fn classings<'p>(la: &str, lb: &str, facts: &ProgramFacts<'p>) -> Vec<(String, Class<'p>)> {
+    let mut classings: Vec<(String, Class<'p>)> = vec![
         (
             format!("the gesture at the start ({la} / {lb})"),
             Box::new(|p: &Pair<'_>| {
@@ -149,15 +161,26 @@ pub fn markdown(a: Models<'_>, b: Models<'_>, facts: &ProgramFacts<'_>) -> Optio
             }),
         ));
     }
+    classings
+}
+
+/// Where each wins, at the first stop, over every seed's pairs, class by class.
+fn where_each_wins<'p>(
+    md: &mut String,
+    la: &str,
+    lb: &str,
+    all: &[(u64, Pair<'p>)],
+    classings: &[(String, Class<'p>)],
+) {
     write!(
         md,
         "\nWhere each wins, first stop, every seed's pairs: the programs split by …\n\n\
          | by | class | pairs | SR {la} | SR {lb} | only {la} | only {lb} | z |\n|---|---|---:|---:|---:|---:|---:|---:|\n"
     )
     .unwrap();
-    for (title, class_of) in &classings {
+    for (title, class_of) in classings {
         let mut classes: BTreeMap<(usize, String), Vec<&Pair<'_>>> = BTreeMap::new();
-        for (_, p) in &all {
+        for (_, p) in all {
             if let Some(c) = class_of(p) {
                 classes.entry(c).or_default().push(p);
             }
@@ -180,7 +203,6 @@ pub fn markdown(a: Models<'_>, b: Models<'_>, facts: &ProgramFacts<'_>) -> Optio
             title = "";
         }
     }
-    Some(md)
 }
 
 #[cfg(test)]

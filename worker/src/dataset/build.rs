@@ -14,6 +14,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use nalgebra::{Point2, Point3, Vector2};
 use rand::Rng;
 use rand::seq::IndexedRandom;
+use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -236,78 +237,9 @@ pub fn make_program(
         let t = &ctx.targets[&target];
         let tc = Point2::new(t.center.x, t.center.z);
 
-        // The person: somewhere on the main floor area, at a natural distance, facing
-        // roughly toward the target so that it is in their field of view.
-        let spots: Vec<Cell> = ctx
-            .main
-            .iter()
-            .copied()
-            .filter(|&c| {
-                let d = (ctx.grid.point(c) - tc).norm();
-                d >= opts.human_distance[0] && d <= opts.human_distance[1]
-            })
-            .collect();
-        let mut person = None;
-        for _ in 0..30 {
-            let Some(&c) = spots.choose(&mut rng) else { break };
-            let p = ctx.grid.point(c);
-            let bearing = yaw_of(tc - p);
-            let yaw = wrap_deg((bearing + rng.random_range(-30.0f32..30.0)).round());
-            if ctx.human_sees(p, yaw, target) {
-                person = Some((p, yaw));
-                break;
-            }
-        }
-        let Some((human, human_yaw)) = person else { continue };
-
+        let Some((human, human_yaw)) = place_person(ctx, opts, &mut rng, target, tc) else { continue };
         physics.set_human(Some(human));
-        let (grid, region, field) = ctx.goal_field(physics, target, human);
-        let to_centre = starts::target_field(&grid, &region, tc);
-        let seen_from = |pose: &crate::robot::RobotPose| {
-            visibility::visible(physics, &pose.camera(&ctx.env), &ctx.k, &t.points, crate::scene::object_id(target))
-        };
-        let start = match opts.starts {
-            // Weighted toward the target so that the expected distance to its centre is the
-            // dissertation's; a start where a Stop already succeeds is kept.
-            Starts::Dissertation => {
-                let cells: Vec<Cell> = grid.free_cells().filter(|&c| to_centre.at_cell(c).is_finite()).collect();
-                let d: Vec<f32> = cells.iter().map(|&c| to_centre.at_cell(c)).collect();
-                let weights = starts::tilt(&d, opts.start_mean_geodesic, opts.start_shape);
-                starts::draw(&weights, &mut rng).map(|i| {
-                    let p = grid.point(cells[i]);
-                    let yaw = rng.random_range(0..24) as f32 * 15.0;
-                    crate::robot::RobotPose { x: p.x, z: p.y, yaw }
-                })
-            }
-            // Uniform over a band of distances from the success region, never already successful.
-            Starts::Far => {
-                let cells: Vec<Cell> = grid
-                    .free_cells()
-                    .filter(|&c| {
-                        let d = field.at_cell(c);
-                        d.is_finite() && d >= opts.start_geodesic[0] && d <= opts.start_geodesic[1]
-                    })
-                    .collect();
-                let mut start = None;
-                for _ in 0..20 {
-                    let Some(&c) = cells.choose(&mut rng) else { break };
-                    let p = grid.point(c);
-                    let yaw = rng.random_range(0..24) as f32 * 15.0;
-                    let pose = crate::robot::RobotPose { x: p.x, z: p.y, yaw };
-                    let near = (p - tc).norm() < ctx.success_distance;
-                    if !(near && seen_from(&pose)) {
-                        start = Some(pose);
-                        break;
-                    }
-                }
-                start
-            }
-        };
-        let start = start.map(|pose| {
-            let c = grid.cell_at(pose.xz()).expect("starts are grid points");
-            let successful = (pose.xz() - tc).norm() < ctx.success_distance && seen_from(&pose);
-            (pose, field.at_cell(c), to_centre.at_cell(c), successful)
-        });
+        let start = draw_start(ctx, physics, opts, &mut rng, target, human);
         physics.set_human(None);
         let Some((pose, geodesic, target_geodesic, starts_successful)) = start else { continue };
 
@@ -338,6 +270,98 @@ pub fn make_program(
         return Some((program, s.motion));
     }
     None
+}
+
+/// The person: somewhere on the main floor area, at a natural distance from the target's centre
+/// `tc`, facing roughly toward it so that it is in their field of view; None after 30 tries.
+fn place_person(
+    ctx: &RoomContext,
+    opts: &BuildOptions,
+    rng: &mut ChaCha8Rng,
+    target: usize,
+    tc: Point2<f32>,
+) -> Option<(Point2<f32>, f32)> {
+    let spots: Vec<Cell> = ctx
+        .main
+        .iter()
+        .copied()
+        .filter(|&c| {
+            let d = (ctx.grid.point(c) - tc).norm();
+            d >= opts.human_distance[0] && d <= opts.human_distance[1]
+        })
+        .collect();
+    for _ in 0..30 {
+        let &c = spots.choose(rng)?;
+        let p = ctx.grid.point(c);
+        let bearing = yaw_of(tc - p);
+        let yaw = wrap_deg((bearing + rng.random_range(-30.0f32..30.0)).round());
+        if ctx.human_sees(p, yaw, target) {
+            return Some((p, yaw));
+        }
+    }
+    None
+}
+
+/// The robot's start with the person at `human` (in `physics`), as `opts.starts` draws it: its
+/// pose, geodesic distances to the success region and to the target's centre, and whether a
+/// Stop there already succeeds.
+fn draw_start(
+    ctx: &RoomContext,
+    physics: &Physics,
+    opts: &BuildOptions,
+    rng: &mut ChaCha8Rng,
+    target: usize,
+    human: Point2<f32>,
+) -> Option<(crate::robot::RobotPose, f32, f32, bool)> {
+    let t = &ctx.targets[&target];
+    let tc = Point2::new(t.center.x, t.center.z);
+    let (grid, region, field) = ctx.goal_field(physics, target, human);
+    let to_centre = starts::target_field(&grid, &region, tc);
+    let seen_from = |pose: &crate::robot::RobotPose| {
+        visibility::visible(physics, &pose.camera(&ctx.env), &ctx.k, &t.points, crate::scene::object_id(target))
+    };
+    let start = match opts.starts {
+        // Weighted toward the target so that the expected distance to its centre is the
+        // dissertation's; a start where a Stop already succeeds is kept.
+        Starts::Dissertation => {
+            let cells: Vec<Cell> = grid.free_cells().filter(|&c| to_centre.at_cell(c).is_finite()).collect();
+            let d: Vec<f32> = cells.iter().map(|&c| to_centre.at_cell(c)).collect();
+            let weights = starts::tilt(&d, opts.start_mean_geodesic, opts.start_shape);
+            starts::draw(&weights, rng).map(|i| {
+                let p = grid.point(cells[i]);
+                let yaw = rng.random_range(0..24) as f32 * 15.0;
+                crate::robot::RobotPose { x: p.x, z: p.y, yaw }
+            })
+        }
+        // Uniform over a band of distances from the success region, never already successful.
+        Starts::Far => {
+            let cells: Vec<Cell> = grid
+                .free_cells()
+                .filter(|&c| {
+                    let d = field.at_cell(c);
+                    d.is_finite() && d >= opts.start_geodesic[0] && d <= opts.start_geodesic[1]
+                })
+                .collect();
+            let mut start = None;
+            for _ in 0..20 {
+                let Some(&c) = cells.choose(rng) else { break };
+                let p = grid.point(c);
+                let yaw = rng.random_range(0..24) as f32 * 15.0;
+                let pose = crate::robot::RobotPose { x: p.x, z: p.y, yaw };
+                let near = (p - tc).norm() < ctx.success_distance;
+                if !(near && seen_from(&pose)) {
+                    start = Some(pose);
+                    break;
+                }
+            }
+            start
+        }
+    };
+    start.map(|pose| {
+        let c = grid.cell_at(pose.xz()).expect("starts are grid points");
+        let successful = (pose.xz() - tc).norm() < ctx.success_distance && seen_from(&pose);
+        (pose, field.at_cell(c), to_centre.at_cell(c), successful)
+    })
 }
 
 /// Per-split statistics written into the manifest and shown by `dataset stats`.

@@ -65,58 +65,86 @@ pub fn import_bytes(bytes: &[u8], file: &str) -> Result<Motion, BvhError> {
 /// names at `:` and whitespace, so `mixamorig:Hips` becomes `Hips` and `Bip01 L Thigh`
 /// becomes `Bip01_L_Thigh`. Errors carry a 1-based line number.
 fn sanitize(text: &str) -> Result<String, (usize, String)> {
-    let mut out = String::with_capacity(text.len());
-    let (mut hierarchy, mut root, mut motion) = (false, false, false);
-    let mut depth: i64 = 0;
-    let mut channels = 0usize;
-    let mut frames: Option<usize> = None;
-    let mut frame_time = false;
-    let mut values = 0usize;
+    let mut s = Sanitizer::default();
     for (i, line) in text.lines().enumerate() {
-        let n = i + 1;
         let t: Vec<&str> = line.split_whitespace().collect();
-        let Some(&first) = t.first() else {
-            out.push('\n');
-            continue;
-        };
-        if motion {
-            if first == "Frames:" || first == "Frames" {
-                let v = t.iter().skip(1).find(|x| **x != ":").ok_or((n, "`Frames:` without a count".to_string()))?;
-                frames = Some(v.parse().map_err(|_| (n, format!("`{v}` is not a frame count")))?);
-            } else if first == "Frame" {
-                frame_time = true;
-            } else {
-                values += t.len();
-            }
-            out.push_str(line);
-            out.push('\n');
-            continue;
+        if t.is_empty() {
+            s.out.push('\n');
+        } else if s.motion {
+            s.motion_line(i + 1, &t)?;
+            s.keep(line);
+        } else if let Some(renamed) = s.hierarchy_line(i + 1, line, &t)? {
+            s.out.push_str(&renamed);
+        } else {
+            s.keep(line);
         }
+    }
+    s.finish(text.lines().count().max(1))
+}
+
+/// What `sanitize` has read so far.
+#[derive(Default)]
+struct Sanitizer {
+    out: String,
+    hierarchy: bool,
+    root: bool,
+    motion: bool,
+    /// Brace depth in the hierarchy.
+    depth: i64,
+    /// Channels declared, frames declared, whether `Frame Time:` came, values read.
+    channels: usize,
+    frames: Option<usize>,
+    frame_time: bool,
+    values: usize,
+}
+
+impl Sanitizer {
+    fn keep(&mut self, line: &str) {
+        self.out.push_str(line);
+        self.out.push('\n');
+    }
+
+    /// A line after MOTION: the frame count, the frame time, or values.
+    fn motion_line(&mut self, n: usize, t: &[&str]) -> Result<(), (usize, String)> {
+        let first = t[0];
+        if first == "Frames:" || first == "Frames" {
+            let v = t.iter().skip(1).find(|x| **x != ":").ok_or((n, "`Frames:` without a count".to_string()))?;
+            self.frames = Some(v.parse().map_err(|_| (n, format!("`{v}` is not a frame count")))?);
+        } else if first == "Frame" {
+            self.frame_time = true;
+        } else {
+            self.values += t.len();
+        }
+        Ok(())
+    }
+
+    /// A line of the hierarchy, checked; a joint's line rewritten with its name (returned).
+    fn hierarchy_line(&mut self, n: usize, line: &str, t: &[&str]) -> Result<Option<String>, (usize, String)> {
+        let first = t[0];
         match first {
-            "HIERARCHY" if hierarchy => return Err((n, "a second HIERARCHY".into())),
-            "HIERARCHY" => hierarchy = true,
+            "HIERARCHY" if self.hierarchy => return Err((n, "a second HIERARCHY".into())),
+            "HIERARCHY" => self.hierarchy = true,
             "ROOT" | "JOINT" => {
-                if first == "ROOT" && (!hierarchy || root) {
+                if first == "ROOT" && (!self.hierarchy || self.root) {
                     return Err((n, "ROOT must come once, after HIERARCHY".into()));
                 }
-                if first == "JOINT" && (!root || depth < 1) {
+                if first == "JOINT" && (!self.root || self.depth < 1) {
                     return Err((n, "JOINT outside the ROOT's braces".into()));
                 }
                 if t.len() < 2 {
                     return Err((n, format!("{first} without a name")));
                 }
-                root = true;
+                self.root = true;
                 let name = t[1..].join("_");
                 let name = name.rsplit([':', '|']).next().unwrap_or(&name).to_string();
                 let indent = &line[..line.len() - line.trim_start().len()];
-                out.push_str(&format!("{indent}{first} {name}\n"));
-                continue;
+                return Ok(Some(format!("{indent}{first} {name}\n")));
             }
             "End" if t.get(1) != Some(&"Site") => return Err((n, "`End` must be followed by `Site`".into())),
-            "{" => depth += 1,
+            "{" => self.depth += 1,
             "}" => {
-                depth -= 1;
-                if depth < 0 {
+                self.depth -= 1;
+                if self.depth < 0 {
                     return Err((n, "unbalanced `}`".into()));
                 }
             }
@@ -126,37 +154,40 @@ fn sanitize(text: &str) -> Result<String, (usize, String)> {
                 if k > 6 || k != t.len() - 2 {
                     return Err((n, format!("CHANNELS {k} lists {} channels", t.len().saturating_sub(2))));
                 }
-                channels += k;
+                self.channels += k;
             }
             "MOTION" => {
-                if !root || depth != 0 {
+                if !self.root || self.depth != 0 {
                     return Err((n, "MOTION before the hierarchy is complete".into()));
                 }
-                motion = true;
+                self.motion = true;
             }
             _ => {}
         }
-        out.push_str(line);
-        out.push('\n');
+        Ok(None)
     }
-    let end = text.lines().count().max(1);
-    if !motion {
-        return Err((end, "no MOTION section".into()));
+
+    /// The text, once the motion section is complete and holds every value it declares.
+    fn finish(self, end: usize) -> Result<String, (usize, String)> {
+        if !self.motion {
+            return Err((end, "no MOTION section".into()));
+        }
+        let frames = self.frames.ok_or((end, "no `Frames:` line".to_string()))?;
+        if !self.frame_time {
+            return Err((end, "no `Frame Time:` line".into()));
+        }
+        let (channels, values) = (self.channels, self.values);
+        if frames.checked_mul(channels) != Some(values) {
+            return Err((
+                end,
+                format!(
+                    "{frames} frames of {channels} channels need {} values, found {values}",
+                    frames.saturating_mul(channels)
+                ),
+            ));
+        }
+        Ok(self.out)
     }
-    let frames = frames.ok_or((end, "no `Frames:` line".to_string()))?;
-    if !frame_time {
-        return Err((end, "no `Frame Time:` line".into()));
-    }
-    if frames.checked_mul(channels) != Some(values) {
-        return Err((
-            end,
-            format!(
-                "{frames} frames of {channels} channels need {} values, found {values}",
-                frames.saturating_mul(channels)
-            ),
-        ));
-    }
-    Ok(out)
 }
 
 /// What a joint name says about the body part.
@@ -325,18 +356,7 @@ struct Joint {
 /// Retargets a parsed BVH to muscles of body `h`.
 pub fn retarget(bvh: &Bvh, h: &Humanoid, file: &str) -> Result<Motion, BvhError> {
     let err = |message: String| BvhError::Skeleton { file: file.to_string(), message };
-    let mut joints = Vec::new();
-    let mut names = Vec::new();
-    for j in bvh.joints() {
-        let d = j.data();
-        joints.push(Joint {
-            parent: if d.is_root() { None } else { d.parent_index() },
-            offset: Vector3::new(d.offset().x, d.offset().y, d.offset().z),
-            end_site: d.end_site().map(|e| Vector3::new(e.x, e.y, e.z)),
-            channels: d.channels().iter().map(|c| (c.channel_type(), c.motion_index())).collect(),
-        });
-        names.push(String::from_utf8_lossy(d.name().as_ref()).into_owned());
-    }
+    let (joints, names) = read_joints(bvh);
     if joints.is_empty() {
         return Err(err("has no joints".into()));
     }
@@ -353,24 +373,54 @@ pub fn retarget(bvh: &Bvh, h: &Humanoid, file: &str) -> Result<Motion, BvhError>
             names
         )));
     }
-
     // Rest positions (all rotations zero).
     let mut rest = vec![Vector3::zeros(); joints.len()];
     for (i, j) in joints.iter().enumerate() {
         rest[i] = j.parent.map_or(Vector3::zeros(), |p| rest[p]) + j.offset;
     }
+    let to_ours = body_axes(&map, &rest);
+    let align = alignment(&joints, &map, &rest, &to_ours, h);
+    Ok(resample(bvh, &joints, &map, &align, &to_ours, h))
+}
+
+/// The file's joints (parent, offset, end site, channels) and their names.
+fn read_joints(bvh: &Bvh) -> (Vec<Joint>, Vec<String>) {
+    let mut joints = Vec::new();
+    let mut names = Vec::new();
+    for j in bvh.joints() {
+        let d = j.data();
+        joints.push(Joint {
+            parent: if d.is_root() { None } else { d.parent_index() },
+            offset: Vector3::new(d.offset().x, d.offset().y, d.offset().z),
+            end_site: d.end_site().map(|e| Vector3::new(e.x, e.y, e.z)),
+            channels: d.channels().iter().map(|c| (c.channel_type(), c.motion_index())).collect(),
+        });
+        names.push(String::from_utf8_lossy(d.name().as_ref()).into_owned());
+    }
+    (joints, names)
+}
+
+/// The file's body axes → ours, from its rest pose. BVH is right-handed: forward = up × right.
+fn body_axes(map: &[Option<usize>; BONES], rest: &[Vector3<f32>]) -> Matrix3<f32> {
     let rest_of = |b: Bone| map[b.index()].map(|j| rest[j]);
-    // The file's body axes → ours. BVH is right-handed: forward = up × right.
     let up = (rest_of(Bone::Head).or(rest_of(Bone::Neck)).unwrap_or(rest[0] + Vector3::y())
         - rest_of(Bone::Hips).unwrap())
     .normalize();
     let mut right = rest_of(Bone::RightUpperArm).unwrap() - rest_of(Bone::LeftUpperArm).unwrap();
     right = (right - up * right.dot(&up)).normalize();
     let fwd = up.cross(&right);
-    let to_ours = Matrix3::from_rows(&[right.transpose(), up.transpose(), fwd.transpose()]);
-    let conv = |q: &Rotation3<f32>| Rotation3::from_matrix_unchecked(to_ours * q.matrix() * to_ours.transpose());
+    Matrix3::from_rows(&[right.transpose(), up.transpose(), fwd.transpose()])
+}
 
-    // Per bone: the rotation from the humanoid's T-pose direction to the file's rest direction.
+/// Per bone: the rotation from the humanoid's T-pose direction to the file's rest direction.
+fn alignment(
+    joints: &[Joint],
+    map: &[Option<usize>; BONES],
+    rest: &[Vector3<f32>],
+    to_ours: &Matrix3<f32>,
+    h: &Humanoid,
+) -> [UnitQuaternion<f32>; BONES] {
+    let rest_of = |b: Bone| map[b.index()].map(|j| rest[j]);
     let sk = h.skeleton();
     let mut align = [UnitQuaternion::identity(); BONES];
     for b in Bone::ALL {
@@ -385,11 +435,24 @@ pub fn retarget(bvh: &Bvh, h: &Humanoid, file: &str) -> Result<Motion, BvhError>
         if let Some(d) = dir.filter(|d| d.norm() > 1e-6) {
             let ours = child.map_or(sk.bone_def(b).tip, |c| sk.bone_def(c).offset);
             align[b.index()] =
-                UnitQuaternion::rotation_between(&ours, &(to_ours * d)).unwrap_or_else(UnitQuaternion::identity);
+                UnitQuaternion::rotation_between(&ours, &(*to_ours * d)).unwrap_or_else(UnitQuaternion::identity);
         }
     }
 
-    // Muscles at each source frame we need.
+    align
+}
+
+/// The muscles at our frame rate: each of our frames between the two source frames around it.
+fn resample(
+    bvh: &Bvh,
+    joints: &[Joint],
+    map: &[Option<usize>; BONES],
+    align: &[UnitQuaternion<f32>; BONES],
+    to_ours: &Matrix3<f32>,
+    h: &Humanoid,
+) -> Motion {
+    let sk = h.skeleton();
+    let conv = |q: &Rotation3<f32>| Rotation3::from_matrix_unchecked(*to_ours * q.matrix() * to_ours.transpose());
     let dt = bvh.frame_time().as_secs_f32();
     let dt = if dt > 0.0 { dt } else { 1.0 / FPS };
     let n = bvh.num_frames();
@@ -412,7 +475,7 @@ pub fn retarget(bvh: &Bvh, h: &Humanoid, file: &str) -> Result<Motion, BvhError>
                 }
                 global[i] = j.parent.map_or(Rotation3::identity(), |p| global[p]) * local;
             }
-            muscles_from_globals(sk, &map, &align, |j| UnitQuaternion::from_rotation_matrix(&conv(&global[j])))
+            muscles_from_globals(sk, map, align, |j| UnitQuaternion::from_rotation_matrix(&conv(&global[j])))
         })
     };
     let mut out = Motion::constant(&STANDING);
@@ -427,7 +490,7 @@ pub fn retarget(bvh: &Bvh, h: &Humanoid, file: &str) -> Result<Motion, BvhError>
             f[i] = a[i] + (b[i] - a[i]) * w;
         }
     }
-    Ok(out)
+    out
 }
 
 /// Which BVH joint drives each humanoid bone.

@@ -374,11 +374,27 @@ pub fn capture(sk: &Skeleton, frames: &[LandmarkFrame], opts: CaptureOptions) ->
         return Err(CaptureError::NoPerson { missing: n - person_frames, frames: n });
     }
     let to_model = model_axes(sk);
+    let mut out = body_and_arms(sk, &observed, &to_model);
+    let (side, span, resting) = gesture_span(sk, &out, seconds / n as f32)?;
+    let s = side_index(side);
+    let gesture_frames = span.1 - span.0 + 1;
+    let seen_hand = (span.0..=span.1).filter(|&i| observed[i].as_ref().is_some_and(|o| o.hands[s].is_some())).count();
+    if seen_hand * 2 < gesture_frames && !opts.hands_optional {
+        return Err(CaptureError::HandsLost { side, lost: gesture_frames - seen_hand, frames: gesture_frames });
+    }
+    fingers(sk, &observed, &mut out);
+    head(sk, &observed, &mut out, &to_model, rest_nod(&observed, &resting));
+    let times: Vec<f32> = frames.iter().map(|f| f.t).collect();
+    let motion = resample(&out[span.0..=span.1], seconds / n as f32);
+    Ok(Capture { frames: out, times, side, span, motion, person_frames, hand_frames: (seen_hand, gesture_frames) })
+}
 
-    // body and arms, each frame from the one before
-    let mut out = Vec::with_capacity(n);
+/// Body and arms fitted to each frame, each frame from the one before.
+fn body_and_arms(sk: &Skeleton, observed: &[Option<Observed>], to_model: &Matrix3<f32>) -> Vec<[f32; MUSCLES]> {
+    let to_model = *to_model;
+    let mut out = Vec::with_capacity(observed.len());
     let mut pose = STANDING;
-    for o in &observed {
+    for o in observed {
         let previous = pose;
         if let Some(o) = o {
             fit_torso(sk, &mut pose, to_model * o.shoulders);
@@ -400,7 +416,17 @@ pub fn capture(sk: &Skeleton, frames: &[LandmarkFrame], opts: CaptureOptions) ->
         out.push(pose);
     }
 
-    // the gesturing arm and its span
+    out
+}
+
+/// The gesturing arm, the frames of its gesture (padded by 0.4 s; frames every `dt`) and
+/// which frames are at rest (that arm's activity under 30% of its peak).
+fn gesture_span(
+    sk: &Skeleton,
+    out: &[[f32; MUSCLES]],
+    dt: f32,
+) -> Result<(Side, (usize, usize), Vec<bool>), CaptureError> {
+    let n = out.len();
     let act: Vec<[f32; 2]> = out.iter().map(|m| [activity(sk, m, Side::Left), activity(sk, m, Side::Right)]).collect();
     let peak = |s: usize| act.iter().map(|a| a[s]).fold(0.0f32, f32::max);
     let side = if peak(1) >= peak(0) { Side::Right } else { Side::Left };
@@ -409,28 +435,27 @@ pub fn capture(sk: &Skeleton, frames: &[LandmarkFrame], opts: CaptureOptions) ->
         return Err(CaptureError::NoGesture);
     }
     let active: Vec<usize> = (0..n).filter(|&i| act[i][s] >= 0.3 * peak(s)).collect();
-    let dt = seconds / n as f32;
     let pad = (0.4 / dt).round() as usize;
     let span = (active[0].saturating_sub(pad), (active[active.len() - 1] + pad).min(n - 1));
 
-    // hands and head need the span: fingers of the frames the hand is seen, the face's nod
-    // against its resting nod (the median outside the gesture)
-    let rest_nod = {
-        let mut nods: Vec<f32> = (0..n)
-            .filter(|&i| act[i][s] < 0.3 * peak(s))
-            .filter_map(|i| observed[i].as_ref()?.face.map(|f| yaw_pitch(f).1))
-            .collect();
-        if nods.is_empty() {
-            nods = observed.iter().flatten().filter_map(|o| o.face.map(|f| yaw_pitch(f).1)).collect();
-        }
-        nods.sort_by(f32::total_cmp);
-        nods.get(nods.len() / 2).copied().unwrap_or(0.0)
-    };
-    let gesture_frames = span.1 - span.0 + 1;
-    let seen_hand = (span.0..=span.1).filter(|&i| observed[i].as_ref().is_some_and(|o| o.hands[s].is_some())).count();
-    if seen_hand * 2 < gesture_frames && !opts.hands_optional {
-        return Err(CaptureError::HandsLost { side, lost: gesture_frames - seen_hand, frames: gesture_frames });
+    let resting = (0..n).map(|i| act[i][s] < 0.3 * peak(s)).collect();
+    Ok((side, span, resting))
+}
+
+/// The face's resting nod: its median in the frames at rest (in every frame with a face if none).
+fn rest_nod(observed: &[Option<Observed>], resting: &[bool]) -> f32 {
+    let n = observed.len();
+    let mut nods: Vec<f32> =
+        (0..n).filter(|&i| resting[i]).filter_map(|i| observed[i].as_ref()?.face.map(|f| yaw_pitch(f).1)).collect();
+    if nods.is_empty() {
+        nods = observed.iter().flatten().filter_map(|o| o.face.map(|f| yaw_pitch(f).1)).collect();
     }
+    nods.sort_by(f32::total_cmp);
+    nods.get(nods.len() / 2).copied().unwrap_or(0.0)
+}
+
+/// Each hand's fingers in the frames it is seen, held where it is not.
+fn fingers(sk: &Skeleton, observed: &[Option<Observed>], out: &mut [[f32; MUSCLES]]) {
     for side in Side::BOTH {
         let mut fingers = RELAXED;
         for (i, o) in observed.iter().enumerate() {
@@ -448,7 +473,17 @@ pub fn capture(sk: &Skeleton, frames: &[LandmarkFrame], opts: CaptureOptions) ->
             m[side.finger_muscles()..side.finger_muscles() + 20].copy_from_slice(&fingers);
         }
     }
-    // a face at its resting nod looks as our skeleton's does at rest
+}
+
+/// The head and neck: a face at its resting nod looks as our skeleton's does at rest.
+fn head(
+    sk: &Skeleton,
+    observed: &[Option<Observed>],
+    out: &mut [[f32; MUSCLES]],
+    to_model: &Matrix3<f32>,
+    rest_nod: f32,
+) {
+    let to_model = *to_model;
     let our_nod = yaw_pitch(to_model.transpose() * (sk.chain(&STANDING, Bone::Head).1 * Vector3::z())).1;
     let mut head = STANDING;
     for (i, o) in observed.iter().enumerate() {
@@ -460,10 +495,6 @@ pub fn capture(sk: &Skeleton, frames: &[LandmarkFrame], opts: CaptureOptions) ->
             out[i][k] = head[k];
         }
     }
-
-    let times: Vec<f32> = frames.iter().map(|f| f.t).collect();
-    let motion = resample(&out[span.0..=span.1], dt);
-    Ok(Capture { frames: out, times, side, span, motion, person_frames, hand_frames: (seen_hand, gesture_frames) })
 }
 
 /// A gesture of `frames` (every `dt` seconds) in 100 frames at 30 fps: in real time, centred and

@@ -174,6 +174,12 @@ const LEFT: &[Side] = &[Side::Left];
 const BOTH: &[Side] = &[Side::Left, Side::Right];
 
 fn build(index: usize) -> Motion {
+    let (acts, shakes) = choreography(index);
+    animate(&acts, &shakes)
+}
+
+/// Gesture `index`'s arm movements and head shakes: one arm of the match per gesture.
+fn choreography(index: usize) -> (Vec<Act>, Vec<Shake>) {
     let fwd = [0.0, 0.0, 1.0];
     let up = [0.0, 1.0, 0.0];
     let down = [0.0, -1.0, 0.0];
@@ -184,7 +190,7 @@ fn build(index: usize) -> Motion {
     let stop = spec([0.0, -0.03, 0.49], [0.0, 1.0, 0.15], fwd, &FLAT);
     let stop_push = spec([0.0, -0.02, 0.52], [0.0, 1.0, 0.25], fwd, &FLAT);
     let span = |a: f32, b: f32| [a, 12.0, b, 12.0];
-    let (acts, shakes): (Vec<Act>, Vec<Shake>) = match index {
+    match index {
         0 => {
             (vec![Act { sides: RIGHT, a: wave_in, b: wave_out, beat: Beat::Sine(1.3), span: span(10.0, 80.0) }], vec![])
         }
@@ -266,14 +272,18 @@ fn build(index: usize) -> Motion {
             (vec![Act { sides: RIGHT, a: left, b: right, beat: Beat::Sine(1.8), span: span(10.0, 80.0) }], vec![])
         }
         _ => unreachable!("checked by the caller"),
-    };
+    }
+}
 
+/// The motion: each act's arms blend between its two keys on its beat within its envelope,
+/// each shake turns the neck and head; the idle sway on top.
+fn animate(acts: &[Act], shakes: &[Shake]) -> Motion {
     let idle = Idle::fixed();
     let mut motion = Motion::constant(&STANDING);
     for t in 0..FRAMES {
         let x = t as f32;
         let m = motion.frame_mut(t);
-        for act in &acts {
+        for act in acts {
             let [a, rise, b, fall] = act.span;
             let e = envelope(x, a, rise, b, fall);
             if e <= 0.0 {
@@ -292,7 +302,7 @@ fn build(index: usize) -> Motion {
                 write_arm(m, side, &key, e);
             }
         }
-        for sh in &shakes {
+        for sh in shakes {
             let [a, rise, b, fall] = sh.span;
             let e = envelope(x, a, rise, b, fall);
             let turn = sh.amp * e * (std::f32::consts::TAU * sh.hz * (x - a) / FPS).sin();

@@ -138,165 +138,167 @@ impl AvatarShape {
         AvatarShape { align, scale: sk.height() / REFERENCE_HEIGHT }
     }
 
+    /// The person's parts in `look` at pose `p`: torso, head, face, arms and hands, legs and shoes.
     pub(super) fn parts(&self, look: &Appearance, p: &SkeletonPose) -> Vec<Part> {
-        let s = self.scale;
-        let mut out = Vec::with_capacity(64);
-        let part = |shape, center: Point3<f32>, rot: UnitQuaternion<f32>, he: Vector3<f32>, color, material| Part {
-            shape,
-            center,
-            rotation: rot,
-            half_extents: he,
-            color,
-            material,
-            id: ID_HUMAN,
-            solid: true,
-        };
-        // A cylinder along bone `b`, a little longer than the bone so that bent joints close.
-        let limb = |out: &mut Vec<Part>, b: Bone, r: f32, color, material| {
-            let (a, t) = (p.position(b), p.tip(b));
-            let half = (t - a).norm() / 2.0 + 0.4 * r;
-            let rot = p.rotation(b) * self.align[b.index()];
-            out.push(part(Shape::Cylinder, nalgebra::center(&a, &t), rot, Vector3::new(r, half, r), color, material));
-        };
-        let ellipsoid = |out: &mut Vec<Part>, b: Bone, off: Vector3<f32>, radii: Vector3<f32>, color, material| {
-            let rot = p.rotation(b);
-            out.push(part(Shape::Sphere, p.position(b) + rot * (off * s), rot, radii * s, color, material));
-        };
-        let v = Vector3::new;
-        let fab = Material::Fabric;
-        let skin = Material::Skin;
+        let mut d = Dresser { s: self.scale, align: &self.align, look, p, out: Vec::with_capacity(64) };
+        d.torso();
+        d.head();
+        d.face();
+        d.arms();
+        d.legs();
+        d.out
+    }
+}
 
-        // Torso.
-        ellipsoid(&mut out, Bone::Hips, v(0.0, 0.02, 0.0), v(0.165, 0.11, 0.115), look.trousers, fab);
-        ellipsoid(&mut out, Bone::Spine, v(0.0, 0.08, 0.005), v(0.15, 0.13, 0.105), look.shirt, fab);
-        ellipsoid(&mut out, Bone::UpperChest, v(0.0, 0.03, 0.0), v(0.175, 0.145, 0.108), look.shirt, fab);
+/// Puts the parts on one pose, in the avatar's scale.
+struct Dresser<'a> {
+    s: f32,
+    align: &'a [UnitQuaternion<f32>; BONES],
+    look: &'a Appearance,
+    p: &'a SkeletonPose,
+    out: Vec<Part>,
+}
+
+const FAB: Material = Material::Fabric;
+const SKIN_M: Material = Material::Skin;
+
+fn v(x: f32, y: f32, z: f32) -> Vector3<f32> {
+    Vector3::new(x, y, z)
+}
+
+impl Dresser<'_> {
+    fn part(
+        &mut self,
+        shape: Shape,
+        center: Point3<f32>,
+        rotation: UnitQuaternion<f32>,
+        he: Vector3<f32>,
+        color: [f32; 3],
+        material: Material,
+    ) {
+        self.out.push(Part { shape, center, rotation, half_extents: he, color, material, id: ID_HUMAN, solid: true });
+    }
+
+    /// A cylinder along bone `b`, a little longer than the bone so that bent joints close.
+    fn limb(&mut self, b: Bone, color: [f32; 3], material: Material) {
+        let r = segment_radius(b) * self.s;
+        let (a, t) = (self.p.position(b), self.p.tip(b));
+        let half = (t - a).norm() / 2.0 + 0.4 * r;
+        let rot = self.p.rotation(b) * self.align[b.index()];
+        self.part(Shape::Cylinder, nalgebra::center(&a, &t), rot, Vector3::new(r, half, r), color, material);
+    }
+
+    /// A `shape` in bone `b`'s frame, `off` from its joint (both in the reference height's metres).
+    fn on(
+        &mut self,
+        shape: Shape,
+        b: Bone,
+        off: Vector3<f32>,
+        half: Vector3<f32>,
+        color: [f32; 3],
+        material: Material,
+    ) {
+        let rot = self.p.rotation(b);
+        self.part(shape, self.p.position(b) + rot * (off * self.s), rot, half * self.s, color, material);
+    }
+
+    /// A ball at bone `b`'s joint (shoulders, elbows, knees).
+    fn joint(&mut self, b: Bone, radius: f32, color: [f32; 3], material: Material) {
+        self.on(Shape::Sphere, b, Vector3::zeros(), Vector3::repeat(radius), color, material);
+    }
+
+    fn torso(&mut self) {
+        let l = self.look;
+        self.on(Shape::Sphere, Bone::Hips, v(0.0, 0.02, 0.0), v(0.165, 0.11, 0.115), l.trousers, FAB);
+        self.on(Shape::Sphere, Bone::Spine, v(0.0, 0.08, 0.005), v(0.15, 0.13, 0.105), l.shirt, FAB);
+        self.on(Shape::Sphere, Bone::UpperChest, v(0.0, 0.03, 0.0), v(0.175, 0.145, 0.108), l.shirt, FAB);
         for side in Side::BOTH {
-            let ua = Bone::upper_arm(side);
-            out.push(part(Shape::Sphere, p.position(ua), p.rotation(ua), Vector3::repeat(0.056 * s), look.shirt, fab));
+            self.joint(Bone::upper_arm(side), 0.056, l.shirt, FAB);
         }
-        limb(&mut out, Bone::Neck, segment_radius(Bone::Neck) * s, look.skin, skin);
+        self.limb(Bone::Neck, l.skin, SKIN_M);
+    }
 
-        // Head with a face: nose, eyes, mouth; hair on top and at the back.
-        ellipsoid(&mut out, Bone::Head, v(0.0, 0.06, 0.012), v(0.076, 0.112, 0.094), look.skin, skin);
-        match look.hair_style {
-            HairStyle::Short => {
-                ellipsoid(&mut out, Bone::Head, v(0.0, 0.088, -0.012), v(0.081, 0.1, 0.094), look.hair, Material::Matte)
-            }
+    /// The head, and hair on top and at the back.
+    fn head(&mut self) {
+        let l = self.look;
+        self.on(Shape::Sphere, Bone::Head, v(0.0, 0.06, 0.012), v(0.076, 0.112, 0.094), l.skin, SKIN_M);
+        let hair = |d: &mut Self, off, radii| d.on(Shape::Sphere, Bone::Head, off, radii, l.hair, Material::Matte);
+        match l.hair_style {
+            HairStyle::Short => hair(self, v(0.0, 0.088, -0.012), v(0.081, 0.1, 0.094)),
             HairStyle::Long => {
-                ellipsoid(
-                    &mut out,
-                    Bone::Head,
-                    v(0.0, 0.088, -0.012),
-                    v(0.081, 0.1, 0.094),
-                    look.hair,
-                    Material::Matte,
-                );
-                let rot = p.rotation(Bone::Head);
-                out.push(part(
-                    Shape::Box,
-                    p.position(Bone::Head) + rot * (v(0.0, 0.0, -0.062) * s),
-                    rot,
-                    v(0.078, 0.11, 0.035) * s,
-                    look.hair,
-                    Material::Matte,
-                ));
+                hair(self, v(0.0, 0.088, -0.012), v(0.081, 0.1, 0.094));
+                self.on(Shape::Box, Bone::Head, v(0.0, 0.0, -0.062), v(0.078, 0.11, 0.035), l.hair, Material::Matte);
             }
-            HairStyle::Shaved => {
-                ellipsoid(&mut out, Bone::Head, v(0.0, 0.1, -0.01), v(0.078, 0.085, 0.09), look.hair, Material::Matte)
-            }
+            HairStyle::Shaved => hair(self, v(0.0, 0.1, -0.01), v(0.078, 0.085, 0.09)),
         }
+    }
+
+    /// Nose, eyes and mouth.
+    fn face(&mut self) {
+        let (p, s) = (self.p, self.s);
         let head_rot = p.rotation(Bone::Head);
         let nose_rot = head_rot * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 100f32.to_radians());
-        let darker = look.skin.map(|c| c * 0.8);
-        out.push(part(
-            Shape::Cone,
-            p.position(Bone::Head) + head_rot * (v(0.0, 0.05, 0.1) * s),
-            nose_rot,
-            v(0.013, 0.014, 0.011) * s,
-            darker,
-            skin,
-        ));
+        let darker = self.look.skin.map(|c| c * 0.8);
+        let nose = p.position(Bone::Head) + head_rot * (v(0.0, 0.05, 0.1) * s);
+        self.part(Shape::Cone, nose, nose_rot, v(0.013, 0.014, 0.011) * s, darker, SKIN_M);
         for eye in [Bone::LeftEye, Bone::RightEye] {
-            let (c, r) = (p.position(eye), p.rotation(eye));
-            out.push(part(Shape::Sphere, c, r, Vector3::repeat(0.0135 * s), [0.85, 0.85, 0.85], Material::Matte));
-            out.push(part(
+            self.joint(eye, 0.0135, [0.85, 0.85, 0.85], Material::Matte);
+            self.on(
                 Shape::Sphere,
-                c + r * (v(0.0, 0.0, 0.009) * s),
-                r,
-                Vector3::repeat(0.0078 * s),
+                eye,
+                v(0.0, 0.0, 0.009),
+                Vector3::repeat(0.0078),
                 [0.03, 0.025, 0.02],
                 Material::Matte,
-            ));
+            );
         }
-        let jaw = p.rotation(Bone::Jaw);
-        out.push(part(
+        self.on(
             Shape::Box,
-            p.position(Bone::Jaw) + jaw * (v(0.0, -0.012, 0.071) * s),
-            jaw,
-            v(0.021, 0.004, 0.006) * s,
+            Bone::Jaw,
+            v(0.0, -0.012, 0.071),
+            v(0.021, 0.004, 0.006),
             [0.35, 0.08, 0.08],
             Material::Matte,
-        ));
+        );
+    }
 
-        // Arms and hands.
-        let sleeve = if look.long_sleeves { (look.shirt, fab) } else { (look.skin, skin) };
+    /// Arms in sleeves (short ones show the forearm's skin) and hands with their fingers.
+    fn arms(&mut self) {
+        let l = self.look;
+        let sleeve = if l.long_sleeves { (l.shirt, FAB) } else { (l.skin, SKIN_M) };
         for side in Side::BOTH {
-            limb(&mut out, Bone::upper_arm(side), segment_radius(Bone::upper_arm(side)) * s, look.shirt, fab);
+            self.limb(Bone::upper_arm(side), l.shirt, FAB);
             let la = Bone::lower_arm(side);
-            out.push(part(
-                Shape::Sphere,
-                p.position(la),
-                p.rotation(la),
-                Vector3::repeat(0.041 * s),
-                sleeve.0,
-                sleeve.1,
-            ));
-            limb(&mut out, la, segment_radius(la) * s, sleeve.0, sleeve.1);
-            let hand = Bone::hand(side);
-            let hr = p.rotation(hand);
-            out.push(part(
+            self.joint(la, 0.041, sleeve.0, sleeve.1);
+            self.limb(la, sleeve.0, sleeve.1);
+            self.on(
                 Shape::Box,
-                p.position(hand) + hr * (v(0.05 * side.sign(), -0.002, 0.0) * s),
-                hr,
-                v(0.05, 0.0135, 0.042) * s,
-                look.skin,
-                skin,
-            ));
+                Bone::hand(side),
+                v(0.05 * side.sign(), -0.002, 0.0),
+                v(0.05, 0.0135, 0.042),
+                l.skin,
+                SKIN_M,
+            );
             for f in Finger::ALL {
                 for ph in 0..3 {
-                    let b = Bone::finger(side, f, ph);
-                    limb(&mut out, b, segment_radius(b) * s, look.skin, skin);
+                    self.limb(Bone::finger(side, f, ph), l.skin, SKIN_M);
                 }
             }
         }
+    }
 
-        // Legs and shoes.
+    fn legs(&mut self) {
+        let l = self.look;
         for side in Side::BOTH {
             let (ul, ll, foot) = match side {
                 Side::Left => (Bone::LeftUpperLeg, Bone::LeftLowerLeg, Bone::LeftFoot),
                 Side::Right => (Bone::RightUpperLeg, Bone::RightLowerLeg, Bone::RightFoot),
             };
-            limb(&mut out, ul, segment_radius(ul) * s, look.trousers, fab);
-            out.push(part(
-                Shape::Sphere,
-                p.position(ll),
-                p.rotation(ll),
-                Vector3::repeat(0.057 * s),
-                look.trousers,
-                fab,
-            ));
-            limb(&mut out, ll, segment_radius(ll) * s, look.trousers, fab);
-            let fr = p.rotation(foot);
-            out.push(part(
-                Shape::Box,
-                p.position(foot) + fr * (v(0.0, -0.042, 0.045) * s),
-                fr,
-                v(0.046, 0.034, 0.118) * s,
-                look.shoes,
-                Material::Matte,
-            ));
+            self.limb(ul, l.trousers, FAB);
+            self.joint(ll, 0.057, l.trousers, FAB);
+            self.limb(ll, l.trousers, FAB);
+            self.on(Shape::Box, foot, v(0.0, -0.042, 0.045), v(0.046, 0.034, 0.118), l.shoes, Material::Matte);
         }
-        out
     }
 }
 

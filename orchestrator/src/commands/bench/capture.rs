@@ -58,51 +58,64 @@ pub fn run(a: BenchCaptureArgs) -> anyhow::Result<()> {
     sources.extend(a.recording.iter().map(|p| p.display().to_string()));
     let mut rows = Vec::new();
     for (k, src) in sources.iter().enumerate() {
-        let (_, p, motion, label) = program::resolve(src, &a.dataset, 1)?;
-        let human = Humanoid::seeded(p.seed);
-        let sk = human.skeleton();
-        let dir = a.out.join(format!("{k:02}"));
-        film(&human, &motion, a.angle, a.size, &dir.join("frames"))?;
-        let frames =
-            landmarks(&dir.join("frames").display().to_string(), &dir.join("landmarks.jsonl"), Some(30.0), 0.0)?;
-        let (side, act) = arm_activity(sk, &motion);
-        let s = if side == Side::Left { 0 } else { 1 };
-        let peak = act[s].iter().copied().fold(0.0f32, f32::max);
-        let hold: Vec<usize> = (0..act[s].len()).filter(|&i| act[s][i] >= 0.8 * peak).collect();
-        let original = |i: usize| pointing_line(sk, motion.frame(i), side);
-        let lm: Vec<f32> = hold
-            .iter()
-            .filter_map(|&i| Some(original(i).angle(&observed_pointing_line(sk, frames.get(i)?, side)?).to_degrees()))
-            .collect();
-        let row = match capture(sk, &frames, CaptureOptions { hands_optional: true }) {
-            Ok(c) => Row {
-                program: label,
-                arm_found: c.side == side,
-                hold_frames: hold.len(),
-                landmarks_deg: median(lm),
-                captured_deg: median(
-                    hold.iter()
-                        .filter_map(|&i| Some(original(i).angle(&pointing_line(sk, c.frames.get(i)?, side))))
-                        .map(f32::to_degrees)
-                        .collect(),
-                ),
-                hand_seen: c.hand_frames.0 as f32 / c.hand_frames.1.max(1) as f32,
-            },
-            Err(e) => {
-                eprintln!("[bench] {label}: {e}");
-                Row {
-                    program: label,
-                    arm_found: false,
-                    hold_frames: hold.len(),
-                    landmarks_deg: median(lm),
-                    captured_deg: None,
-                    hand_seen: 0.0,
-                }
-            }
-        };
+        let row = one_gesture(&a, k, src)?;
         eprintln!("[bench] {}/{}: {row:?}", k + 1, sources.len());
         rows.push(row);
     }
+    let md = markdown(&a, &rows);
+    std::fs::write(a.out.join("capture.md"), &md)?;
+    std::fs::write(a.out.join("capture.json"), serde_json::to_string_pretty(&rows)?)?;
+    print!("{md}");
+    Ok(())
+}
+
+/// Films gesture `src` from the bench's angle, reads it back and captures it: its row.
+fn one_gesture(a: &BenchCaptureArgs, k: usize, src: &str) -> anyhow::Result<Row> {
+    let (_, p, motion, label) = program::resolve(src, &a.dataset, 1)?;
+    let human = Humanoid::seeded(p.seed);
+    let sk = human.skeleton();
+    let dir = a.out.join(format!("{k:02}"));
+    film(&human, &motion, a.angle, a.size, &dir.join("frames"))?;
+    let frames = landmarks(&dir.join("frames").display().to_string(), &dir.join("landmarks.jsonl"), Some(30.0), 0.0)?;
+    let (side, act) = arm_activity(sk, &motion);
+    let s = if side == Side::Left { 0 } else { 1 };
+    let peak = act[s].iter().copied().fold(0.0f32, f32::max);
+    let hold: Vec<usize> = (0..act[s].len()).filter(|&i| act[s][i] >= 0.8 * peak).collect();
+    let original = |i: usize| pointing_line(sk, motion.frame(i), side);
+    let lm: Vec<f32> = hold
+        .iter()
+        .filter_map(|&i| Some(original(i).angle(&observed_pointing_line(sk, frames.get(i)?, side)?).to_degrees()))
+        .collect();
+    Ok(match capture(sk, &frames, CaptureOptions { hands_optional: true }) {
+        Ok(c) => Row {
+            program: label,
+            arm_found: c.side == side,
+            hold_frames: hold.len(),
+            landmarks_deg: median(lm),
+            captured_deg: median(
+                hold.iter()
+                    .filter_map(|&i| Some(original(i).angle(&pointing_line(sk, c.frames.get(i)?, side))))
+                    .map(f32::to_degrees)
+                    .collect(),
+            ),
+            hand_seen: c.hand_frames.0 as f32 / c.hand_frames.1.max(1) as f32,
+        },
+        Err(e) => {
+            eprintln!("[bench] {label}: {e}");
+            Row {
+                program: label,
+                arm_found: false,
+                hold_frames: hold.len(),
+                landmarks_deg: median(lm),
+                captured_deg: None,
+                hand_seen: 0.0,
+            }
+        }
+    })
+}
+
+/// The table of every gesture's angles, and their medians over the dataset's gestures.
+fn markdown(a: &BenchCaptureArgs, rows: &[Row]) -> String {
     let fmt = |v: Option<f32>| v.map_or("-".into(), |v| format!("{v:.1}"));
     let mut md = format!(
         "# Closed loop of `gesture capture` ({} gestures, camera {}° from the front, {}²)\n\n\
@@ -112,7 +125,7 @@ pub fn run(a: BenchCaptureArgs) -> anyhow::Result<()> {
         a.angle,
         a.size
     );
-    for r in &rows {
+    for r in rows {
         let _ = writeln!(
             md,
             "| {} | {} | {} | {} | {} | {:.0}% |",
@@ -135,8 +148,5 @@ pub fn run(a: BenchCaptureArgs) -> anyhow::Result<()> {
         synth.iter().filter(|r| r.arm_found).count(),
         synth.len()
     );
-    std::fs::write(a.out.join("capture.md"), &md)?;
-    std::fs::write(a.out.join("capture.json"), serde_json::to_string_pretty(&rows)?)?;
-    print!("{md}");
-    Ok(())
+    md
 }

@@ -107,84 +107,94 @@ pub fn run(a: BenchRemoteArgs) -> anyhow::Result<()> {
                 a.envs
             ),
         )?;
-        let base = out.join(format!("{size}-local"));
-        eprintln!("[bench] {size}×{size}: two local workers ...");
-        let mut up = orchestrator(
-            &[
-                s(&["up", "--workers", "2", "--policy", "random", "--seconds", &secs, "--config"]),
-                vec![cfg.display().to_string()],
-                s(&["--run-dir"]),
-                vec![base.display().to_string()],
-            ]
-            .concat(),
-            &out.join(format!("{size}-local.log")),
-        )?;
-        anyhow::ensure!(up.wait()?.success(), "the local run failed; see {}", out.display());
-        let local = worker_fps(&base)?;
-        let local_fps = local.iter().map(|(f, t)| *f as f64 / t).sum::<f64>() / local.len().max(1) as f64;
-        md += &format!("| {size}² | local only | {local_fps:.0} | | | | |\n");
+        md += &local_row(&out, &cfg, size, &secs)?;
         for (&codec, &link) in a.codecs.iter().flat_map(|c| a.links.iter().map(move |l| (c, l))) {
-            let name = format!("{size}-{codec:?}-{link:?}").to_lowercase();
-            let run = out.join(&name);
-            let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-            let endpoint = format!("{}/127.0.0.1:{port}", format!("{link:?}").to_lowercase());
-            eprintln!("[bench] {size}×{size}: a local and a remote worker, {codec:?} over {link:?} ...");
-            let insecure = if link == Link::Tcp { vec!["--insecure".to_string()] } else { vec![] };
-            let mut up = orchestrator(
-                &[
-                    s(&["up", "--workers", "1", "--remote-workers", "1", "--secret", "bench", "--policy", "random"]),
-                    s(&["--listen", &endpoint, "--seconds", &secs, "--config"]),
-                    vec![cfg.display().to_string(), "--run-dir".into(), run.display().to_string()],
-                    insecure.clone(),
-                ]
-                .concat(),
-                &out.join(format!("{name}-up.log")),
-            )?;
-            let info = crate::supervise::run_dir::wait_for_info(&run, up.id(), Duration::from_secs(60))?;
-            let credentials = match link {
-                Link::Tls => {
-                    let bundle = out.join(format!("{name}-bundle"));
-                    issue_bundle(&run, &bundle)?;
-                    vec!["--certs".to_string(), bundle.display().to_string()]
-                }
-                Link::Tcp => [insecure, s(&["--run-id", &info.run_id, "--secret", "bench"])].concat(),
-            };
-            let host_log = out.join(format!("{name}-host.log"));
-            let mut host = orchestrator(
-                &[
-                    s(&["workers", "--connect", &endpoint, "--workers", "1"]),
-                    credentials,
-                    s(&["--codec", &format!("{codec:?}").to_lowercase(), "--dir"]),
-                    vec![out.join(format!("{name}-host")).display().to_string()],
-                ]
-                .concat(),
-                &host_log,
-            )?;
-            anyhow::ensure!(up.wait()?.success(), "the run failed; see {}", out.display());
-            anyhow::ensure!(host.wait()?.success(), "the worker host failed; see {}", host_log.display());
-            let fps = worker_fps(&run)?;
-            let log = std::fs::read_to_string(&host_log)?;
-            // "[workers] N observations (X MB) sent, ..." and "[workers] ended after S s"
-            let last = |key: &str| log.lines().rev().find(|l| l.contains(key)).map(str::to_string).unwrap_or_default();
-            let words = last("observations");
-            let w: Vec<&str> = words.split_whitespace().collect();
-            let (obs, mb) = (
-                w.get(1).and_then(|x| x.parse::<f64>().ok()).unwrap_or(f64::NAN),
-                w.get(3).and_then(|x| x.trim_start_matches('(').parse::<f64>().ok()).unwrap_or(f64::NAN),
-            );
-            let host_secs =
-                last("ended after").split_whitespace().nth(3).and_then(|x| x.parse::<f64>().ok()).unwrap_or(f64::NAN);
-            let (lf, rf) = (fps[0].0 as f64 / fps[0].1, fps[1].0 as f64 / host_secs);
-            md += &format!(
-                "| {size}² | local + remote, {codec:?}, {link:?} | {lf:.0} | {rf:.0} | {:.0}% | {:.0} | {:.1} |\n",
-                100.0 * rf / lf,
-                mb * 1e6 / obs,
-                mb / host_secs
-            );
+            md += &remote_row(&out, &cfg, size, &secs, codec, link)?;
         }
     }
     farm::files::write_atomic(&out.join("bench_remote.md"), md.as_bytes())?;
     println!("{md}");
     eprintln!("[bench] written {}", out.join("bench_remote.md").display());
     Ok(())
+}
+
+/// Two local workers of `size`² frames for `secs`: the table's baseline row.
+fn local_row(out: &Path, cfg: &Path, size: u32, secs: &str) -> anyhow::Result<String> {
+    let base = out.join(format!("{size}-local"));
+    eprintln!("[bench] {size}×{size}: two local workers ...");
+    let mut up = orchestrator(
+        &[
+            s(&["up", "--workers", "2", "--policy", "random", "--seconds", &secs, "--config"]),
+            vec![cfg.display().to_string()],
+            s(&["--run-dir"]),
+            vec![base.display().to_string()],
+        ]
+        .concat(),
+        &out.join(format!("{size}-local.log")),
+    )?;
+    anyhow::ensure!(up.wait()?.success(), "the local run failed; see {}", out.display());
+    let local = worker_fps(&base)?;
+    let local_fps = local.iter().map(|(f, t)| *f as f64 / t).sum::<f64>() / local.len().max(1) as f64;
+    Ok(format!("| {size}² | local only | {local_fps:.0} | | | | |\n"))
+}
+
+/// A local worker beside a remote one whose frames travel `codec` over `link`: its row.
+fn remote_row(out: &Path, cfg: &Path, size: u32, secs: &str, codec: Codec, link: Link) -> anyhow::Result<String> {
+    let name = format!("{size}-{codec:?}-{link:?}").to_lowercase();
+    let run = out.join(&name);
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let endpoint = format!("{}/127.0.0.1:{port}", format!("{link:?}").to_lowercase());
+    eprintln!("[bench] {size}×{size}: a local and a remote worker, {codec:?} over {link:?} ...");
+    let insecure = if link == Link::Tcp { vec!["--insecure".to_string()] } else { vec![] };
+    let mut up = orchestrator(
+        &[
+            s(&["up", "--workers", "1", "--remote-workers", "1", "--secret", "bench", "--policy", "random"]),
+            s(&["--listen", &endpoint, "--seconds", &secs, "--config"]),
+            vec![cfg.display().to_string(), "--run-dir".into(), run.display().to_string()],
+            insecure.clone(),
+        ]
+        .concat(),
+        &out.join(format!("{name}-up.log")),
+    )?;
+    let info = crate::supervise::run_dir::wait_for_info(&run, up.id(), Duration::from_secs(60))?;
+    let credentials = match link {
+        Link::Tls => {
+            let bundle = out.join(format!("{name}-bundle"));
+            issue_bundle(&run, &bundle)?;
+            vec!["--certs".to_string(), bundle.display().to_string()]
+        }
+        Link::Tcp => [insecure, s(&["--run-id", &info.run_id, "--secret", "bench"])].concat(),
+    };
+    let host_log = out.join(format!("{name}-host.log"));
+    let mut host = orchestrator(
+        &[
+            s(&["workers", "--connect", &endpoint, "--workers", "1"]),
+            credentials,
+            s(&["--codec", &format!("{codec:?}").to_lowercase(), "--dir"]),
+            vec![out.join(format!("{name}-host")).display().to_string()],
+        ]
+        .concat(),
+        &host_log,
+    )?;
+    anyhow::ensure!(up.wait()?.success(), "the run failed; see {}", out.display());
+    anyhow::ensure!(host.wait()?.success(), "the worker host failed; see {}", host_log.display());
+    let fps = worker_fps(&run)?;
+    let log = std::fs::read_to_string(&host_log)?;
+    // "[workers] N observations (X MB) sent, ..." and "[workers] ended after S s"
+    let last = |key: &str| log.lines().rev().find(|l| l.contains(key)).map(str::to_string).unwrap_or_default();
+    let words = last("observations");
+    let w: Vec<&str> = words.split_whitespace().collect();
+    let (obs, mb) = (
+        w.get(1).and_then(|x| x.parse::<f64>().ok()).unwrap_or(f64::NAN),
+        w.get(3).and_then(|x| x.trim_start_matches('(').parse::<f64>().ok()).unwrap_or(f64::NAN),
+    );
+    let host_secs =
+        last("ended after").split_whitespace().nth(3).and_then(|x| x.parse::<f64>().ok()).unwrap_or(f64::NAN);
+    let (lf, rf) = (fps[0].0 as f64 / fps[0].1, fps[1].0 as f64 / host_secs);
+    Ok(format!(
+        "| {size}² | local + remote, {codec:?}, {link:?} | {lf:.0} | {rf:.0} | {:.0}% | {:.0} | {:.1} |\n",
+        100.0 * rf / lf,
+        mb * 1e6 / obs,
+        mb / host_secs
+    ))
 }

@@ -147,34 +147,8 @@ impl TopDownMap {
                 [a + n, b + n, b - n, a - n].iter().map(|p| self.px(p.x, p.y)).collect()
             })
             .collect();
-        // one metre grid for scale
-        let mut grid = Vec::new();
-        let mut x = (-hx).ceil();
-        while x <= hx {
-            grid.push([self.px(x, -hz), self.px(x, hz)]);
-            x += 1.0;
-        }
-        let mut z = (-hz).ceil();
-        while z <= hz {
-            grid.push([self.px(-hx, z), self.px(hx, z)]);
-            z += 1.0;
-        }
-
-        // objects: every part's footprint, lowest tops first so what is on top stays visible
-        let mut parts: Vec<(f32, usize, Part)> = Vec::new();
-        for (i, o) in scene.objects.iter().enumerate() {
-            for p in o.parts(i) {
-                parts.push((p.aabb().1.y, i, p));
-            }
-        }
-        parts.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let polys: Vec<(Vec<(i32, i32)>, RGBColor)> = parts
-            .iter()
-            .map(|(_, i, p)| {
-                let poly = footprint(p).iter().map(|&(x, z)| self.px(x, z)).collect();
-                (poly, display(scene.objects[*i].color))
-            })
-            .collect();
+        let grid = self.metre_grid(hx, hz);
+        let polys = self.footprints(scene);
         self.objects = scene
             .objects
             .iter()
@@ -207,6 +181,41 @@ impl TopDownMap {
         });
         self.draw_labels(scene);
         self.draw_scale_bar(hx, hz);
+    }
+
+    /// A line every metre, for scale.
+    fn metre_grid(&self, hx: f32, hz: f32) -> Vec<[(i32, i32); 2]> {
+        let mut grid = Vec::new();
+        let mut x = (-hx).ceil();
+        while x <= hx {
+            grid.push([self.px(x, -hz), self.px(x, hz)]);
+            x += 1.0;
+        }
+        let mut z = (-hz).ceil();
+        while z <= hz {
+            grid.push([self.px(-hx, z), self.px(hx, z)]);
+            z += 1.0;
+        }
+        grid
+    }
+
+    /// Every part's footprint with its object's colour, lowest tops first so that what is on
+    /// top stays visible.
+    fn footprints(&self, scene: &Scene) -> Vec<(Vec<(i32, i32)>, RGBColor)> {
+        let mut parts: Vec<(f32, usize, Part)> = Vec::new();
+        for (i, o) in scene.objects.iter().enumerate() {
+            for p in o.parts(i) {
+                parts.push((p.aabb().1.y, i, p));
+            }
+        }
+        parts.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        parts
+            .iter()
+            .map(|(_, i, p)| {
+                let poly = footprint(p).iter().map(|&(x, z)| self.px(x, z)).collect();
+                (poly, display(scene.objects[*i].color))
+            })
+            .collect()
     }
 
     /// Category names of the target objects, nudged apart where they would overlap.
