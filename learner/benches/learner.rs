@@ -3,15 +3,15 @@
 //! on a CPU).
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use learner::bench;
 use learner::ppo::trainer::Trainer;
+use learner::{ActMode, bench};
 use tch::Device;
 
 fn tiny(c: &mut Criterion) {
     let cfg = bench::tiny_config();
     let mut p = learner::Agent::new(&cfg, 32, Device::Cpu).unwrap();
     let o = bench::random_obs(32, 64, 1);
-    c.bench_function("tiny act, batch 32", |b| b.iter(|| p.act(&o.batch()).unwrap()));
+    c.bench_function("tiny act, batch 32", |b| b.iter(|| p.act(&o.batch(), ActMode::Sample).unwrap()));
 
     let mut t = Trainer::new(&cfg, 10, Device::Cpu).unwrap();
     bench::fill_rollout(&mut t, 3).unwrap();

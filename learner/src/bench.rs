@@ -12,7 +12,7 @@ use shm_schema::action;
 use tch::{Device, Tensor, nn};
 
 use crate::LearnerError;
-use crate::net::agent::{Actions, Agent, AgentError};
+use crate::net::agent::{ActMode, Actions, Agent, AgentError};
 use crate::obs::{EnvStep, GestureKind, ObsError, OwnedObs};
 use crate::ppo::trainer::Trainer;
 
@@ -153,7 +153,7 @@ const WORKER_ENVS: usize = 32;
 pub fn forward(name: &str, cfg: &RunConfig, batch: usize, device: Device, reps: usize) -> Result<Figure, LearnerError> {
     let mut p = Agent::new(cfg, batch, device)?;
     let o = random_obs(batch, cfg.env.width as usize, 1);
-    let ms = median_ms_or_error(|| p.act(&o.batch_grouped(WORKER_ENVS)).map(drop), reps)?;
+    let ms = median_ms_or_error(|| p.act(&o.batch_grouped(WORKER_ENVS), ActMode::Sample).map(drop), reps)?;
     Ok(Figure { name: format!("{name}: act, batch {batch}"), ms, reps })
 }
 
@@ -190,7 +190,7 @@ pub fn visual_forward(
     let o = random_obs(batch, cfg.env.width as usize, 1);
     let ms = median_ms_or_error(
         || {
-            let (x, _) = p.prepare(&o.batch())?;
+            let (x, _) = p.prepare(0, &o.batch())?;
             let _ = tch::no_grad(|| p.net.encode(&x));
             Ok::<_, ObsError>(())
         },
@@ -206,7 +206,7 @@ pub fn fill_rollout(t: &mut Trainer, seed: u64) -> Result<(), LearnerError> {
     let n = t.rollout.envs;
     let side = t.cfg.env.width as usize;
     let o = random_obs(n, side, seed);
-    let (still, _) = t.agent.prepare(&o.batch())?;
+    let (still, _) = t.agent.prepare(0, &o.batch())?;
     let mut rng = farm::seed::rng(seed, &[1]);
     t.rollout.begin(t.agent.hidden());
     for _ in 0..t.rollout.steps {
@@ -216,7 +216,7 @@ pub fn fill_rollout(t: &mut Trainer, seed: u64) -> Result<(), LearnerError> {
         if let Some(m) = &mut moved {
             m.envs.iter_mut().for_each(|e| e.person_pose = [rng.random(), rng.random(), rng.random()]);
         }
-        let moved = moved.as_ref().map(|m| t.agent.prepare(&m.batch())).transpose()?;
+        let moved = moved.as_ref().map(|m| t.agent.prepare(0, &m.batch())).transpose()?;
         let x = moved.as_ref().map_or(&still, |(x, _)| x);
         let starts: Vec<bool> = (0..n).map(|_| rng.random::<f32>() < 1.0 / 30.0).collect();
         let acted = Actions {

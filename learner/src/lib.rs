@@ -10,7 +10,7 @@
 //!     if let Some(m) = out.update { log.append(&m)?; /* every K: ppo::checkpoint::save_in_dir */ }
 //! }
 //! ```
-//! Evaluation uses an [`Agent`] alone: `ppo::checkpoint::load_agent`, then `act_deterministic`.
+//! Evaluation uses an [`Agent`] alone: `ppo::checkpoint::load_agent`, then `act` with `ActMode::Greedy`.
 //!
 //! The farm side: [`serve::server`] is the policy server (batches the workers' observations, read
 //! in place from shared memory through [`transport`] and [`serve::batch`]), and

@@ -160,7 +160,7 @@ pub fn success_rate(agent: &mut Agent, episodes: usize, mode: ActMode, seed: u64
     let (mut done, mut won) = (0usize, 0usize);
     let mut guard = 0;
     while done < episodes && guard < 100_000 {
-        let acted = agent.act_with(&task.observation(), mode)?;
+        let acted = agent.act(&task.observation(), mode)?;
         task.step(&acted.actions);
         for e in &task.obs.envs {
             if e.terminated || e.truncated {

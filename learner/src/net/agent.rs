@@ -165,28 +165,20 @@ impl Agent {
         self.vs.variables().values().filter(|t| t.requires_grad()).map(|t| t.numel() as i64).sum()
     }
 
-    /// Samples an action for each env (training; the Random baseline).
-    pub fn act(&mut self, obs: &EnvBatch) -> Result<Actions, ObsError> {
-        self.act_with(obs, ActMode::Sample)
-    }
-
-    /// The most likely action for each env (evaluation). The Random baseline still samples.
-    pub fn act_deterministic(&mut self, obs: &EnvBatch) -> Result<Actions, ObsError> {
-        self.act_with(obs, ActMode::Greedy)
-    }
-
-    pub fn act_with(&mut self, obs: &EnvBatch, mode: ActMode) -> Result<Actions, ObsError> {
+    /// An action for each env: sampled (training; the Random baseline) or the most likely one
+    /// (evaluation; the Random baseline still samples).
+    pub fn act(&mut self, obs: &EnvBatch, mode: ActMode) -> Result<Actions, ObsError> {
         self.act_explained(obs, mode).map(|(a, _)| a)
     }
 
-    /// [`Agent::act_with`], with each env's probability of every action (`[N * action::COUNT]`):
+    /// [`Agent::act`], with each env's probability of every action (`[N * action::COUNT]`):
     /// what a person watching the robot reads (`learner act`).
     pub fn act_explained(&mut self, obs: &EnvBatch, mode: ActMode) -> Result<(Actions, Vec<f32>), ObsError> {
-        let (inputs, starts) = self.prepare(obs)?;
-        let fwd = self.forward(&inputs, starts);
+        let (inputs, starts) = self.prepare(0, obs)?;
+        let fwd = self.forward(0, &inputs, starts);
         let probs = fwd.logits.chunks(action::COUNT).flat_map(|l| log_softmax(l).into_iter().map(f32::exp)).collect();
         let actions = self.choose(&fwd, mode);
-        self.commit(fwd, obs);
+        self.commit(0, fwd, obs);
         Ok((actions, probs))
     }
 
@@ -196,13 +188,9 @@ impl Agent {
         self.force_reset.iter_mut().for_each(|r| *r = false);
     }
 
-    /// Checks the batch, converts it to the stored form, and works out where memory resets.
-    pub(crate) fn prepare<'a>(&self, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
-        self.prepare_envs(0..self.n_envs, obs)
-    }
-
-    /// [`Agent::prepare`] for envs `at..at + obs.n()` of the N (one group of an acting round).
-    pub(crate) fn prepare_at<'a>(&self, at: usize, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
+    /// Checks the batch of envs `at..at + obs.n()` of the N (all of them, or one group of an
+    /// acting round), converts it to the stored form, and works out where memory resets.
+    pub(crate) fn prepare<'a>(&self, at: usize, obs: &EnvBatch<'a>) -> Result<(Prepared<'a>, Vec<bool>), ObsError> {
         self.prepare_envs(at..at + obs.n(), obs)
     }
 
@@ -226,13 +214,9 @@ impl Agent {
         (self.spec.height as usize, self.spec.width as usize)
     }
 
-    /// The network on one step, from the current memory (reset where `starts`).
-    pub(crate) fn forward(&mut self, x: &Inputs, starts: Vec<bool>) -> Forward {
-        self.forward_at(0, x, starts)
-    }
-
-    /// [`Agent::forward`] for envs `at..at + starts.len()`, from their memory.
-    pub(crate) fn forward_at(&mut self, at: usize, x: &Inputs, starts: Vec<bool>) -> Forward {
+    /// The network on one step of envs `at..at + starts.len()`, from their memory (reset where
+    /// `starts`).
+    pub(crate) fn forward(&mut self, at: usize, x: &Inputs, starts: Vec<bool>) -> Forward {
         let n = starts.len();
         let memory = self.hidden.narrow(1, at as i64, n as i64).contiguous();
         if self.spec.random() {
@@ -296,13 +280,9 @@ impl Agent {
         out
     }
 
-    /// Makes a forward's memory the current one; lost envs reset at their next message.
-    pub(crate) fn commit(&mut self, fwd: Forward, obs: &EnvBatch) {
-        self.commit_at(0, fwd, obs)
-    }
-
-    /// [`Agent::commit`] of a forward of envs `at..` ([`Agent::forward_at`]).
-    pub(crate) fn commit_at(&mut self, at: usize, fwd: Forward, obs: &EnvBatch) {
+    /// Makes a forward's memory (of envs `at..`) the current one; lost envs reset at their next
+    /// message.
+    pub(crate) fn commit(&mut self, at: usize, fwd: Forward, obs: &EnvBatch) {
         let n = fwd.starts.len();
         if n == self.n_envs {
             self.hidden = fwd.hidden;
@@ -346,17 +326,17 @@ mod tests {
         let cfg = tiny_config("both");
         let mut p = Agent::new(&cfg, 3, Device::Cpu).unwrap();
         let mut o = random_obs(3, 16, 1);
-        let a = p.act(&o.batch()).unwrap();
+        let a = p.act(&o.batch(), ActMode::Sample).unwrap();
         assert_eq!(a.actions.len(), 3);
         assert!(a.actions.iter().all(|a| (0..4).contains(a)));
         assert!(a.log_probs.iter().all(|l| *l <= 0.0 && l.is_finite()));
         // the same observation again, mid-episode: memory changes the values
         o.envs.iter_mut().for_each(|e| e.episode_start = false);
-        let b = p.act_deterministic(&o.batch()).unwrap();
+        let b = p.act(&o.batch(), ActMode::Greedy).unwrap();
         assert_ne!(a.values, b.values);
         // an episode start resets memory: same values as the very first step
         o.envs.iter_mut().for_each(|e| e.episode_start = true);
-        let c = p.act_deterministic(&o.batch()).unwrap();
+        let c = p.act(&o.batch(), ActMode::Greedy).unwrap();
         for (x, y) in a.values.iter().zip(&c.values) {
             assert!((x - y).abs() < 1e-5);
         }
@@ -368,10 +348,10 @@ mod tests {
         let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
         let mut o = random_obs(2, 16, 2);
         o.envs.iter_mut().for_each(|e| e.gesture = GestureKind::None);
-        let a = p.act_deterministic(&o.batch()).unwrap();
+        let a = p.act(&o.batch(), ActMode::Greedy).unwrap();
         o.gesture.iter_mut().for_each(|v| *v = half::f16::from_f32(0.7));
         p.reset();
-        let b = p.act_deterministic(&o.batch()).unwrap();
+        let b = p.act(&o.batch(), ActMode::Greedy).unwrap();
         assert_eq!(a.values, b.values);
     }
 
@@ -389,7 +369,7 @@ mod tests {
         o.envs[0].gesture = GestureKind::Referencing;
         o.envs[0].person_pose = [1.5, 2.0, 0.25];
         o.envs[1].gesture = GestureKind::None;
-        let (x, _) = p.prepare(&o.batch()).unwrap();
+        let (x, _) = p.prepare(0, &o.batch()).unwrap();
         let g = x.gesture.as_ref().unwrap().to_kind(Kind::Float);
         assert_eq!(g.size(), [2, 100, 95]);
         assert_eq!(g.get(1).abs().sum(Kind::Float).double_value(&[]), 0.0);
@@ -421,7 +401,7 @@ mod tests {
             o.envs.iter_mut().for_each(|e| e.gesture = GestureKind::Referencing);
             let act = |p: &mut Agent, o: &crate::obs::OwnedObs| {
                 p.reset();
-                p.act_deterministic(&o.batch()).unwrap().values
+                p.act(&o.batch(), ActMode::Greedy).unwrap().values
             };
             let a = act(&mut p, &o);
             let dims = shm_schema::GESTURE_DIMS;
@@ -453,10 +433,10 @@ mod tests {
             o.gesture[..g].copy_from_slice(&first.gesture[..g]);
             o.envs[0].episode_start = s[0];
             o.envs[1].episode_start = s[1];
-            let (x, st) = p.prepare(&o.batch()).unwrap();
-            let f = p.forward(&x, st);
+            let (x, st) = p.prepare(0, &o.batch()).unwrap();
+            let f = p.forward(0, &x, st);
             acted.extend(f.values.clone());
-            p.commit(f, &o.batch());
+            p.commit(0, f, &o.batch());
             stored.push(x.map(|t| t.copy())); // `o` is dropped at the end of the iteration
         }
         let stack = |get: fn(&Inputs) -> Option<&Tensor>| {
@@ -494,10 +474,10 @@ mod tests {
         assert_eq!(vars["gru.weight_ih_l1"].size(), vec![3 * 512, 512]);
         assert_eq!(vars["rgb.fc.weight"].size(), vec![512, 64 * 7 * 7]);
         let o = random_obs(1, 224, 3);
-        let (x, _) = p.prepare(&o.batch()).unwrap();
+        let (x, _) = p.prepare(0, &o.batch()).unwrap();
         assert_eq!(x.rgb.as_ref().unwrap().size(), vec![1, 512, 7, 7]);
         assert_eq!(x.depth.as_ref().unwrap().size(), vec![1, 512, 7, 7]);
-        let a = p.act(&o.batch()).unwrap();
+        let a = p.act(&o.batch(), ActMode::Sample).unwrap();
         assert!(a.values[0].is_finite());
         // an Adam over the policy sees only the trainable part
         let opt = crate::ppo::optim::Adam::new(&p.vs, 1e-3, 1e-5);
@@ -525,7 +505,7 @@ mod tests {
             }
         });
         let o = random_obs(3, 16, 4);
-        let (a, b) = (cpu.act_deterministic(&o.batch()).unwrap(), gpu.act_deterministic(&o.batch()).unwrap());
+        let (a, b) = (cpu.act(&o.batch(), ActMode::Greedy).unwrap(), gpu.act(&o.batch(), ActMode::Greedy).unwrap());
         for (x, y) in a.values.iter().zip(&b.values) {
             assert!((x - y).abs() < 1e-3, "{a:?} vs {b:?}");
         }
@@ -590,12 +570,12 @@ mod tests {
                 e.episode_start = t == 0;
                 e.person_pose = [0.3 * t as f32, k as f32 - 0.5, 0.1 * t as f32];
             }
-            let (x, st) = p.prepare(&o.batch()).unwrap();
+            let (x, st) = p.prepare(0, &o.batch()).unwrap();
             steps.push(x.map(|t| t.copy()));
-            let f = p.forward(&x, st);
+            let f = p.forward(0, &x, st);
             let acted = Actions { actions: vec![0; 2], log_probs: vec![0.0; 2], values: f.values.clone() };
             r.push(&x, &[t == 0, t == 0], &acted, &[true, true]);
-            p.commit(f, &o.batch());
+            p.commit(0, f, &o.batch());
         }
         let every_row = stacked(&steps);
         let table = r.gestures().unwrap();

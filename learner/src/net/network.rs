@@ -280,15 +280,15 @@ mod tests {
         for t in 0..4u64 {
             let mut o = random_obs(2, 64, 20 + t);
             o.envs.iter_mut().for_each(|e| e.episode_start = t == 0);
-            let (x, st) = p.prepare(&o.batch()).unwrap();
+            let (x, st) = p.prepare(0, &o.batch()).unwrap();
             assert!(x.rgb.is_none() && x.depth.is_none());
             assert_eq!(x.visual.as_ref().unwrap().size(), [2, 64, 8, 8]);
-            let f = p.forward(&x, st);
+            let f = p.forward(0, &x, st);
             acted_values.extend(f.values.clone());
             let acted =
                 crate::net::agent::Actions { actions: vec![0; 2], log_probs: vec![0.0; 2], values: f.values.clone() };
             r.push(&x, &[t == 0; 2], &acted, &[true; 2]);
-            p.commit(f, &o.batch());
+            p.commit(0, f, &o.batch());
             frames.push(o);
         }
         let stored = r.inputs().unwrap().visual.as_ref().unwrap().shallow_clone();
@@ -325,7 +325,7 @@ mod tests {
         let a = random_obs(2, 64, 1);
         let mut b = random_obs(2, 64, 1);
         b.rgb.iter_mut().for_each(|v| *v = v.wrapping_add(77));
-        let feats = |o: &crate::obs::OwnedObs| p.prepare(&o.batch()).unwrap().0.visual.as_ref().unwrap().copy();
+        let feats = |o: &crate::obs::OwnedObs| p.prepare(0, &o.batch()).unwrap().0.visual.as_ref().unwrap().copy();
         assert!(feats(&a).equal(&feats(&b)), "RGB is off: it must not change the features");
         let mut c = random_obs(2, 64, 1);
         c.depth.iter_mut().for_each(|v| *v = v.wrapping_add(999));

@@ -326,6 +326,7 @@ fn rng_from(path: &Path, meta: &HashMap<String, String>, key: &str) -> Result<Ch
 mod tests {
     use super::*;
     use crate::bench::random_obs;
+    use crate::net::agent::ActMode;
     use crate::net::spec::tests::tiny_config;
     use rand::Rng;
 
@@ -363,15 +364,15 @@ mod tests {
         let (mut p, mut q) = (t.agent, fresh.agent);
         let o = random_obs(2, 16, 6);
         p.reset();
-        assert_eq!(p.act_deterministic(&o.batch()).unwrap(), q.act_deterministic(&o.batch()).unwrap());
+        assert_eq!(p.act(&o.batch(), ActMode::Greedy).unwrap(), q.act(&o.batch(), ActMode::Greedy).unwrap());
         // the sampling streams continue identically too
-        assert_eq!(p.act(&o.batch()).unwrap(), q.act(&o.batch()).unwrap());
+        assert_eq!(p.act(&o.batch(), ActMode::Sample).unwrap(), q.act(&o.batch(), ActMode::Sample).unwrap());
 
         // an agent-only load (evaluation)
         let mut r = load_agent(&cfg, 2, Device::Cpu, &path).unwrap();
         p.reset();
         r.reset();
-        assert_eq!(p.act_deterministic(&o.batch()).unwrap(), r.act_deterministic(&o.batch()).unwrap());
+        assert_eq!(p.act(&o.batch(), ActMode::Greedy).unwrap(), r.act(&o.batch(), ActMode::Greedy).unwrap());
     }
 
     #[test]

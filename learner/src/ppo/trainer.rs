@@ -130,14 +130,14 @@ impl Trainer {
     pub fn step_at(&mut self, at: usize, obs: &EnvBatch) -> Result<StepOutput, ObsError> {
         self.launch_queued();
         self.agent.stages.start(true);
-        let (x, starts) = self.agent.prepare_at(at, obs)?;
+        let (x, starts) = self.agent.prepare(at, obs)?;
         self.check_round(at, starts.len())?;
-        let mut fwd = self.agent.forward_at(at, &x, starts.clone());
+        let mut fwd = self.agent.forward(at, &x, starts.clone());
         self.record_feedback(at, obs, &fwd.values);
         let mut update = None;
         if self.rollout.is_full() {
             update = self.learn_full_rollout(fwd.values.clone());
-            fwd = self.agent.forward(&x, starts);
+            fwd = self.agent.forward(0, &x, starts);
         }
         let actions = self.act_and_store(at, obs, &x, fwd);
         Ok(StepOutput { actions, update })
@@ -188,7 +188,7 @@ impl Trainer {
         let valid: Vec<bool> = obs.envs.iter().map(|e| !e.lost && !e.is_final_observation()).collect();
         self.rollout.push_at(at, x, &fwd.starts, &acted, &valid);
         self.last_real[at..at + valid.len()].copy_from_slice(&valid);
-        self.agent.commit_at(at, fwd, obs);
+        self.agent.commit(at, fwd, obs);
         self.agent.stages.lap(Stage::ActStore);
         acted
     }

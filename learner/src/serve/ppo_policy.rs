@@ -17,7 +17,7 @@ use farm::config::RunConfig;
 use shm_schema::EnvRecord;
 
 use crate::logs::metrics::{MetricsLog, UpdateMetrics};
-use crate::net::agent::Agent;
+use crate::net::agent::{ActMode, Agent};
 use crate::obs::{DeviceFrames, EnvBatch, EnvStep, FrameView, GestureKind, GestureView};
 use crate::ppo::checkpoint;
 use crate::ppo::trainer::Trainer;
@@ -361,7 +361,7 @@ impl Policy for PpoPolicy {
             }
             Mode::Eval { agent, greedy } => {
                 anyhow::ensure!(envs.len() == self.workers * e, "evaluation acts on every env at once");
-                let a = if *greedy { agent.act_deterministic(&obs)? } else { agent.act(&obs)? };
+                let a = agent.act(&obs, if *greedy { ActMode::Greedy } else { ActMode::Sample })?;
                 a.actions
             }
         };
