@@ -114,7 +114,9 @@ if wants ours; then
   d=$OUT/ours && rm -rf "$d" && mkdir -p "$d"
   log "ours: orchestrator up, $FRAMES frames (log $d/train.log)"
   t0=$(now)
-  ( source "$DEPS/env.sh" && exec target/release/orchestrator up --config "$CONFIG" --frames "$FRAMES" --run-dir "$d/run" ) >"$d/train.log" 2>&1
+  # run.total_frames is what the learning rate decays over (to 0), as CleanRL's over its budget
+  ( source "$DEPS/env.sh" && exec target/release/orchestrator up --config "$CONFIG" --frames "$FRAMES" \
+      --set run.total_frames="$FRAMES" --run-dir "$d/run" ) >"$d/train.log" 2>&1
   t1=$(now)
   log "ours: orchestrator eval on $PROGRAMS val programs (log $d/eval.log)"
   ( source "$DEPS/env.sh" && exec target/release/orchestrator eval --checkpoint "$d/run" --split val \

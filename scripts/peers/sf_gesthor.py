@@ -299,7 +299,9 @@ def evaluate_checkpoint(argv):
     actor_critic.eval()
     actor_critic.model_to_device(torch.device("cpu"))
     checkpoints = Learner.get_checkpoints(Learner.checkpoint_dir(cfg, 0), "checkpoint_*")
-    state = Learner.load_checkpoint(checkpoints, torch.device("cpu"))
+    # the newest, as Learner.load_checkpoint takes it; our own file, so not weights_only (torch 2.6+
+    # refuses the numpy scalars Sample Factory pickles into it)
+    state = torch.load(checkpoints[-1], map_location="cpu", weights_only=False)
     actor_critic.load_state_dict(state["model"])
 
     programs = val_programs(cfg.gesthor_dataset, cfg.eval_programs)
