@@ -46,6 +46,11 @@ impl Blank {
     }
 }
 
+/// Defaults of the learner's options, for the learner's parser and for its starters alike.
+pub const BATCH_TIMEOUT_MS: u64 = 1000;
+pub const REPORT_EVERY_S: f64 = 2.0;
+pub const START_WAIT_S: f64 = 60.0;
+
 #[derive(Args, Clone, Debug, PartialEq)]
 pub struct ServeArgs {
     /// Run configuration (TOML).
@@ -78,13 +83,13 @@ pub struct ServeArgs {
     #[arg(long)]
     pub resume: bool,
     /// Close a batch this many milliseconds after its first observation even if workers are missing.
-    #[arg(long, default_value_t = 1000)]
+    #[arg(long, default_value_t = BATCH_TIMEOUT_MS)]
     pub batch_timeout_ms: u64,
     /// Seconds between progress records.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = REPORT_EVERY_S)]
     pub report_every: f64,
     /// Before the first batch, wait up to this many seconds for every worker to connect.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = START_WAIT_S)]
     pub start_wait: f64,
     #[command(flatten)]
     pub options: LearnerOptions,
@@ -123,9 +128,9 @@ impl ServeArgs {
             eval: false,
             check: false,
             resume: false,
-            batch_timeout_ms: 1000,
-            report_every: 2.0,
-            start_wait: 60.0,
+            batch_timeout_ms: BATCH_TIMEOUT_MS,
+            report_every: REPORT_EVERY_S,
+            start_wait: START_WAIT_S,
             options: LearnerOptions::default(),
         }
     }

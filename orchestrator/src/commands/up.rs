@@ -52,7 +52,7 @@ pub struct UpArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub set: Vec<String>,
     /// Seconds between the learner's progress records.
-    #[arg(long, default_value_t = 2.0, value_parser = super::values::seconds)]
+    #[arg(long, default_value_t = farm::serve_args::REPORT_EVERY_S, value_parser = super::values::seconds)]
     pub report_every: f64,
     /// Accept worker hosts on this Zenoh endpoint, TLS with certificates on both sides (e.g.
     /// tls/0.0.0.0:7447); each host joins with a bundle from `orchestrator hosts issue` and

@@ -93,7 +93,7 @@ impl CrewSpec {
             synthetic: false,
             resume: false,
             learner: LearnerOptions::default(),
-            report_every: 2.0,
+            report_every: farm::serve_args::REPORT_EVERY_S,
             grace: 3.0,
             bin_dir: None,
             remote_slots: 0,

@@ -374,8 +374,9 @@ pub fn capture(sk: &Skeleton, frames: &[LandmarkFrame], opts: CaptureOptions) ->
         return Err(CaptureError::NoPerson { missing: n - person_frames, frames: n });
     }
     let to_model = model_axes(sk);
-    let mut out = body_and_arms(sk, &observed, &to_model);
-    let (side, span, resting) = gesture_span(sk, &out, seconds / n as f32)?;
+    let dt = seconds / n as f32;
+    let mut out = body_and_arms(sk, &observed, to_model);
+    let (side, span, resting) = gesture_span(sk, &out, dt)?;
     let s = side_index(side);
     let gesture_frames = span.1 - span.0 + 1;
     let seen_hand = (span.0..=span.1).filter(|&i| observed[i].as_ref().is_some_and(|o| o.hands[s].is_some())).count();
@@ -383,15 +384,14 @@ pub fn capture(sk: &Skeleton, frames: &[LandmarkFrame], opts: CaptureOptions) ->
         return Err(CaptureError::HandsLost { side, lost: gesture_frames - seen_hand, frames: gesture_frames });
     }
     fingers(sk, &observed, &mut out);
-    head(sk, &observed, &mut out, &to_model, rest_nod(&observed, &resting));
+    head(sk, &observed, &mut out, to_model, rest_nod(&observed, &resting));
     let times: Vec<f32> = frames.iter().map(|f| f.t).collect();
-    let motion = resample(&out[span.0..=span.1], seconds / n as f32);
+    let motion = resample(&out[span.0..=span.1], dt);
     Ok(Capture { frames: out, times, side, span, motion, person_frames, hand_frames: (seen_hand, gesture_frames) })
 }
 
 /// Body and arms fitted to each frame, each frame from the one before.
-fn body_and_arms(sk: &Skeleton, observed: &[Option<Observed>], to_model: &Matrix3<f32>) -> Vec<[f32; MUSCLES]> {
-    let to_model = *to_model;
+fn body_and_arms(sk: &Skeleton, observed: &[Option<Observed>], to_model: Matrix3<f32>) -> Vec<[f32; MUSCLES]> {
     let mut out = Vec::with_capacity(observed.len());
     let mut pose = STANDING;
     for o in observed {
@@ -480,10 +480,9 @@ fn head(
     sk: &Skeleton,
     observed: &[Option<Observed>],
     out: &mut [[f32; MUSCLES]],
-    to_model: &Matrix3<f32>,
+    to_model: Matrix3<f32>,
     rest_nod: f32,
 ) {
-    let to_model = *to_model;
     let our_nod = yaw_pitch(to_model.transpose() * (sk.chain(&STANDING, Bone::Head).1 * Vector3::z())).1;
     let mut head = STANDING;
     for (i, o) in observed.iter().enumerate() {
