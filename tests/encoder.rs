@@ -139,43 +139,6 @@ fn fails_naming(args: &[&str], out: &Path, what: &str) {
     assert!(!bad.status.success() && stderr.contains(what), "{stderr}");
 }
 
-/// `orchestrator gesture probe` on the test build: one row per gesture input, each figure in its
-/// range, the inputs' file removed; a missing dataset is one error naming it.
-#[test]
-fn gesture_probe_reports_each_input() {
-    let _one_at_a_time = serial();
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("gesture-probe");
-    let o = Command::new(bin("orchestrator"))
-        .args(["gesture", "probe", "--held-out", "20", "--dataset"])
-        .arg(dataset())
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}\n{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap()).unwrap();
-    let probes = report["probes"].as_array().unwrap();
-    assert_eq!(probes.len(), 5, "{report}");
-    assert_eq!(probes[1]["features"], 9500, "the muscles: 100 frames × 95");
-    assert_eq!(probes[4]["features"], 3000, "the body points: 100 frames × 30");
-    for p in probes {
-        for k in ["ridge_error_deg", "mlp_error_deg"] {
-            assert!(p[k].as_f64().is_some_and(|x| (0.0..=180.0).contains(&x)), "{k}: {p}");
-        }
-        for k in ["ridge_side", "mlp_side"] {
-            assert!(p[k].as_f64().is_some_and(|x| (0.0..=1.0).contains(&x)), "{k}: {p}");
-        }
-    }
-    assert!(
-        std::fs::read_to_string(out.with_extension("md"))
-            .unwrap()
-            .contains("| the muscles (the dissertation's input) | 9500 |")
-    );
-    assert!(!out.with_extension("gestures").exists(), "the probe's inputs are removed");
-    fails_naming(&["gesture", "probe", "--dataset", "/nonexistent/gond"], &out, "/nonexistent/gond");
-}
-
 /// A short `orchestrator up` on the frozen encoder: the learner loads the weights, stores
 /// features when acting, runs PPO updates on them, and the run ends cleanly.
 #[test]

@@ -221,31 +221,14 @@ pub enum Encoder {
     Pretrained,
 }
 
-/// How the robot perceives a gesture: what the gesture network reads, 100 frames of it.
+/// How the robot perceives a gesture: what the gesture network reads, 100 frames of it. Other
+/// readings were tried and left the product (docs/experiments names the commit that has them).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum GestureInput {
     /// The 95 muscle values of the humanoid, in the person's own frame (§4.3.3).
     #[default]
     Muscles,
-    /// Beyond the dissertation: ten body points (head, hips; each side's shoulder, elbow, wrist
-    /// and index fingertip) in metres in the robot's camera frame from where it stands at each
-    /// step — what a pose estimator on the robot gives. A pointing arm then says where to go
-    /// without first being turned by the person's facing.
-    Keypoints,
-    /// Beyond the dissertation: the same body points read as a pointing reader would, flat on the
-    /// floor in the robot's frame — where the hips are, and for each arm the direction from the
-    /// shoulder to the wrist and how far it reaches. No network has to find the
-    /// arm's direction among thirty coordinates.
-    ArmRays,
-    /// Not a gesture: the target's true bearing from where the robot stands at each step (right
-    /// and forward of a unit vector) in every frame of the referencing gesture — what a perfectly
-    /// read pointing could tell, an upper bound for +Referencing only.
-    TargetBearing,
-    /// Not a gesture: where the person stands and the exact direction from them to the target
-    /// (right, forward of each, in the robot's frame at each step) — a perfectly read pointing,
-    /// which says where to look but not how far: an upper bound for +Referencing only.
-    PointingRay,
 }
 
 /// How the gesture network reads a gesture's 100 frames.
@@ -255,40 +238,13 @@ pub enum GestureNetwork {
     /// The frames flattened into one fully connected layer (§4.3.3: 9,500 → 512 for the muscles).
     #[default]
     Flat,
-    /// Beyond the dissertation: one small network shared by every frame, its outputs pooled over
-    /// time (mean and max), then one layer to the feature — a pose held in any frames is read by
-    /// the same weights.
-    PerFrame,
-    /// Beyond the dissertation: both side by side, each giving half the feature — the flat layer
-    /// over the gesture alone (what the gesture is, wherever the person stands) and the per-frame
-    /// network (with `model.person_pose`, where it points from where the robot is).
-    FlatAndPerFrame,
-    /// Beyond the dissertation: the flat layer beside the per-frame network, which reads the
-    /// gesture alone, once per distinct gesture; the person's pose (`model.person_pose`) joins
-    /// after the pooling and turns what was pooled by their facing. A gesture lasts an episode
-    /// and the pose changes at every step: reading the pose beside every frame costs the per-frame
-    /// network over 100 frames of every step, this costs one layer.
+    /// Beyond the dissertation: the flat layer beside one small network shared by every frame,
+    /// each giving half the feature. The shared one reads the gesture alone, once per distinct
+    /// gesture, pools it over time (mean and max), and the person's pose (`model.person_pose`)
+    /// joins after the pooling, turning what was pooled by their facing: a pose held in any
+    /// frames is read by the same weights, and a pointing says where to go from where the robot
+    /// stands.
     FlatAndTurned,
-}
-
-impl GestureNetwork {
-    /// Whether the shared per-frame network is part of it.
-    pub fn per_frame(self) -> bool {
-        !matches!(self, GestureNetwork::Flat)
-    }
-
-    /// Whether the person's pose, when it is an input, is read beside every frame (by the
-    /// per-frame network's first layer) rather than after the pooling.
-    pub fn pose_in_frames(self) -> bool {
-        matches!(self, GestureNetwork::PerFrame | GestureNetwork::FlatAndPerFrame)
-    }
-}
-
-impl GestureInput {
-    /// The upper bounds that stand in for the referencing gesture rather than perceive one.
-    pub fn is_oracle(self) -> bool {
-        matches!(self, GestureInput::TargetBearing | GestureInput::PointingRay)
-    }
 }
 
 /// `[model]`: the network (§4.3.3).
@@ -307,10 +263,9 @@ pub struct ModelConfig {
     pub depth: bool,
     /// Feed the person's pose relative to the robot (the released code did; the text does not).
     pub person_pose: bool,
-    /// How the gesture is perceived (`muscles`: the dissertation; `keypoints`, `arm_rays` and the
-    /// upper bounds `target_bearing` and `pointing_ray`: beyond it).
+    /// How the gesture is perceived (`muscles`: the dissertation's, the only one).
     pub gesture_input: GestureInput,
-    /// How the gesture's frames are read (`flat`: the dissertation; `per_frame`: beyond it).
+    /// How the gesture's frames are read (`flat`: the dissertation; `flat_and_turned`: beyond it).
     pub gesture_network: GestureNetwork,
     /// Width of every feature and hidden layer.
     pub hidden: i64,
@@ -593,12 +548,6 @@ impl RunConfig {
                     .into(),
             );
         }
-        if self.model.gesture_input.is_oracle() && self.run.method != Method::Referencing {
-            return e(
-                "model.gesture_input",
-                format!("the upper bounds stand in for the referencing gesture only, not {}", self.run.method.label()),
-            );
-        }
         for (i, s) in self.run.scenes.iter().enumerate() {
             if crate::rooms::SceneId::parse(s).is_none() {
                 return e(&format!("run.scenes[{i}]"), format!("`{s}` is not a room name like FloorPlan201"));
@@ -636,30 +585,20 @@ mod tests {
         assert_eq!((o.ppo.lr, o.env.width, o.run.method), (1e-4, 80, Method::VisSem));
         assert_eq!(o.ppo.rollout, c.ppo.rollout, "the rest untouched");
         assert_eq!(c.model.gesture_input, GestureInput::Muscles, "the dissertation's by default");
-        let k = c.with_overrides(&sets(&["model.gesture_input=keypoints"])).unwrap();
-        assert_eq!(k.model.gesture_input, GestureInput::Keypoints);
-        let a = c.with_overrides(&sets(&["model.gesture_input=arm_rays"])).unwrap();
-        assert_eq!(a.model.gesture_input, GestureInput::ArmRays, "a reading of the body, for any method");
-        let b = c.with_overrides(&sets(&["run.method=referencing", "model.gesture_input=target_bearing"])).unwrap();
-        assert_eq!(b.model.gesture_input, GestureInput::TargetBearing, "the upper bound stands in for referencing");
-        let r = b.with_overrides(&sets(&["model.gesture_input=pointing_ray"])).unwrap();
-        assert_eq!(r.model.gesture_input, GestureInput::PointingRay);
+        let m = c.with_overrides(&sets(&["model.gesture_input=muscles"])).unwrap();
+        assert_eq!(m.model.gesture_input, GestureInput::Muscles);
         assert_eq!(c.model.gesture_network, GestureNetwork::Flat, "the dissertation's by default");
-        let f = c.with_overrides(&sets(&["model.gesture_network=per_frame"])).unwrap();
-        assert_eq!(f.model.gesture_network, GestureNetwork::PerFrame);
-        let h = c.with_overrides(&sets(&["model.gesture_network=flat_and_per_frame"])).unwrap();
-        assert!(h.model.gesture_network.per_frame() && !c.model.gesture_network.per_frame());
         let t = c.with_overrides(&sets(&["model.gesture_network=flat_and_turned"])).unwrap();
-        assert!(t.model.gesture_network.per_frame() && !t.model.gesture_network.pose_in_frames());
+        assert_eq!(t.model.gesture_network, GestureNetwork::FlatAndTurned);
         for (bad, says) in [
             ("ppo.lrr=1", "ppo.lrr"),
             ("ppo.clip=-5", "ppo.clip"),
             ("env.width", "KEY=VALUE"),
             ("env.width=abc", "env.width"),
             ("model.gesture_input=skeleton", "model.gesture_input"),
-            ("model.gesture_input=target_bearing", "+Both"),
-            ("model.gesture_input=pointing_ray", "+Both"),
+            ("model.gesture_input=keypoints", "model.gesture_input"),
             ("model.gesture_network=lstm", "model.gesture_network"),
+            ("model.gesture_network=per_frame", "model.gesture_network"),
         ] {
             let err = c.with_overrides(&sets(&[bad])).unwrap_err().to_string();
             assert!(err.contains(says) && !err.contains('\n'), "{bad}: {err}");

@@ -35,10 +35,11 @@ pub fn tiny_frozen_config(weights: &Path) -> RunConfig {
     c
 }
 
-/// `cfg` reading the gesture with the per-frame network and the person's pose beside each frame
-/// (`model.gesture_network = "per_frame"`, `model.person_pose = true`).
-pub fn per_frame_config(mut cfg: RunConfig) -> RunConfig {
-    cfg.model.gesture_network = GestureNetwork::PerFrame;
+/// `cfg` reading the gesture as configs/tiny does: the flat layer beside the per-frame network,
+/// turned by the person's pose (`model.gesture_network = "flat_and_turned"`,
+/// `model.person_pose = true`).
+pub fn turned_config(mut cfg: RunConfig) -> RunConfig {
+    cfg.model.gesture_network = GestureNetwork::FlatAndTurned;
     cfg.model.person_pose = true;
     cfg
 }
@@ -292,11 +293,11 @@ pub fn run(
     out(&forward("tiny-frozen (pretrained RGB-D encoder, 256, GRU 1)", &frozen, 32, device, reps)?);
     out(&update("tiny, tiny PPO", &with_tiny_ppo(tiny.clone()), 32, device, reps)?);
     out(&update("tiny-frozen, tiny PPO", &with_tiny_ppo(frozen.clone()), 32, device, reps)?);
-    // the gesture read per frame with the person's pose beside each frame (the pose new at every
+    // the gesture read flat and per frame, turned by the person's pose (the pose new at every
     // stored step, as in training)
-    let per_frame = per_frame_config(frozen);
-    out(&forward("tiny-frozen, gesture per frame + pose", &per_frame, 32, device, reps)?);
-    out(&update("tiny-frozen, gesture per frame + pose, tiny PPO", &with_tiny_ppo(per_frame), 32, device, reps)?);
+    let turned = turned_config(frozen);
+    out(&forward("tiny-frozen, gesture flat and turned + pose", &turned, 32, device, reps)?);
+    out(&update("tiny-frozen, gesture flat and turned + pose, tiny PPO", &with_tiny_ppo(turned), 32, device, reps)?);
     if let Some(sizes) = faithful {
         let dir = tempfile::tempdir()?;
         let weights = random_resnet_weights(dir.path())?;

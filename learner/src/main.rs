@@ -81,19 +81,6 @@ enum Command {
         #[arg(long, default_value_t = 4)]
         epochs: usize,
     },
-    /// Probes of the gesture input → the target's bearing (spawned by `orchestrator gesture probe`).
-    ProbeGesture {
-        /// The file `orchestrator gesture probe` writes.
-        #[arg(long)]
-        data: PathBuf,
-        /// Output stem: STEM.json and STEM.md.
-        #[arg(long)]
-        out: PathBuf,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        #[arg(long, default_value_t = 30)]
-        epochs: usize,
-    },
     /// Time a forward of the tiny network (batch 32) and PPO updates on 1280 samples.
     Bench {
         /// Also the dissertation's network (frozen ResNet-18 at 224², GRU 2×512) — slow on a CPU.
@@ -295,10 +282,6 @@ fn run(cli: Cli) -> Result<()> {
                 .collect::<anyhow::Result<Vec<_>>>()?;
             let o = learner::encoder::ProbeOptions { frames, encoders, seed, epochs, threads: 2 };
             learner::encoder::probe(&o, &out).map(drop)?
-        }
-        Command::ProbeGesture { data, out, seed, epochs } => {
-            let o = learner::encoder::GestureProbeOptions { data, seed, epochs, per_frame_epochs: epochs, threads: 2 };
-            learner::encoder::probe_gesture(&o, &out).map(drop)?
         }
     }
     Ok(())

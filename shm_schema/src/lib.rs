@@ -26,19 +26,6 @@ pub const MAX_ENVS: usize = 64;
 /// Frames and muscle values of a gesture (§3.3.1).
 pub const GESTURE_FRAMES: usize = 100;
 pub const GESTURE_DIMS: usize = 95;
-/// Values of a gesture row that hold body points (`model.gesture_input = "keypoints"`: ten
-/// points × right, up, forward); the rest of the row is zero.
-pub const GESTURE_KEYPOINT_DIMS: usize = 30;
-/// Values of a gesture row that hold the target's bearing (`model.gesture_input =
-/// "target_bearing"`: right, forward of a unit vector); the rest of the row is zero.
-pub const GESTURE_BEARING_DIMS: usize = 2;
-/// Values of a gesture row that hold the arms' rays (`model.gesture_input = "arm_rays"`: the
-/// hips' right, forward, then per arm (left, right) the unit direction from the shoulder to the
-/// wrist and its length, all flat on the floor).
-pub const GESTURE_ARM_DIMS: usize = 8;
-/// Values of a gesture row that hold the exact pointing ray (`model.gesture_input =
-/// "pointing_ray"`: the person's right, forward, then the unit direction from them to the target).
-pub const GESTURE_RAY_DIMS: usize = 4;
 /// How many stops an episode summary keeps (metrics at 1, 2, 3 stops).
 pub const SUMMARY_STOPS: usize = 3;
 /// Target categories the policy can be asked for (T3.3 lists 37 distinct ones); the value of

@@ -79,25 +79,6 @@ impl Program {
         [right, forward, crate::geometry::angle_diff_deg(pose.yaw, self.human_yaw) / 360.0]
     }
 
-    /// The direction from a robot at `pose` to the target's centre, right and forward of a unit
-    /// vector (`model.gesture_input = "target_bearing"`, the upper bound of reading the pointing).
-    pub fn target_bearing(&self, pose: &RobotPose) -> [f32; 2] {
-        unit(robot_frame(pose, self.target_xz() - pose.xz()))
-    }
-
-    /// The pointing ray as a robot at `pose` would see it if it read the gesture perfectly: where
-    /// the person stands (right, forward, metres) and the unit direction from them to the
-    /// target's centre (`model.gesture_input = "pointing_ray"`, an upper bound).
-    pub fn pointing_ray(&self, pose: &RobotPose) -> [f32; 4] {
-        let [right, forward] = robot_frame(pose, self.human_xz() - pose.xz());
-        let [dr, df] = unit(robot_frame(pose, self.target_xz() - self.human_xz()));
-        [right, forward, dr, df]
-    }
-
-    fn target_xz(&self) -> Point2<f32> {
-        Point2::new(self.target_pos[0], self.target_pos[2])
-    }
-
     /// Fixed-size binary form (see `dataset`).
     pub fn to_record(&self) -> ProgramRecord {
         ProgramRecord {
@@ -179,12 +160,6 @@ pub struct ProgramRecord {
 
 const _: () = assert!(std::mem::size_of::<ProgramRecord>() == 80);
 
-/// `v` scaled to length 1.
-fn unit([x, y]: [f32; 2]) -> [f32; 2] {
-    let n = x.hypot(y).max(1e-6);
-    [x / n, y / n]
-}
-
 /// A world offset `d` (x, z) as a robot at `pose` sees it: right, forward (metres).
 fn robot_frame(pose: &RobotPose, d: nalgebra::Vector2<f32>) -> [f32; 2] {
     let h = pose.heading();
@@ -224,25 +199,5 @@ mod tests {
         let p = sample();
         assert_eq!(std::mem::size_of::<ProgramRecord>(), 80);
         assert_eq!(Program::from_record(7, &p.to_record()).unwrap(), p);
-    }
-
-    /// The upper bounds agree with each other from any pose: the bearing points at the target,
-    /// the ray starts where the person stands and passes through the target ahead of them.
-    #[test]
-    fn the_pointing_ray_leads_to_the_target_along_its_bearing() {
-        let mut p = sample();
-        (p.human_pos, p.target_pos) = ([0.5, 0.0, 2.0], [-1.5, 0.8, 3.0]);
-        for (x, z, yaw) in [(0.0, 0.0, 0.0), (1.0, -2.0, 45.0), (-3.0, 1.0, 200.0), (2.0, 4.0, 315.0)] {
-            let pose = RobotPose { x, z, yaw };
-            let [pr, pf, dr, df] = p.pointing_ray(&pose);
-            assert_eq!([pr, pf], p.person_relative(&pose)[..2]);
-            let [br, bf] = p.target_bearing(&pose);
-            let target = robot_frame(&pose, p.target_xz() - pose.xz());
-            let (along, off) =
-                ((target[0] - pr) * dr + (target[1] - pf) * df, (target[0] - pr) * df - (target[1] - pf) * dr);
-            assert!(along > 0.0 && off.abs() < 1e-4, "pose {pose:?}: the ray misses by {off}");
-            let n = target[0].hypot(target[1]);
-            assert!((br - target[0] / n).abs() < 1e-5 && (bf - target[1] / n).abs() < 1e-5);
-        }
     }
 }

@@ -7,15 +7,11 @@
 //!   ResNet-18 where no ImageNet checkpoint is supplied
 //! - [`probe`]: `learner probe-encoder`: linear probes of the category per cell and the person's
 //!   facing, in held-out rooms
-//! - [`gesture_probe`]: `learner probe-gesture`: what the gesture input says of the target's
-//!   bearing from the robot, in held-out rooms (beside the facing probe: what the pointing needs)
 
-pub mod gesture_probe;
 pub mod net;
 pub mod pretrain;
 pub mod probe;
 
-pub use gesture_probe::{GestureProbeOptions, GestureProbeReport, probe_gesture};
 pub use net::{EncoderFileError, EncoderInfo, RgbdEncoder, encoder_input, load_weights};
 pub use pretrain::{Objective, PretrainOptions, PretrainReport, Trunk, pretrain};
 pub use probe::{ProbeOptions, ProbeReport, probe};

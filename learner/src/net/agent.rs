@@ -224,8 +224,7 @@ impl Agent {
         }
         tch::no_grad(|| {
             let gesture = match (self.net.gesture_net(), &x.gesture, &x.gesture_index) {
-                // with the pose beside its frames the features change at every step: read afresh
-                (Some(l), Some(g), None) if !self.spec.pose_in_frames() => {
+                (Some(l), Some(g), None) => {
                     let part = self.gestures.parts(l, g, at, self.n_envs);
                     let pose = self
                         .spec
@@ -355,16 +354,19 @@ mod tests {
         assert_eq!(a.values, b.values);
     }
 
-    /// Per frame with the person's pose: the first layer reads the gesture's 95 values and the
-    /// pose's 4 (right, forward, cos and sin of the facing) beside every frame; the stored step
-    /// keeps the gesture and the pose apart, so that a gesture is stored once whatever the pose.
+    /// The turned network with the person's pose: the per-frame layers read the gesture's 95
+    /// values alone and the pose's 4 (right, forward, cos and sin of the facing) join after the
+    /// pooling; the stored step keeps the gesture and the pose apart, so that a gesture is stored
+    /// once whatever the pose.
     #[test]
-    fn the_per_frame_network_reads_the_pose_with_every_frame() {
+    fn the_turned_network_reads_the_pose_apart_from_the_frames() {
         let mut cfg = tiny_config("both");
         cfg.model.person_pose = true;
-        cfg.model.gesture_network = GestureNetwork::PerFrame;
+        cfg.model.gesture_network = GestureNetwork::FlatAndTurned;
         let p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
-        assert_eq!(p.vs.variables()["gesture.frame0.weight"].size(), [64, 95 + 4]);
+        let v = p.vs.variables();
+        assert_eq!(v["gesture.frame0.weight"].size(), [64, 95]);
+        assert_eq!(v["gesture.place.weight"].size(), [16, 4]);
         let mut o = random_obs(2, 16, 4);
         o.envs[0].gesture = GestureKind::Referencing;
         o.envs[0].person_pose = [1.5, 2.0, 0.25];
@@ -380,38 +382,6 @@ mod tests {
         cfg.model.gesture_network = GestureNetwork::Flat;
         let p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
         assert_eq!(p.vs.variables()["gesture.weight"].size(), [32, 100 * 95]);
-    }
-
-    /// With keypoints the gesture network reads the first 30 values of each frame: the rest of
-    /// the 95-wide row changes nothing, the 30 do — flat or per frame; and their checkpoints are
-    /// not the muscles' ones, nor each other's.
-    #[test]
-    fn keypoints_read_thirty_values_a_frame() {
-        let mut hashes = vec![crate::ppo::checkpoint::config_hash(&tiny_config("both"))];
-        for (network, first) in [
-            (GestureNetwork::Flat, ("gesture.weight", 100 * 30)),
-            (GestureNetwork::PerFrame, ("gesture.frame0.weight", 30)),
-        ] {
-            let mut cfg = tiny_config("both");
-            cfg.model.gesture_input = farm::config::GestureInput::Keypoints;
-            cfg.model.gesture_network = network;
-            let mut p = Agent::new(&cfg, 2, Device::Cpu).unwrap();
-            assert_eq!(p.vs.variables()[first.0].size()[1], first.1, "{network:?}");
-            let mut o = random_obs(2, 16, 3);
-            o.envs.iter_mut().for_each(|e| e.gesture = GestureKind::Referencing);
-            let act = |p: &mut Agent, o: &crate::obs::OwnedObs| {
-                p.reset();
-                p.act(&o.batch(), ActMode::Greedy).unwrap().values
-            };
-            let a = act(&mut p, &o);
-            let dims = shm_schema::GESTURE_DIMS;
-            o.gesture.chunks_mut(dims).for_each(|row| row[30..].fill(half::f16::from_f32(0.9)));
-            assert_eq!(a, act(&mut p, &o), "{network:?}: values past the 30 are not read");
-            o.gesture.chunks_mut(dims).for_each(|row| row[..30].fill(half::f16::from_f32(0.9)));
-            assert_ne!(a, act(&mut p, &o), "{network:?}: the 30 are");
-            hashes.push(crate::ppo::checkpoint::config_hash(&cfg));
-        }
-        assert!(hashes[0] != hashes[1] && hashes[1] != hashes[2] && hashes[0] != hashes[2], "{hashes:?}");
     }
 
     #[test]
@@ -526,15 +496,13 @@ mod tests {
     #[test]
     fn distinct_gestures_give_the_plain_path_s_outputs_and_gradients() {
         // PPO's minibatches encode each distinct gesture once and gather; the outputs and the
-        // gradients must be those of encoding every row — with the flat layer, and per frame
-        // with the person's pose, which moves at every step while the gestures stay
+        // gradients must be those of encoding every row — with the flat layer, and turned by
+        // the person's pose, which moves at every step while the gestures stay
         distinct_gestures_read_as_every_row(&tiny_config("both"));
-        for network in [GestureNetwork::PerFrame, GestureNetwork::FlatAndPerFrame, GestureNetwork::FlatAndTurned] {
-            let mut cfg = tiny_config("both");
-            cfg.model.person_pose = true;
-            cfg.model.gesture_network = network;
-            distinct_gestures_read_as_every_row(&cfg);
-        }
+        let mut cfg = tiny_config("both");
+        cfg.model.person_pose = true;
+        cfg.model.gesture_network = GestureNetwork::FlatAndTurned;
+        distinct_gestures_read_as_every_row(&cfg);
     }
 
     /// The steps' inputs `[N, ..]` stacked into `[T, N, ..]`, every field.

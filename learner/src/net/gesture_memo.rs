@@ -74,7 +74,7 @@ mod tests {
     /// Every kind of gesture network acting keeps parts of, on gestures of 5 values per frame,
     /// 8 wide (the one that turns by the pose reads it).
     fn nets(vs: &nn::VarStore) -> Vec<(String, GestureNet)> {
-        [GestureNetwork::Flat, GestureNetwork::PerFrame, GestureNetwork::FlatAndPerFrame, GestureNetwork::FlatAndTurned]
+        [GestureNetwork::Flat, GestureNetwork::FlatAndTurned]
             .into_iter()
             .enumerate()
             .map(|(i, k)| {

@@ -1,13 +1,10 @@
 //! The gesture network: a gesture's 100 frames `[B, 100, d]` → one feature `[B, hidden]`.
 //!
 //! ```text
-//! flat (§4.3.3):  100×d ─ flatten ─ FC hidden ─ ReLU
-//! per_frame:      each frame d ─ FC 64 ─ ReLU ─ FC 64 ─ ReLU ┐ mean and max over the 100 frames
-//!                                                            └ 128 ─ FC hidden ─ ReLU
-//! flat_and_per_frame: the two side by side, hidden/2 each, concatenated (the pose, if any,
-//!                 read beside every frame by the per-frame half)
-//! flat_and_turned: the two side by side; the per-frame half reads the gesture alone, and the
-//!                 pose joins its 128 pooled values p: ReLU(A·p + shown·(cos·B·p + sin·C·p + D·pose))
+//! flat (§4.3.3):   100×d ─ flatten ─ FC hidden ─ ReLU
+//! flat_and_turned: the flat layer (hidden/2) beside a network shared by every frame:
+//!                  each frame d ─ FC 64 ─ ReLU ─ FC 64 ─ ReLU ┐ mean and max over the 100 frames
+//!                  = p (128); the person's pose joins p: ReLU(A·p + shown·(cos·B·p + sin·C·p + D·pose))
 //! ```
 //! The flat layer gives each frame its own weights: a pointing held in frames 40–60 and the same
 //! pointing in frames 50–70 are different inputs to learn, each from PPO's gradient alone. The
@@ -16,13 +13,11 @@
 //!
 //! A pointing is a direction in the person's own frame (the muscles); it names a place for the
 //! robot only once turned by the person's facing relative to it. With `model.person_pose` the
-//! per-frame network reads the pose either beside every frame (`flat_and_per_frame`: the first
-//! layer on `[frame, pose]`) or after the pooling (`flat_and_turned`): cos·B·p + sin·C·p is any
-//! linear reading of p turned by the facing, D·pose says where the person stands. The pose changes
-//! at every step and the gesture only when an episode starts or intervention switches, so the
-//! second reads the 100 frames once per distinct gesture ([`GestureNet::part`]) and joins the pose
-//! per row in one layer ([`GestureNet::join`]); the first runs its second layer and pooling over
-//! 100 frames of every row (its first layer is split: [`PerFrame::read`]).
+//! pose joins after the pooling: cos·B·p + sin·C·p is any linear reading of p turned by the
+//! facing, D·pose says where the person stands. The pose changes at every step and the gesture
+//! only when an episode starts or intervention switches, so the 100 frames are read once per
+//! distinct gesture ([`GestureNet::part`]) and the pose joins per row in one layer
+//! ([`GestureNet::join`]).
 
 use farm::config::GestureNetwork;
 use shm_schema::GESTURE_FRAMES;
@@ -35,42 +30,32 @@ const FRAME_WIDTH: i64 = 64;
 #[derive(Debug)]
 pub(crate) enum GestureNet {
     Flat(nn::Linear),
-    PerFrame(PerFrame),
-    FlatAndPerFrame(nn::Linear, PerFrame),
     FlatAndTurned(nn::Linear, Turned),
 }
 
-/// The shared per-frame network and its layer from the pooled frames to the feature.
+/// The network shared by every frame and its layer from the pooled frames to the feature (A).
 #[derive(Debug)]
 pub(crate) struct PerFrame {
     frame: [nn::Linear; 2],
     out: nn::Linear,
-    /// Values of the pose its first layer reads beside every frame (0: none).
-    pose_dims: i64,
 }
 
 /// The per-frame network on the gesture alone, its pooled values turned by the person's facing
 /// and joined by where they stand (`flat_and_turned`).
 #[derive(Debug)]
 pub(crate) struct Turned {
-    /// Its `out` is A (with the bias).
     frames: PerFrame,
     /// B and C, `128 → 2 × width`, and D, `pose → width` (none without the pose).
     turn_and_place: Option<(nn::Linear, nn::Linear)>,
 }
 
 impl GestureNet {
-    /// `dims` gesture values per frame (and `pose_dims` of the person's pose, read by the
-    /// per-frame network) → `hidden`, initialised from torch's seed.
+    /// `dims` gesture values per frame (and `pose_dims` of the person's pose, joined after the
+    /// pooling) → `hidden`, initialised from torch's seed.
     pub(crate) fn new(p: &nn::Path, kind: GestureNetwork, dims: i64, pose_dims: i64, hidden: i64) -> GestureNet {
         let flat = |p: &nn::Path, width| nn::linear(p, GESTURE_FRAMES as i64 * dims, width, Default::default());
         match kind {
             GestureNetwork::Flat => GestureNet::Flat(flat(p, hidden)),
-            GestureNetwork::PerFrame => GestureNet::PerFrame(PerFrame::new(p, dims, pose_dims, hidden)),
-            GestureNetwork::FlatAndPerFrame => GestureNet::FlatAndPerFrame(
-                flat(&(p / "flat"), hidden / 2),
-                PerFrame::new(p, dims, pose_dims, hidden - hidden / 2),
-            ),
             GestureNetwork::FlatAndTurned => GestureNet::FlatAndTurned(
                 flat(&(p / "flat"), hidden / 2),
                 Turned::new(p, dims, pose_dims, hidden - hidden / 2),
@@ -78,35 +63,20 @@ impl GestureNet {
         }
     }
 
-    /// Gestures `[B, 100, d]` (any float kind) → features `[B, hidden]` in f32, without the pose.
-    pub(crate) fn forward(&self, g: &Tensor) -> Tensor {
-        self.read(g, None, None)
-    }
-
     /// Features `[R, hidden]` of `R` rows: with `rows` (i64 `[R]`), `g` holds distinct gestures
     /// `[G, 100, d]` and row `r` shows `g[rows[r]]`; without, `g` is `[R, 100, d]`. With `pose`
     /// (`[R, 4]`: right, forward, cos and sin of the facing) each row's gesture is read with its
     /// person's pose where a gesture is shown (an unshown gesture is all zero, and reads no pose).
     pub(crate) fn read(&self, g: &Tensor, rows: Option<&Tensor>, pose: Option<&Tensor>) -> Tensor {
-        let g = g.to_kind(Kind::Float);
-        match (self, pose) {
-            (GestureNet::PerFrame(f), Some(pose)) if f.pose_dims > 0 => f.read(&g, rows, pose),
-            (GestureNet::FlatAndPerFrame(l, f), Some(pose)) if f.pose_dims > 0 => {
-                Tensor::cat(&[gather(flat(l, &g), rows), f.read(&g, rows, pose)], 1)
-            }
-            _ => self.join(&gather(self.part(&g), rows), pose),
-        }
+        self.join(&gather(self.part(g), rows), pose)
     }
 
     /// What the network reads of gestures `[G, 100, d]` alone, `[G, part_width]` f32: the
     /// features themselves, or with `flat_and_turned` what the pose joins ([`GestureNet::join`]).
-    /// Not for a network that reads the pose beside every frame.
     pub(crate) fn part(&self, g: &Tensor) -> Tensor {
         let g = g.to_kind(Kind::Float);
         match self {
             GestureNet::Flat(l) => flat(l, &g),
-            GestureNet::PerFrame(f) => f.alone(&g).relu(),
-            GestureNet::FlatAndPerFrame(l, f) => Tensor::cat(&[flat(l, &g), f.alone(&g).relu()], 1),
             GestureNet::FlatAndTurned(l, t) => Tensor::cat(&[flat(l, &g), t.part(&g)], 1),
         }
     }
@@ -120,7 +90,7 @@ impl GestureNet {
                 let rest = part.size()[1] - h;
                 Tensor::cat(&[part.narrow(1, 0, h), t.join(&part.narrow(1, h, rest), pose)], 1)
             }
-            _ => part.shallow_clone(),
+            GestureNet::Flat(_) => part.shallow_clone(),
         }
     }
 
@@ -128,7 +98,7 @@ impl GestureNet {
     pub(crate) fn part_width(&self) -> i64 {
         match self {
             GestureNet::FlatAndTurned(l, t) => l.ws.size()[0] + t.part_width(),
-            _ => self.hidden(),
+            GestureNet::Flat(_) => self.hidden(),
         }
     }
 
@@ -136,8 +106,6 @@ impl GestureNet {
     pub(crate) fn hidden(&self) -> i64 {
         match self {
             GestureNet::Flat(l) => l.ws.size()[0],
-            GestureNet::PerFrame(f) => f.out.ws.size()[0],
-            GestureNet::FlatAndPerFrame(l, f) => l.ws.size()[0] + f.out.ws.size()[0],
             GestureNet::FlatAndTurned(l, t) => l.ws.size()[0] + t.frames.out.ws.size()[0],
         }
     }
@@ -155,8 +123,6 @@ impl GestureNet {
     fn layers(&self) -> Vec<&nn::Linear> {
         match self {
             GestureNet::Flat(l) => vec![l],
-            GestureNet::PerFrame(f) => f.layers(),
-            GestureNet::FlatAndPerFrame(l, f) => [vec![l], f.layers()].concat(),
             GestureNet::FlatAndTurned(l, t) => [vec![l], t.layers()].concat(),
         }
     }
@@ -168,42 +134,20 @@ fn flat(l: &nn::Linear, g: &Tensor) -> Tensor {
 }
 
 impl PerFrame {
-    fn new(p: &nn::Path, dims: i64, pose_dims: i64, hidden: i64) -> PerFrame {
+    fn new(p: &nn::Path, dims: i64, hidden: i64) -> PerFrame {
         let c = Default::default;
         PerFrame {
             frame: [
-                nn::linear(p / "frame0", dims + pose_dims, FRAME_WIDTH, c()),
+                nn::linear(p / "frame0", dims, FRAME_WIDTH, c()),
                 nn::linear(p / "frame1", FRAME_WIDTH, FRAME_WIDTH, c()),
             ],
             out: nn::linear(p / "out", 2 * FRAME_WIDTH, hidden, c()),
-            pose_dims,
         }
     }
 
-    /// The first layer on `[frame, pose]` is W_g·frame + b, once per gesture, + W_p·pose, once
-    /// per row; then the rest over the 100 frames of every row.
-    fn read(&self, g: &Tensor, rows: Option<&Tensor>, pose: &Tensor) -> Tensor {
-        let [first, _] = &self.frame;
-        let d = g.size()[2];
-        let gesture = g.linear(&first.ws.narrow(1, 0, d), first.bs.as_ref());
-        let pose = pose.linear::<Tensor>(&first.ws.narrow(1, d, pose.size()[1]), None) * gather(shown(g), rows);
-        let first = gather(gesture, rows) + pose.unsqueeze(1);
-        self.pooled(first).apply(&self.out).relu()
-    }
-
-    /// The out layer's output, before its ReLU, for gestures alone.
-    fn alone(&self, g: &Tensor) -> Tensor {
-        self.pooled_alone(g).apply(&self.out)
-    }
-
-    /// The pooled `[G, 128]` of gestures alone (a first layer without the pose).
-    fn pooled_alone(&self, g: &Tensor) -> Tensor {
-        self.pooled(g.apply(&self.frame[0]))
-    }
-
-    /// From the first layer's output `[R, 100, 64]` to the pooled `[R, 128]` (mean and max).
-    fn pooled(&self, first: Tensor) -> Tensor {
-        let f = first.relu().apply(&self.frame[1]).relu();
+    /// The pooled `[G, 128]` of gestures `[G, 100, d]`: mean and max over the frames.
+    fn pooled(&self, g: &Tensor) -> Tensor {
+        let f = g.apply(&self.frame[0]).relu().apply(&self.frame[1]).relu();
         Tensor::cat(&[f.mean_dim(1, false, Kind::Float), f.amax(1, false)], 1)
     }
 
@@ -215,18 +159,20 @@ impl PerFrame {
 impl Turned {
     fn new(p: &nn::Path, dims: i64, pose_dims: i64, width: i64) -> Turned {
         let no_bias = || nn::LinearConfig { bias: false, ..Default::default() };
+        // B, C and D are drawn before the per-frame layers: checkpoints' initial weights follow
+        // this order
         let turn_and_place = (pose_dims > 0).then(|| {
             (
                 nn::linear(p / "turn", 2 * FRAME_WIDTH, 2 * width, no_bias()),
                 nn::linear(p / "place", pose_dims, width, no_bias()),
             )
         });
-        Turned { frames: PerFrame::new(p, dims, 0, width), turn_and_place }
+        Turned { frames: PerFrame::new(p, dims, width), turn_and_place }
     }
 
     /// `[A·p + b, B·p, C·p, shown]` of gestures `[G, 100, d]` (A·p + b alone without the pose).
     fn part(&self, g: &Tensor) -> Tensor {
-        let p = self.frames.pooled_alone(g);
+        let p = self.frames.pooled(g);
         let a = p.apply(&self.frames.out);
         match &self.turn_and_place {
             Some((turn, _)) => Tensor::cat(&[a, p.apply(turn), shown(g)], 1),
@@ -280,12 +226,12 @@ mod tests {
     use super::*;
     use tch::Device;
 
-    /// The per-frame network reads what the frames show, not when: a pose held in other frames
-    /// gives the same features (the flat layer's differ).
+    /// The per-frame half reads what the frames show, not when: a pose held in other frames
+    /// gives the same features; the flat half tells them apart.
     #[test]
     fn per_frame_features_do_not_depend_on_when_a_pose_is_held() {
         let vs = nn::VarStore::new(Device::Cpu);
-        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::PerFrame, 30, 0, 16));
+        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::FlatAndTurned, 30, 0, 32));
         let rest = crate::device::seeded(2, || Tensor::randn([1, 1, 30], (Kind::Float, Device::Cpu)));
         let pointing = crate::device::seeded(3, || Tensor::randn([1, 1, 30], (Kind::Float, Device::Cpu)));
         let frames = GESTURE_FRAMES as i64;
@@ -294,15 +240,13 @@ mod tests {
             g.narrow(1, from, 20).copy_(&pointing.expand([1, 20, 30], false));
             g
         };
-        let (early, late) = tch::no_grad(|| (net.forward(&held(10)), net.forward(&held(70))));
-        assert_eq!(early.size(), [1, 16]);
-        assert!(early.allclose(&late, 1e-5, 1e-6, false), "{early} vs {late}");
-        let still = tch::no_grad(|| net.forward(&rest.expand([1, frames, 30], false)));
-        assert!(!early.allclose(&still, 1e-3, 1e-3, false), "the held pose must show");
-        // the flat layer tells them apart
-        let flat = crate::device::seeded(1, || GestureNet::new(&(vs.root() / "flat"), GestureNetwork::Flat, 30, 0, 16));
-        let (a, b) = tch::no_grad(|| (flat.forward(&held(10)), flat.forward(&held(70))));
-        assert!(!a.allclose(&b, 1e-3, 1e-3, false));
+        let (early, late) = tch::no_grad(|| (net.read(&held(10), None, None), net.read(&held(70), None, None)));
+        assert_eq!(early.size(), [1, 32]);
+        let per_frame = |t: &Tensor| t.narrow(1, 16, 16);
+        assert!(per_frame(&early).allclose(&per_frame(&late), 1e-5, 1e-6, false), "{early} vs {late}");
+        let still = tch::no_grad(|| net.read(&rest.expand([1, frames, 30], false), None, None));
+        assert!(!per_frame(&early).allclose(&per_frame(&still), 1e-3, 1e-3, false), "the held pose must show");
+        assert!(!early.narrow(1, 0, 16).allclose(&late.narrow(1, 0, 16), 1e-3, 1e-3, false), "flat: when");
     }
 
     /// Three distinct gestures of 5 values a frame (the last all zero: none shown), five rows
@@ -321,35 +265,6 @@ mod tests {
         let out = f();
         out.square().sum(Kind::Float).backward();
         (out.detach(), vs.trainable_variables().iter().map(|v| v.grad().copy()).collect())
-    }
-
-    /// The pose read beside the frames (the split first layer) is the pose read in them: the
-    /// features and gradients of concatenating it to every frame of a shown gesture (an unshown,
-    /// all-zero gesture reads none), whether the rows are read through their distinct gestures
-    /// or one by one.
-    #[test]
-    fn the_pose_beside_the_frames_reads_as_the_pose_in_them() {
-        let vs = nn::VarStore::new(Device::Cpu);
-        let net = crate::device::seeded(1, || GestureNet::new(&vs.root(), GestureNetwork::PerFrame, 5, 4, 8));
-        let (distinct, pose, rows) = distinct_rows_and_poses();
-        let shown = Tensor::from_slice(&[1f32, 0.0, 1.0, 1.0, 0.0]).view([5, 1, 1]);
-        let frames = pose.unsqueeze(1).expand([5, GESTURE_FRAMES as i64, 4], false) * shown;
-        let read = |f: &dyn Fn() -> Tensor| read_with_gradients(&vs, f);
-        let g = distinct.index_select(0, &rows);
-        let (want, want_grads) = read(&|| net.forward(&Tensor::cat(&[&g, &frames], 2)));
-        for (name, got) in [
-            ("distinct", read(&|| net.read(&distinct, Some(&rows), Some(&pose)))),
-            ("one by one", read(&|| net.read(&g, None, Some(&pose)))),
-        ] {
-            assert!(got.0.allclose(&want, 1e-5, 1e-6, false), "{name}: {} vs {want}", got.0);
-            for (a, b) in got.1.iter().zip(&want_grads) {
-                assert!(a.allclose(b, 1e-4, 1e-6, false), "{name}: gradients differ");
-            }
-        }
-        // fewer rows than distinct gestures: the same features
-        let one = Tensor::from_slice(&[1i64]);
-        let few = tch::no_grad(|| net.read(&distinct, Some(&one), Some(&pose.narrow(0, 2, 1))));
-        assert!(few.allclose(&want.narrow(0, 2, 1), 1e-5, 1e-6, false));
     }
 
     /// The turned network reads rows through their distinct gestures as it reads them one by one
@@ -389,27 +304,22 @@ mod tests {
     fn widths_and_variable_names() {
         let vs = nn::VarStore::new(Device::Cpu);
         let flat = GestureNet::new(&(vs.root() / "gesture"), GestureNetwork::Flat, 95, 0, 32);
-        let per = GestureNet::new(&(vs.root() / "other"), GestureNetwork::PerFrame, 95, 0, 32);
-        let both = GestureNet::new(&(vs.root() / "both"), GestureNetwork::FlatAndPerFrame, 95, 4, 32);
-        assert_eq!((flat.hidden(), per.hidden(), both.hidden()), (32, 32, 32));
+        assert_eq!((flat.hidden(), flat.part_width(), flat.versions().len()), (32, 32, 2));
         let v = vs.variables();
         assert_eq!(v["gesture.weight"].size(), [32, 100 * 95], "§4.3.3's layer, as checkpoints name it");
-        assert_eq!(v["other.frame0.weight"].size(), [64, 95]);
-        assert_eq!(v["other.out.weight"].size(), [32, 128]);
-        assert_eq!(per.versions().len(), 6);
-        // side by side: the flat half reads the gesture alone, the per-frame half the pose too
-        assert_eq!(v["both.flat.weight"].size(), [16, 100 * 95]);
-        assert_eq!(v["both.frame0.weight"].size(), [64, 95 + 4]);
-        assert_eq!(v["both.out.weight"].size(), [16, 128]);
-        assert_eq!(both.versions().len(), 8);
         // turned: the per-frame half reads the gesture alone; B and C, then D, without biases
         let turned = GestureNet::new(&(vs.root() / "turned"), GestureNetwork::FlatAndTurned, 95, 4, 32);
         let v = vs.variables();
+        assert_eq!(v["turned.flat.weight"].size(), [16, 100 * 95]);
         assert_eq!(v["turned.frame0.weight"].size(), [64, 95]);
+        assert_eq!(v["turned.out.weight"].size(), [16, 128]);
         assert_eq!(v["turned.turn.weight"].size(), [32, 128]);
         assert_eq!(v["turned.place.weight"].size(), [16, 4]);
         assert!(!v.contains_key("turned.turn.bias") && !v.contains_key("turned.place.bias"));
         assert_eq!((turned.hidden(), turned.part_width()), (32, 16 + 3 * 16 + 1));
         assert_eq!(turned.versions().len(), 12, "a weight and a bias (or none) per layer");
+        // without the pose: the per-frame half's features alone, no turn or place
+        let alone = GestureNet::new(&(vs.root() / "alone"), GestureNetwork::FlatAndTurned, 95, 0, 32);
+        assert_eq!((alone.part_width(), alone.versions().len()), (32, 8));
     }
 }

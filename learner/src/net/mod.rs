@@ -4,7 +4,7 @@
 //! - [`pth`]: PyTorch's `torch.save` state dicts, read without Python;
 //! - [`resnet`]: ResNet-18 up to conv5 and the torchvision weights the user supplies;
 //! - [`layers`]: the building blocks (visual encoders, the frozen trunk, the MLPs);
-//! - `gesture_net`: the gesture network, §4.3.3's flat layer or one shared per frame;
+//! - `gesture_net`: the gesture network, §4.3.3's flat layer alone or beside one shared per frame;
 //! - `gesture_memo`: acting's gesture features, kept per env from one step to the next;
 //! - `stretches`: PPO's GRU over whole sequences, each env cut at its own episode starts, one call;
 //! - [`network`]: the layers wired together ([`network::PolicyNet`]);

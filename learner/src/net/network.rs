@@ -4,7 +4,7 @@
 //! ```text
 //! RGB   224²×3 ─ ResNet-18 (frozen) ─ conv5 512×7×7 ─ 1×1 conv 512→128 ─ 1×1 conv 128→64 ─ FC 512 ┐
 //! depth 224²×1 ─ (replicated to 3 channels, same trunk) ─ ... ─────────────────────────── FC 512 ┤
-//! gesture 100×95 (zero when none is shown; keypoints: 100×30) ─ flatten ─ FC 512 ──────────────────┤ concat
+//! gesture 100×95 (zero when none is shown) ─ flatten ─ FC 512 ───────────────────────────────────┤ concat
 //! target category ─ embedding 37→512 ─────────────────────────────────────────────────────────────┤ → GRU (2×512)
 //! person pose (dx, dz, yaw/360), optional ─ FC 3→512 ─────────────────────────────────────────────┘   ├ actor  512-512-4
 //!                                                                                                      └ critic 512-512-1
@@ -13,8 +13,9 @@
 //! ReLU"). Inputs the method or config switches off are left out of the concatenation (Vision
 //! Only: 1024 wide). The actor and critic are read as "2 layers of 512, then the output layer".
 //!
-//! The gesture network is §4.3.3's flat layer by default, or one shared per frame and pooled over
-//! time (`model.gesture_network`, `crate::net::gesture_net`).
+//! The gesture network is §4.3.3's flat layer by default, or the flat layer beside one shared per
+//! frame, pooled over time and turned by the person's pose (`model.gesture_network`,
+//! `crate::net::gesture_net`).
 //!
 //! Depth goes through the RGB trunk replicated to three channels (a grey image to an ImageNet
 //! network): with frozen weights both modalities share one trunk and run as one batch.
@@ -28,7 +29,7 @@
 //! (1×1 conv 64→16, FC → hidden), one visual feature instead of two.
 
 use farm::config::Encoder;
-use shm_schema::{TARGET_CATEGORIES, action};
+use shm_schema::{GESTURE_DIMS, TARGET_CATEGORIES, action};
 use tch::nn::{self, RNN};
 use tch::{Device, Kind, Tensor};
 
@@ -89,7 +90,7 @@ impl PolicyNet {
         let rgb = (spec.rgb && !spec.fused()).then(|| visual("rgb", 3));
         let depth = (spec.depth && !spec.fused()).then(|| visual("depth", 1));
         let gesture = spec.gesture.then(|| {
-            GestureNet::new(&(&root / "gesture"), spec.gesture_network, spec.gesture_dims, spec.gesture_pose_dims(), h)
+            GestureNet::new(&(&root / "gesture"), spec.gesture_network, GESTURE_DIMS as i64, spec.gesture_pose_dims(), h)
         });
         let target =
             spec.semantic.then(|| nn::embedding(&root / "target", TARGET_CATEGORIES as i64, h, Default::default()));
@@ -156,7 +157,7 @@ impl PolicyNet {
             let pose = s.pose.then(|| inputs::pose_tensor(obs, device));
             let gesture = s.gesture.then(|| {
                 let mask = inputs::gesture_mask(obs, device).to_kind(Kind::Half).view([-1, 1, 1]);
-                self.staging.gesture(obs, device).narrow(2, 0, s.gesture_dims) * mask
+                self.staging.gesture(obs, device) * mask
             });
             let target = s.semantic.then(|| inputs::target_tensor(obs, device));
             stages.lap(Stage::ActInputs);

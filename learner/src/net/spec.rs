@@ -2,7 +2,7 @@
 //! on, which visual encoder, the frame size and the widths. Everything that builds, stores or
 //! checks a network reads it from here.
 
-use farm::config::{Encoder, GestureInput, GestureNetwork, Method, RunConfig};
+use farm::config::{Encoder, GestureNetwork, Method, RunConfig};
 
 /// What the network looks like for a run: which inputs, which encoder, how wide.
 #[derive(Clone, Debug, PartialEq)]
@@ -15,13 +15,8 @@ pub struct NetSpec {
     pub rgb: bool,
     pub depth: bool,
     pub gesture: bool,
-    /// How the gesture is perceived (its name in logs).
-    pub gesture_input: GestureInput,
-    /// Values a gesture frame holds: the 95 muscles, the keypoints' 30, the arm rays' 8, or the
-    /// upper bounds' 2 (bearing) or 4 (ray); the network reads the first `gesture_dims` of each
-    /// 95-wide row.
-    pub gesture_dims: i64,
-    /// How the gesture's frames are read (§4.3.3's flat layer, or shared per frame).
+    /// How the gesture's 100 frames of 95 muscles are read (§4.3.3's flat layer, or beside one
+    /// shared per frame).
     pub gesture_network: GestureNetwork,
     pub semantic: bool,
     pub pose: bool,
@@ -41,14 +36,6 @@ impl NetSpec {
             rgb: m.rgb,
             depth: m.depth,
             gesture: cfg.run.method.gesture(),
-            gesture_input: m.gesture_input,
-            gesture_dims: match m.gesture_input {
-                GestureInput::Muscles => shm_schema::GESTURE_DIMS,
-                GestureInput::Keypoints => shm_schema::GESTURE_KEYPOINT_DIMS,
-                GestureInput::ArmRays => shm_schema::GESTURE_ARM_DIMS,
-                GestureInput::TargetBearing => shm_schema::GESTURE_BEARING_DIMS,
-                GestureInput::PointingRay => shm_schema::GESTURE_RAY_DIMS,
-            } as i64,
             gesture_network: m.gesture_network,
             semantic: cfg.run.method.semantic(),
             pose: m.person_pose,
@@ -70,17 +57,11 @@ impl NetSpec {
         self.encoder == Encoder::Pretrained
     }
 
-    /// The per-frame gesture network reads the person's pose with every frame when the pose is
-    /// an input: an arm's direction in the person's own frame (the muscles) becomes one in the
-    /// robot's only through their facing, frame by frame (the gesture probe's per-frame row).
-    pub fn pose_in_frames(&self) -> bool {
-        self.gesture && self.pose && self.gesture_network.pose_in_frames()
-    }
-
-    /// The gesture network reads the person's pose: beside every frame
-    /// ([`NetSpec::pose_in_frames`]) or after pooling them (`flat_and_turned`).
+    /// The gesture network reads the person's pose after pooling its frames (`flat_and_turned`):
+    /// an arm's direction in the person's own frame (the muscles) becomes one in the robot's only
+    /// through their facing.
     pub fn gesture_reads_pose(&self) -> bool {
-        self.gesture && self.pose && self.gesture_network.per_frame()
+        self.gesture && self.pose && self.gesture_network == GestureNetwork::FlatAndTurned
     }
 
     /// Values of the pose the gesture network reads (right, forward, cos and sin of the facing)
@@ -100,27 +81,13 @@ impl NetSpec {
         self.hidden * n as i64
     }
 
-    /// The gesture input's name in logs, and its network when not the flat one.
+    /// The gesture input's name in logs, with its network when not the flat one.
     fn gesture_name(&self) -> String {
-        let input = match self.gesture_input {
-            GestureInput::Muscles => "gesture",
-            GestureInput::Keypoints => "gesture-keypoints",
-            GestureInput::ArmRays => "gesture-arm-rays",
-            GestureInput::TargetBearing => "target-bearing (upper bound, not a gesture)",
-            GestureInput::PointingRay => "pointing-ray (upper bound, not a gesture)",
-        };
-        let network = match self.gesture_network {
-            GestureNetwork::Flat => return input.to_string(),
-            GestureNetwork::PerFrame => "per frame",
-            GestureNetwork::FlatAndPerFrame => "flat and per frame",
-            GestureNetwork::FlatAndTurned => "flat and per frame",
-        };
-        let pose = match (self.gesture_reads_pose(), self.pose_in_frames()) {
-            (false, _) => "",
-            (true, true) => " with the person's pose",
-            (true, false) => " turned by the person's pose",
-        };
-        format!("{input} read {network}{pose}")
+        match (self.gesture_network, self.gesture_reads_pose()) {
+            (GestureNetwork::Flat, _) => "gesture".into(),
+            (GestureNetwork::FlatAndTurned, false) => "gesture read flat and per frame".into(),
+            (GestureNetwork::FlatAndTurned, true) => "gesture read flat and per frame turned by the person's pose".into(),
+        }
     }
 
     /// One line for logs.
@@ -202,11 +169,7 @@ pub(crate) mod tests {
             NetSpec::from_config(&c).gesture_name()
         };
         assert_eq!(name(GestureNetwork::Flat, true), "gesture");
-        assert_eq!(name(GestureNetwork::PerFrame, false), "gesture read per frame");
-        assert_eq!(name(GestureNetwork::PerFrame, true), "gesture read per frame with the person's pose");
-        assert_eq!(name(GestureNetwork::FlatAndPerFrame, false), "gesture read flat and per frame");
-        let both = name(GestureNetwork::FlatAndPerFrame, true);
-        assert_eq!(both, "gesture read flat and per frame with the person's pose");
+        assert_eq!(name(GestureNetwork::FlatAndTurned, false), "gesture read flat and per frame");
         let turned = name(GestureNetwork::FlatAndTurned, true);
         assert_eq!(turned, "gesture read flat and per frame turned by the person's pose");
     }

@@ -64,12 +64,7 @@ pub fn config_hash(cfg: &RunConfig) -> String {
         s.hidden,
         s.gru_layers
     );
-    // appended only when not the dissertation's 95 muscles and flat layer, so that earlier
-    // checkpoints still load
-    let key = match s.gesture_dims == shm_schema::GESTURE_DIMS as i64 {
-        true => key,
-        false => format!("{key};gesture_dims={}", s.gesture_dims),
-    };
+    // appended only when not the dissertation's flat layer, so that earlier checkpoints still load
     let key = match (s.gesture, s.gesture_network) {
         (false, _) | (_, GestureNetwork::Flat) => key,
         (true, other) => format!("{key};gesture_network={other:?}"),

@@ -11,7 +11,7 @@ use super::schedule;
 use crate::camera::{Camera, Intrinsics};
 use crate::dataset::build::RoomContext;
 use crate::geometry::{Part, xz};
-use crate::gesture::{self, Motion, keypoints};
+use crate::gesture::{self, Motion};
 use crate::humanoid::Humanoid;
 use crate::nav::{Goal, NavGrid, expert_action};
 use crate::physics::Physics;
@@ -20,7 +20,7 @@ use crate::robot::{self, Action, RobotPose};
 use crate::scene::object_id;
 use crate::task::{StepFacts, StepResult, Task};
 use crate::visibility;
-use farm::config::{GestureInput, RunConfig};
+use farm::config::RunConfig;
 
 /// Motion frames the person advances per environment step (the gesture loops).
 const FRAMES_PER_STEP: usize = 3;
@@ -40,9 +40,6 @@ pub struct Env {
     humanoid: Humanoid,
     referencing: Motion,
     intervention: (u8, Arc<Motion>),
-    /// With `model.gesture_input = "keypoints"`: the gesture shown now, as body points in the
-    /// world (its kind, then every frame's points), posed once when it starts being shown.
-    seen: Option<(u8, Vec<[Point3<f32>; keypoints::KEYPOINTS]>)>,
     frame: usize,
     shortest_path: f32,
     /// Pixels of the target in the frame last shown to the robot.
@@ -84,7 +81,7 @@ impl Env {
         let mut task = Task::new(cfg.task.clone());
         task.reset(goal.distance_2d(pose.xz()));
         let k = Intrinsics::reference(cfg.env.fov_deg);
-        let mut env = Env {
+        Ok(Env {
             cfg: cfg.clone(),
             k,
             humanoid: Humanoid::seeded(program.seed),
@@ -98,7 +95,6 @@ impl Env {
             task,
             referencing: motion,
             intervention,
-            seen: None,
             frame: 0,
             shortest_path,
             visible_pixels: 0,
@@ -107,9 +103,7 @@ impl Env {
             last_action: None,
             collided: false,
             person_calls: None,
-        };
-        env.see_gesture();
-        Ok(env)
+        })
     }
 
     pub fn camera(&self) -> Camera {
@@ -163,7 +157,6 @@ impl Env {
     /// of the angle rule (`None`), for the methods whose schedule shows it.
     pub fn set_person_calls(&mut self, calls: Option<bool>) {
         self.person_calls = calls;
-        self.see_gesture();
     }
 
     /// The 100 × 95 motion the robot perceives now, if any.
@@ -175,54 +168,13 @@ impl Env {
         }
     }
 
-    /// Writes the gesture the robot perceives now (`FRAMES × GESTURE_DIMS` half floats, zero
-    /// where none is shown), in the form `model.gesture_input` names: the muscles, the body
-    /// points as the robot's camera sees them from where it stands now or the arms' rays read
-    /// from them, or an upper bound: the target's bearing from there, or the exact pointing ray.
+    /// Writes the muscles of the gesture the robot perceives now (`FRAMES × GESTURE_DIMS` half
+    /// floats, zero where none is shown).
     pub fn write_gesture(&self, out: &mut [u16]) {
-        let mut seen = Vec::new();
-        let values: &[f32] = match (&self.seen, self.perceived()) {
-            (_, None) => return out.fill(0),
-            (_, Some(_)) if self.cfg.model.gesture_input.is_oracle() => {
-                let told = match self.cfg.model.gesture_input {
-                    GestureInput::TargetBearing => self.program.target_bearing(&self.pose).to_vec(),
-                    _ => self.program.pointing_ray(&self.pose).to_vec(),
-                };
-                seen.resize(gesture::FRAMES * shm_schema::GESTURE_DIMS, 0.0);
-                for row in seen.chunks_mut(shm_schema::GESTURE_DIMS) {
-                    row[..told.len()].copy_from_slice(&told);
-                }
-                &seen
-            }
-            (Some((_, world)), Some(_)) => {
-                seen.resize(gesture::FRAMES * shm_schema::GESTURE_DIMS, 0.0);
-                let write = match self.cfg.model.gesture_input {
-                    GestureInput::ArmRays => keypoints::write_arm_rays,
-                    _ => keypoints::write_seen,
-                };
-                write(world, &self.camera(), shm_schema::GESTURE_DIMS, &mut seen);
-                &seen
-            }
-            (None, Some(m)) => m.as_flat(),
-        };
-        for (dst, src) in out.iter_mut().zip(values) {
+        let Some(m) = self.perceived() else { return out.fill(0) };
+        for (dst, src) in out.iter_mut().zip(m.as_flat()) {
             *dst = half::f16::from_f32(*src).to_bits();
         }
-    }
-
-    /// With keypoints or arm rays: poses the body points of a gesture when it starts being shown.
-    fn see_gesture(&mut self) {
-        if !matches!(self.cfg.model.gesture_input, GestureInput::Keypoints | GestureInput::ArmRays) {
-            return;
-        }
-        let kind = self.gesture_kind();
-        if self.seen.as_ref().is_some_and(|(k, _)| *k == kind) {
-            return;
-        }
-        self.seen = self.perceived().map(|motion| {
-            let p = &self.program;
-            (kind, keypoints::world(&self.humanoid, motion, Point3::from(p.human_pos), p.human_yaw))
-        });
     }
 
     pub fn intervention_index(&self) -> u8 {
@@ -328,7 +280,6 @@ impl Env {
         if self.gesture_kind() == gesture_kind::INTERVENTION {
             self.intervention_steps += 1;
         }
-        self.see_gesture();
         self.last
     }
 

@@ -525,11 +525,6 @@ mod tests {
         ObsView::new(pool.shape, buf.bytes()).unwrap()
     }
 
-    /// Env `i`'s gesture as written, in f32.
-    fn gesture(pool: &EnvPool, buf: &PayloadBuf, i: usize) -> Vec<f32> {
-        view(pool, buf).gesture_bits(i).iter().map(|b| half::f16::from_bits(*b).to_f32()).collect()
-    }
-
     #[test]
     fn expert_succeeds_with_rendered_visibility_and_records_are_consistent() {
         let cfg = config(Method::Both, 3);
@@ -605,77 +600,6 @@ mod tests {
             pool.step(&[1, 2], buf.bytes_mut()).unwrap(); // keep turning: faces every way
         }
         assert!(saw[NONE as usize] && saw[INTERVENTION as usize] && !saw[REFERENCING as usize]);
-    }
-
-    /// Keypoints: the body points follow the robot — the head is where the record says the
-    /// person stands relative to the robot, at every step of a turn — and only their 30 values
-    /// of a row are set.
-    #[test]
-    fn keypoints_are_seen_from_where_the_robot_stands() {
-        let mut cfg = config(Method::Both, 2);
-        cfg.model.gesture_input = farm::config::GestureInput::Keypoints;
-        let Some(mut pool) = pool(&cfg, ProgramSource::Sample) else { return };
-        let mut buf = PayloadBuf::new(&pool.layout());
-        pool.reset(buf.bytes_mut()).unwrap();
-        let mut shown = [0; 3];
-        for _ in 0..32 {
-            for (i, r) in view(&pool, &buf).records().to_vec().iter().enumerate() {
-                let g = gesture(&pool, &buf, i);
-                assert!(
-                    g.chunks(GESTURE_DIMS).all(|row| row[crate::gesture::keypoints::DIMS..].iter().all(|v| *v == 0.0))
-                );
-                shown[r.gesture_kind as usize] += 1;
-                if r.gesture_kind == NONE {
-                    assert!(g.iter().all(|v| *v == 0.0));
-                    continue;
-                }
-                let (head_right, head_forward) = (g[0], g[2]);
-                let [right, forward, _] = r.person_rel;
-                assert!(
-                    (head_right - right).abs() < 0.35 && (head_forward - forward).abs() < 0.35,
-                    "head seen at ({head_right:.2}, {head_forward:.2}), the person stands at ({right:.2}, {forward:.2})"
-                );
-            }
-            pool.step(&[action::ROTATE_LEFT, action::MOVE_AHEAD], buf.bytes_mut()).unwrap();
-        }
-        assert!(shown[REFERENCING as usize] > 0 && shown[INTERVENTION as usize] > 0, "{shown:?}");
-    }
-
-    /// The target-bearing upper bound: every frame of the gesture holds one unit vector toward
-    /// the target, the rest of each row zero, and a turn to the right turns it by the turn's
-    /// angle to the left — the bearing is seen from where the robot faces.
-    #[test]
-    fn target_bearing_turns_with_the_robot() {
-        let mut cfg = config(Method::Referencing, 2);
-        cfg.model.gesture_input = farm::config::GestureInput::TargetBearing;
-        let Some(mut pool) = pool(&cfg, ProgramSource::Sample) else { return };
-        let mut buf = PayloadBuf::new(&pool.layout());
-        pool.reset(buf.bytes_mut()).unwrap();
-        let bearings = |pool: &EnvPool, buf: &PayloadBuf| -> Vec<f32> {
-            (0..2)
-                .map(|i| {
-                    let g = gesture(pool, buf, i);
-                    let first = &g[..shm_schema::GESTURE_BEARING_DIMS];
-                    assert!((first[0].hypot(first[1]) - 1.0).abs() < 1e-2, "a unit vector: {first:?}");
-                    for row in g.chunks(GESTURE_DIMS) {
-                        assert_eq!(&row[..2], first, "every frame holds the same bearing");
-                        assert!(row[2..].iter().all(|v| *v == 0.0));
-                    }
-                    first[0].atan2(first[1]).to_degrees()
-                })
-                .collect()
-        };
-        for _ in 0..6 {
-            let before = bearings(&pool, &buf);
-            pool.step(&[action::ROTATE_RIGHT, action::ROTATE_RIGHT], buf.bytes_mut()).unwrap();
-            let after = bearings(&pool, &buf);
-            for i in 0..2 {
-                if view(&pool, &buf).records()[i].episode_start == 0 {
-                    let turned = crate::geometry::angle_diff_deg(after[i], before[i]);
-                    assert!((turned - cfg.env.turn_deg).abs() < 1.0, "env {i}: {before:?} → {after:?}");
-                }
-            }
-        }
     }
 
     /// `task.gesture_shift = 1`: program 0 runs as itself (its room, target, record) but shows

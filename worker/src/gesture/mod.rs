@@ -7,7 +7,6 @@
 //! - [`capture`]: a person's own gesture from a video's body and hand landmarks;
 //! - [`motion`]: the original file formats (motion.csv, metadata JSON);
 //! - [`accuracy`]: the original evaluator's measure of how well a gesture points at a target;
-//! - [`keypoints`]: a gesture as the robot's camera sees it (body points in its frame).
 //!
 //! A [`Motion`] is also the gesture network's input, 100 × 95 values, frame-major.
 
@@ -15,7 +14,6 @@ pub mod accuracy;
 pub mod bvh;
 pub mod capture;
 pub mod intervention;
-pub mod keypoints;
 pub mod motion;
 pub mod referencing;
 mod synth;

@@ -4,9 +4,6 @@
 //! (metadata JSON and motions/NAME.csv, for `replay` and `follow`), a BVH, the landmarks and
 //! `capture.json` (what was found). `orchestrator gesture film PROGRAM --out DIR` renders the avatar performing a
 //! program's gesture from a fixed camera, frame by frame: what the closed-loop check captures back.
-//! `orchestrator gesture probe`: what the gesture input says of where the target is ([`probe`]).
-
-pub mod probe;
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -34,9 +31,6 @@ pub enum GestureCmd {
     Capture(CaptureArgs),
     /// The avatar performing a program's gesture from a fixed camera: PNG frames at 30 fps.
     Film(FilmArgs),
-    /// Probes of the gesture input at the start of each program (muscles, body points in the
-    /// robot's frame, the person's pose) → the target's bearing from the robot, in val's rooms.
-    Probe(probe::ProbeArgs),
 }
 
 #[derive(Args, Debug)]
@@ -86,7 +80,6 @@ pub struct FilmArgs {
 pub fn run(cmd: GestureCmd) -> anyhow::Result<()> {
     match cmd {
         GestureCmd::Capture(a) => capture_cmd(a),
-        GestureCmd::Probe(a) => probe::probe(a),
         GestureCmd::Film(a) => {
             let (_, p, motion, label) = program::resolve(&a.program, &a.dataset, 1)?;
             let motion = match a.intervention {
