@@ -220,6 +220,12 @@ impl EnvPool {
         }
     }
 
+    /// The instance ids of env `i`'s last frame rendered to the host, row by row (empty before
+    /// the first; frames kept on the device leave none).
+    pub fn ids(&self, i: usize) -> &[u16] {
+        &self.ids[i]
+    }
+
     /// Env `i` to drive and score by hand (`orchestrator robot sim`).
     pub fn env_mut(&mut self, i: usize) -> Option<&mut Env> {
         match &mut self.envs[i] {

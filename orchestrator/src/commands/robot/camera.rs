@@ -67,6 +67,13 @@ impl Sampling {
         self.cols.len()
     }
 
+    /// The camera's pixels of a row-major `width × height` image that the policy reads, row by
+    /// row.
+    pub fn pick<'a, T: Copy>(&'a self, image: &'a [T]) -> impl Iterator<Item = T> + 'a {
+        let w = self.width as usize;
+        self.rows.iter().flat_map(move |&r| self.cols.iter().map(move |&c| image[r as usize * w + c as usize]))
+    }
+
     /// The colour image as the policy's RGB frame (`size² × 3`).
     pub fn colour(&self, img: &Image, out: &mut [u8]) -> Result<(), String> {
         let (channels, swap) = match img.encoding.as_str() {
@@ -181,6 +188,22 @@ mod tests {
             is_bigendian: 0,
             step: w * px as u32,
             data,
+        }
+    }
+
+    /// What the policy reads of any per-pixel image (the simulator's instance ids) is picked
+    /// where its colour is read.
+    #[test]
+    fn picking_reads_the_pixels_the_colour_reads() {
+        let s = Sampling::new(&pinhole(640, 480, 90.0, Header::default()), VIEW).unwrap();
+        let img = image(640, 480, "rgb8", 3);
+        let mut rgb = vec![0; 64 * 64 * 3];
+        s.colour(&img, &mut rgb).unwrap();
+        let index: Vec<u32> = (0..640 * 480).collect();
+        let picked: Vec<u32> = s.pick(&index).collect();
+        assert_eq!(picked.len(), 64 * 64);
+        for (p, px) in picked.iter().zip(rgb.chunks(3)) {
+            assert_eq!(&img.data[*p as usize * 3..][..3], px);
         }
     }
 

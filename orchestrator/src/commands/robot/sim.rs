@@ -25,7 +25,7 @@ use worker::robot::Action;
 use worker::scene::Split;
 
 use super::args::Bus;
-use super::camera::pinhole;
+use super::camera::{PolicyView, Sampling, pinhole};
 use super::dds::{self, drain};
 use super::msgs::{CameraInfo, Clock, Decision, Gesture, Header, Image, Odometry, Pose, Text, Twist};
 use super::names::{self, Names, Resolved};
@@ -137,6 +137,8 @@ pub struct Sim {
     pool: EnvPool,
     buf: PayloadBuf,
     shape: ObsShape,
+    /// The camera's pixels the policy reads (as the node samples them).
+    view: Sampling,
     /// Simulated time (s), and when the next camera frame is due.
     t: f64,
     next_frame: f64,
@@ -201,6 +203,9 @@ impl Sim {
         cfg = episode_config(&cfg, &args.dataset, split);
         // the node ends an episode at its first Stop: so does the judge
         cfg.task.max_stops = 1;
+        let policy = PolicyView { size: cfg.env.width, fov_deg: cfg.env.fov_deg };
+        let view = Sampling::new(&pinhole(args.width, args.height, cfg.env.fov_deg as f64, Header::default()), policy)
+            .map_err(|e| anyhow::anyhow!("--width {} --height {}: {e}", args.width, args.height))?;
         cfg.env.width = args.width;
         cfg.env.height = args.height;
         cfg.env.frames = farm::config::FramePath::SharedMemory;
@@ -223,6 +228,7 @@ impl Sim {
             buf: PayloadBuf::new(&pool.layout()),
             pool,
             shape,
+            view,
             io,
             cfg,
             checkpoint,
@@ -483,6 +489,7 @@ impl Sim {
     /// is scored at once and ends the episode.
     fn judge(&mut self, e: &mut Episode, d: &Decision) -> anyhow::Result<Option<Outcome>> {
         let a = Action::from_index(d.action).with_context(|| format!("decision {}: action {}", d.step, d.action))?;
+        let seen = self.target_pixels_seen()?;
         let env = self.pool.env_mut(0).context("the episode's env")?;
         if let Some(t) = self.track.take() {
             env.settle(t.action, t.before, t.travelled, t.collided);
@@ -499,7 +506,7 @@ impl Sim {
         e.rec.step(&record)?;
         if a == Action::Stop || d.done {
             // the frame the node saw was taken where it stands: is the target in it?
-            env.update_visibility_geometric();
+            env.set_visible_pixels(seen);
             env.settle(a, env.geodesic(), 0.0, false);
         } else {
             self.track = Some(Track { action: a, before: env.geodesic(), travelled: 0.0, collided: false });
@@ -508,6 +515,13 @@ impl Sim {
             return Ok(None);
         }
         self.outcome().map(Some)
+    }
+
+    /// The target's pixels among those the policy read of the last frame, as eval counts them
+    /// in its own smaller render.
+    fn target_pixels_seen(&self) -> anyhow::Result<u32> {
+        let target = self.pool.env(0).context("the episode's env")?.target_id();
+        Ok(self.view.pick(self.pool.ids(0)).filter(|&id| id == target).count() as u32)
     }
 
     fn outcome(&mut self) -> anyhow::Result<Outcome> {
