@@ -94,7 +94,7 @@ fn the_node_drives_gesthors_robot_closed_loop_and_each_episode_is_judged() {
         .arg(repo_root().join("models/both"))
         .arg("--dataset")
         .arg(default_dataset())
-        .args(["--programs", "val:0-2", "--domain", &d, "--out"])
+        .args(["--programs", "val:0-2", "--gifs", "1", "--domain", &d, "--out"])
         .arg(out.path().join("sim"))
         .output()
         .unwrap();
@@ -115,6 +115,9 @@ fn the_node_drives_gesthors_robot_closed_loop_and_each_episode_is_judged() {
         check_path(&steps, &dir);
         // the person kept pointing (referencing) or called the robot back (intervention)
         assert!(steps.iter().all(|s| s["shown"] == 1 || s["shown"] == 2));
+        // the first episode drawn (`--gifs 1`), the others not
+        let gif = std::fs::read(dir.join("episode.gif")).ok();
+        assert_eq!(gif.as_ref().map(|g| g.starts_with(b"GIF89a")), (n == 1).then_some(true), "{}", dir.display());
     }
     let log = node.stop();
     assert!(log.contains("episode 3 ended"), "{log}");

@@ -17,7 +17,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use image::{Rgb, RgbImage};
 use serde::Serialize;
 
 use farm::config::RunConfig;
@@ -180,27 +179,5 @@ fn picture(a: &FollowArgs, split: Split, one: &Path, ev: &Path, title: &str, gif
     let trajs = trajectory::read(&ev.join("normal/trajectories.jsonl"))?;
     let t = trajs.first().with_context(|| format!("{}: no trajectory", ev.display()))?;
     let p1 = one_ds.program(split, 0).context("the one program")?;
-    let map = trajectory::map(&one_ds, &p1, t, title)?;
-    let map_png = a.out.join("map.png");
-    map.save_png(&map_png)?;
-    let map_img = image::open(&map_png)?.to_rgb8();
-    let views = trajectory::views(&cfg, &one_ds, &p1, t, 240)?;
-    let h = views.first().map_or(240, |v| v.height());
-    let map_img = image::imageops::resize(
-        &map_img,
-        map_img.width() * h / map_img.height().max(1),
-        h,
-        image::imageops::FilterType::Triangle,
-    );
-    let frames: Vec<RgbImage> = views
-        .iter()
-        .map(|v| {
-            let mut f = RgbImage::from_pixel(v.width() + map_img.width(), h, Rgb([255, 255, 255]));
-            image::imageops::overlay(&mut f, v, 0, 0);
-            image::imageops::overlay(&mut f, &map_img, v.width() as i64, 0);
-            f
-        })
-        .collect();
-    trajectory::write_gif(gif, &frames, 150)?;
-    Ok(())
+    trajectory::write_episode_gif(&cfg, &one_ds, &p1, t, title, &a.out.join("map.png"), gif)
 }

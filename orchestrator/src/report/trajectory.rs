@@ -130,6 +130,47 @@ pub fn views(cfg: &RunConfig, ds: &Dataset, p: &Program, t: &Trajectory, size: u
     Ok(frames)
 }
 
+/// One episode as a GIF: the robot's view re-rendered at each step's pose beside the episode's
+/// top-down map (written to `map_png` as well).
+pub fn write_episode_gif(
+    cfg: &RunConfig,
+    ds: &Dataset,
+    p: &Program,
+    t: &Trajectory,
+    title: &str,
+    map_png: &Path,
+    gif: &Path,
+) -> anyhow::Result<()> {
+    map(ds, p, t, title)?.save_png(map_png)?;
+    let map_img = image::open(map_png)?.to_rgb8();
+    let views = views(cfg, ds, p, t, 240)?;
+    let h = views.first().map_or(240, |v| v.height());
+    let map_img = image::imageops::resize(
+        &map_img,
+        map_img.width() * h / map_img.height().max(1),
+        h,
+        image::imageops::FilterType::Triangle,
+    );
+    let frames: Vec<RgbImage> = views
+        .iter()
+        .map(|v| {
+            let mut f = RgbImage::from_pixel(v.width() + map_img.width(), h, Rgb([255, 255, 255]));
+            image::imageops::overlay(&mut f, v, 0, 0);
+            image::imageops::overlay(&mut f, &map_img, v.width() as i64, 0);
+            f
+        })
+        .collect();
+    write_gif(gif, &frames, 150)
+}
+
+/// [`write_episode_gif`] of the one program in `dir/dataset` (`write_subset`'s), to
+/// `dir/episode.gif` and `dir/map.png`.
+pub fn write_program_gif(cfg: &RunConfig, dir: &Path, split: Split, t: &Trajectory, title: &str) -> anyhow::Result<()> {
+    let one = Dataset::open(&dir.join("dataset"), worker::dataset::Verify::Quick)?;
+    let p = one.program(split, 0).context("the one program")?;
+    write_episode_gif(cfg, &one, &p, t, title, &dir.join("map.png"), &dir.join("episode.gif"))
+}
+
 /// Draws the chosen episodes of an evaluation's normal pass into `out/trajectories/`; returns
 /// the maps written.
 pub fn draw(

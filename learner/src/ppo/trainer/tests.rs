@@ -103,8 +103,7 @@ fn stage_times_fill_every_stage_within_each_call() {
         t.step(&obs.batch()).unwrap();
         assert_eq!(t.stage_times(), None);
         t.time_stages();
-        let sum =
-            |s: farm::profile::StageTimes| s.acting().iter().chain(&s.updating()).map(|(_, v)| v).sum::<f64>();
+        let sum = |s: farm::profile::StageTimes| s.acting().iter().chain(&s.updating()).map(|(_, v)| v).sum::<f64>();
         // the rollout's other steps, then the call that completes it and updates
         for _ in 0..cfg.ppo.rollout {
             let before = sum(t.stage_times().unwrap());

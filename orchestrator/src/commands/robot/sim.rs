@@ -15,7 +15,7 @@ use clap::Args;
 use ros2_client::dds::{Node, Publisher, Subscription};
 
 use farm::config::RunConfig;
-use farm::metrics::{EpisodeResult, scores};
+use farm::metrics::{EpisodeResult, Trajectory, TrajectoryStep, scores};
 use farm::stepper::PayloadBuf;
 use shm_schema::{ObsShape, ObsView, action};
 use worker::camera::decode_depth;
@@ -31,6 +31,7 @@ use super::msgs::{CameraInfo, Clock, Decision, Gesture, Header, Image, Odometry,
 use super::names::{self, Names, Resolved};
 use crate::commands::live::record::{EpisodeRecord, Recorder, episode_config};
 use crate::commands::live::wire::{GestureSource, Interventions, Outcome, StepRecord};
+use crate::report::trajectory::write_program_gif;
 
 #[derive(Args, Debug)]
 pub struct SimArgs {
@@ -64,6 +65,9 @@ pub struct SimArgs {
     /// Pace simulated time to the wall clock.
     #[arg(long)]
     pub realtime: bool,
+    /// Draw the first N episodes: `episode-NNN/episode.gif`, the robot's view beside its map.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    pub gifs: usize,
     /// How long to wait (s, wall clock) for the node to appear, and to decide anything.
     #[arg(long, default_value_t = 60.0)]
     pub wait: f64,
@@ -127,6 +131,8 @@ struct Episode {
     node_episode: Option<u32>,
     rec: Recorder,
     last_heard: Instant,
+    /// Where the robot stood at each decision, for the episode's GIF.
+    steps: Vec<TrajectoryStep>,
 }
 
 pub struct Sim {
@@ -266,6 +272,7 @@ impl Sim {
             node_episode: None,
             rec: Recorder::new(&dir, &cfg)?,
             last_heard: Instant::now(),
+            steps: Vec::new(),
         };
         self.command = (0.0, 0.0);
         self.track = None;
@@ -293,6 +300,10 @@ impl Sim {
                     beside: None,
                     outcome: outcome.clone(),
                 })?;
+                if number <= self.args.gifs {
+                    let t = Trajectory { success: outcome.success, steps: e.steps, ..Default::default() };
+                    write_program_gif(&cfg, &dir, split, &t, &format!("{program} → {target} over ROS 2"))?;
+                }
                 return Ok(outcome);
             }
             anyhow::ensure!(
@@ -504,6 +515,8 @@ impl Sim {
             value: d.value,
         };
         e.rec.step(&record)?;
+        let (pose, gesture, intervention) = (&env.pose, env.gesture_kind(), env.intervention_index());
+        e.steps.push(TrajectoryStep { x: pose.x, z: pose.z, yaw: pose.yaw, action: d.action, gesture, intervention });
         if a == Action::Stop || d.done {
             // the frame the node saw was taken where it stands: is the target in it?
             env.set_visible_pixels(seen);
