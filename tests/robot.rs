@@ -140,11 +140,7 @@ fn write_frames(dir: &Path) {
     pool.reset(buf.bytes_mut()).unwrap();
     let view = ObsView::new(shape, &buf.bytes()[..shape.layout.total_len as usize]).unwrap();
     std::fs::write(dir.join("rgb.bin"), view.rgb(0)).unwrap();
-    let mm: Vec<u8> = view
-        .depth(0)
-        .iter()
-        .flat_map(|&v| ((worker::camera::decode_depth(v) * 1000.0).round() as u16).to_le_bytes())
-        .collect();
+    let mm: Vec<u8> = view.depth(0).iter().flat_map(|&v| worker::camera::depth_mm(v).to_le_bytes()).collect();
     std::fs::write(dir.join("depth.bin"), mm).unwrap();
     let env = pool.env(0).unwrap();
     let muscles: Vec<u8> = env.perceived().unwrap().as_flat().iter().flat_map(|v| v.to_le_bytes()).collect();

@@ -24,6 +24,11 @@ pub fn decode_depth(value: u16) -> f32 {
     value as f32 / 65535.0 * MAX_DEPTH
 }
 
+/// An encoded depth as a ROS `16UC1` depth image holds it: whole millimetres.
+pub fn depth_mm(value: u16) -> u16 {
+    (decode_depth(value) * 1000.0).round() as u16
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
     pub position: Point3<f32>,
@@ -145,5 +150,7 @@ mod tests {
         assert_eq!(encode_depth(25.0), 65535);
         assert_eq!(encode_depth(5.0), 32768);
         assert!((decode_depth(encode_depth(2.0)) - 2.0).abs() < 1e-3);
+        // ROS's 16UC1: whole millimetres, 10 m the farthest
+        assert_eq!((depth_mm(encode_depth(1.234)), depth_mm(encode_depth(25.0)), depth_mm(0)), (1234, 10000, 0));
     }
 }

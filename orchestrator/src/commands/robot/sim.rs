@@ -18,7 +18,7 @@ use farm::config::RunConfig;
 use farm::metrics::{EpisodeResult, Trajectory, TrajectoryStep, scores};
 use farm::stepper::PayloadBuf;
 use shm_schema::{ObsShape, ObsView, action};
-use worker::camera::decode_depth;
+use worker::camera::depth_mm;
 use worker::dataset::{Dataset, Verify, write_subset};
 use worker::env::{EnvPool, PoolSpec, ProgramSource};
 use worker::robot::Action;
@@ -424,8 +424,7 @@ impl Sim {
             self.pool.env_mut(0).context("the episode's env")?.set_person_frame(frame);
         }
         self.pool.observe(self.buf.bytes_mut())?;
-        let view = ObsView::new(self.shape, &self.buf.bytes()[..self.shape.layout.total_len as usize])
-            .expect("the pool's own layout");
+        let view = self.observed();
         let (w, h) = (self.args.width, self.args.height);
         let header = Header::new(dds::time(self.t), "camera_color_optical_frame");
         let colour = Image {
@@ -437,7 +436,7 @@ impl Sim {
             step: w * 3,
             data: view.rgb(0).to_vec(),
         };
-        let mm = |v: &u16| ((decode_depth(*v) * 1000.0).round() as u16).to_le_bytes();
+        let mm = |v: &u16| depth_mm(*v).to_le_bytes();
         let depth = Image {
             header: header.clone(),
             height: h,
@@ -530,6 +529,12 @@ impl Sim {
         self.outcome().map(Some)
     }
 
+    /// The observation the pool last wrote.
+    fn observed(&self) -> ObsView<'_> {
+        ObsView::new(self.shape, &self.buf.bytes()[..self.shape.layout.total_len as usize])
+            .expect("the pool's own layout")
+    }
+
     /// The target's pixels among those the policy read of the last frame, as eval counts them
     /// in its own smaller render.
     fn target_pixels_seen(&self) -> anyhow::Result<u32> {
@@ -539,8 +544,7 @@ impl Sim {
 
     fn outcome(&mut self) -> anyhow::Result<Outcome> {
         self.pool.observe(self.buf.bytes_mut())?;
-        let view = ObsView::new(self.shape, &self.buf.bytes()[..self.shape.layout.total_len as usize])
-            .expect("the pool's own layout");
+        let view = self.observed();
         let mut r = view.records()[0];
         if r.terminated == 0 && r.truncated == 0 {
             // the node ended before the judge did (a step limit of its own): as truncated here
