@@ -220,8 +220,8 @@ impl EnvPool {
         }
     }
 
-    /// The instance ids of env `i`'s last frame rendered to the host, row by row (empty before
-    /// the first; frames kept on the device leave none).
+    /// The instance ids of env `i`'s last frame rendered to the host, row by row (all zero
+    /// before the first; frames kept on the device leave them as they were).
     pub fn ids(&self, i: usize) -> &[u16] {
         &self.ids[i]
     }
