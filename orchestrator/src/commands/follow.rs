@@ -175,9 +175,7 @@ fn picture(a: &FollowArgs, split: Split, one: &Path, ev: &Path, title: &str, gif
     let (_, run_dir) = super::eval::locate(&a.checkpoint)?;
     let mut cfg = RunConfig::load(&run_dir.join("config.toml"))?;
     cfg.run.split = split;
-    let one_ds = Dataset::open(one, Verify::Quick)?;
     let trajs = trajectory::read(&ev.join("normal/trajectories.jsonl"))?;
     let t = trajs.first().with_context(|| format!("{}: no trajectory", ev.display()))?;
-    let p1 = one_ds.program(split, 0).context("the one program")?;
-    trajectory::write_episode_gif(&cfg, &one_ds, &p1, t, title, &a.out.join("map.png"), gif)
+    trajectory::write_program_gif(&cfg, one, split, t, title, gif)
 }

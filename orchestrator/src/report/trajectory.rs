@@ -130,20 +130,23 @@ pub fn views(cfg: &RunConfig, ds: &Dataset, p: &Program, t: &Trajectory, size: u
     Ok(frames)
 }
 
-/// One episode as a GIF: the robot's view re-rendered at each step's pose beside the episode's
-/// top-down map (written to `map_png` as well).
-pub fn write_episode_gif(
+/// The episode `t` of the one program of dataset `one` (`write_subset`'s) as a GIF: the robot's
+/// view re-rendered at each step's pose beside the episode's top-down map, also written as
+/// `map.png` beside the GIF.
+pub fn write_program_gif(
     cfg: &RunConfig,
-    ds: &Dataset,
-    p: &Program,
+    one: &Path,
+    split: Split,
     t: &Trajectory,
     title: &str,
-    map_png: &Path,
     gif: &Path,
 ) -> anyhow::Result<()> {
-    map(ds, p, t, title)?.save_png(map_png)?;
-    let map_img = image::open(map_png)?.to_rgb8();
-    let views = views(cfg, ds, p, t, 240)?;
+    let ds = Dataset::open(one, worker::dataset::Verify::Quick)?;
+    let p = ds.program(split, 0).context("the one program")?;
+    let map_png = gif.with_file_name("map.png");
+    map(&ds, &p, t, title)?.save_png(&map_png)?;
+    let map_img = image::open(&map_png)?.to_rgb8();
+    let views = views(cfg, &ds, &p, t, 240)?;
     let h = views.first().map_or(240, |v| v.height());
     let map_img = image::imageops::resize(
         &map_img,
@@ -161,14 +164,6 @@ pub fn write_episode_gif(
         })
         .collect();
     write_gif(gif, &frames, 150)
-}
-
-/// [`write_episode_gif`] of the one program in `dir/dataset` (`write_subset`'s), to
-/// `dir/episode.gif` and `dir/map.png`.
-pub fn write_program_gif(cfg: &RunConfig, dir: &Path, split: Split, t: &Trajectory, title: &str) -> anyhow::Result<()> {
-    let one = Dataset::open(&dir.join("dataset"), worker::dataset::Verify::Quick)?;
-    let p = one.program(split, 0).context("the one program")?;
-    write_episode_gif(cfg, &one, &p, t, title, &dir.join("map.png"), &dir.join("episode.gif"))
 }
 
 /// Draws the chosen episodes of an evaluation's normal pass into `out/trajectories/`; returns

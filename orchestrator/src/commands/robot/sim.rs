@@ -302,7 +302,8 @@ impl Sim {
                 })?;
                 if number <= self.args.gifs {
                     let t = Trajectory { success: outcome.success, steps: e.steps, ..Default::default() };
-                    write_program_gif(&cfg, &dir, split, &t, &format!("{program} → {target} over ROS 2"))?;
+                    let title = format!("{program} → {target} over ROS 2");
+                    write_program_gif(&cfg, &dir.join("dataset"), split, &t, &title, &dir.join("episode.gif"))?;
                 }
                 return Ok(outcome);
             }
@@ -499,7 +500,8 @@ impl Sim {
     /// is scored at once and ends the episode.
     fn judge(&mut self, e: &mut Episode, d: &Decision) -> anyhow::Result<Option<Outcome>> {
         let a = Action::from_index(d.action).with_context(|| format!("decision {}: action {}", d.step, d.action))?;
-        let seen = self.target_pixels_seen()?;
+        // a Stop is judged on the frame the node saw, taken where it stands: the target's pixels in it
+        let seen = if a == Action::Stop || d.done { Some(self.target_pixels_seen()?) } else { None };
         let env = self.pool.env_mut(0).context("the episode's env")?;
         if let Some(t) = self.track.take() {
             env.settle(t.action, t.before, t.travelled, t.collided);
@@ -514,10 +516,9 @@ impl Sim {
             value: d.value,
         };
         e.rec.step(&record)?;
-        let (pose, gesture, intervention) = (&env.pose, env.gesture_kind(), env.intervention_index());
-        e.steps.push(TrajectoryStep { x: pose.x, z: pose.z, yaw: pose.yaw, action: d.action, gesture, intervention });
-        if a == Action::Stop || d.done {
-            // the frame the node saw was taken where it stands: is the target in it?
+        let ([x, z, yaw], intervention) = (record.robot, env.intervention_index());
+        e.steps.push(TrajectoryStep { x, z, yaw, action: d.action, gesture: record.shown, intervention });
+        if let Some(seen) = seen {
             env.set_visible_pixels(seen);
             env.settle(a, env.geodesic(), 0.0, false);
         } else {
