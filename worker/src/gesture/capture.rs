@@ -420,7 +420,10 @@ fn body_and_arms(sk: &Skeleton, observed: &[Option<Observed>], to_model: Matrix3
 }
 
 /// The gesturing arm, the frames of its gesture (padded by 0.4 s; frames every `dt`) and
-/// which frames are at rest (that arm's activity under 30% of its peak).
+/// which frames are at rest (that arm's activity under 30% of its peak). A person watched for
+/// longer than one gesture may be seen pointing twice, or caught mid-gesture (a robot looks at
+/// someone who repeats it): the gesture is the longest run of activity that the watch saw begin
+/// and end, else the longest run.
 fn gesture_span(
     sk: &Skeleton,
     out: &[[f32; MUSCLES]],
@@ -434,12 +437,25 @@ fn gesture_span(
     if peak(s) < 0.25 {
         return Err(CaptureError::NoGesture);
     }
-    let active: Vec<usize> = (0..n).filter(|&i| act[i][s] >= 0.3 * peak(s)).collect();
+    let resting: Vec<bool> = (0..n).map(|i| act[i][s] < 0.3 * peak(s)).collect();
+    let runs = active_runs(&resting, (0.2 / dt).round() as usize);
+    let whole = runs.iter().filter(|r| r.0 > 0 && r.1 < n - 1).max_by_key(|r| r.1 - r.0);
+    let (first, last) = *whole.or(runs.iter().max_by_key(|r| r.1 - r.0)).expect("the peak is active");
     let pad = (0.4 / dt).round() as usize;
-    let span = (active[0].saturating_sub(pad), (active[active.len() - 1] + pad).min(n - 1));
+    Ok((side, (first.saturating_sub(pad), (last + pad).min(n - 1)), resting))
+}
 
-    let resting = (0..n).map(|i| act[i][s] < 0.3 * peak(s)).collect();
-    Ok((side, span, resting))
+/// The runs of frames not `resting` (first, last), a rest of up to `gap` frames inside a run
+/// (a flicker of the landmarks) not ending it.
+fn active_runs(resting: &[bool], gap: usize) -> Vec<(usize, usize)> {
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    for i in (0..resting.len()).filter(|&i| !resting[i]) {
+        match runs.last_mut() {
+            Some(r) if i - r.1 <= gap + 1 => r.1 = i,
+            _ => runs.push((i, i)),
+        }
+    }
+    runs
 }
 
 /// The face's resting nod: its median in the frames at rest (in every frame with a face if none).
@@ -635,6 +651,32 @@ mod tests {
             // the span holds the whole gesture (lead-in to return)
             assert!(c.span.0 <= style.lead as usize && c.span.1 + 1 >= (style.lead + style.rise + style.hold) as usize);
         }
+    }
+
+    #[test]
+    fn a_repeated_gesture_watched_from_its_middle_comes_back_whole() {
+        let h = Humanoid::standard();
+        let sk = h.skeleton();
+        let (m, style) = referencing_with(h, Pointing::Clean, 1, Point3::origin(), 0.0, Point3::new(1.5, 0.3, 2.0));
+        // watched for two gestures' time from the middle of the hold: the end of one, a whole
+        // one, the start of a third
+        let from = (style.lead + style.rise + style.hold / 2) as usize;
+        let frames: Vec<LandmarkFrame> = (0..2 * FRAMES)
+            .map(|i| landmarks_of(sk, m.frame((from + i) % FRAMES), i as f32 / FPS, &camera()))
+            .collect();
+        let c = capture(sk, &frames, CaptureOptions::default()).unwrap();
+        assert_eq!(c.side, style.side);
+        // the whole gesture: from rest, up, held, and down again
+        let act = |f: &[f32; MUSCLES]| activity(sk, f, style.side);
+        let top = (0..FRAMES).map(|t| act(c.motion.frame(t))).fold(0.0f32, f32::max);
+        assert!(act(c.motion.frame(0)) < 0.3 * top && act(c.motion.frame(FRAMES - 1)) < 0.3 * top);
+        let hold = (0..FRAMES).max_by(|&a, &b| act(c.motion.frame(a)).total_cmp(&act(c.motion.frame(b)))).unwrap();
+        let err =
+            pointing_line(sk, m.frame(from), style.side).angle(&pointing_line(sk, c.motion.frame(hold), style.side));
+        assert!(err.to_degrees() < 3.0, "shoulder→wrist off by {:.1}°", err.to_degrees());
+        // the gesture lasts as long as it did, not squeezed from two into one
+        let span = c.span.1 - c.span.0 + 1;
+        assert!(span <= FRAMES, "{span} frames");
     }
 
     #[test]
