@@ -123,6 +123,37 @@ fn the_node_drives_gesthors_robot_closed_loop_and_each_episode_is_judged() {
     assert!(log.contains("episode 3 ended"), "{log}");
 }
 
+#[test]
+fn the_node_reads_the_persons_pointing_through_its_own_camera() {
+    let _s = serial();
+    let out = tempfile::tempdir().unwrap();
+    let d = domain(2);
+    let node = Node::start(out.path(), &["--domain", &d, "--use-sim-time", "--gesture", "camera", "--greedy"]);
+    // val:2: the person stands in view, 2 m away, and points with their left arm
+    let sim = Command::new(bin("orchestrator"))
+        .args(["robot", "sim", "--checkpoint"])
+        .arg(repo_root().join("models/both"))
+        .arg("--dataset")
+        .arg(default_dataset())
+        .args(["--programs", "val:2", "--camera-rate", "15", "--animate", "time", "--domain", &d, "--out"])
+        .arg(out.path().join("sim"))
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&sim.stderr);
+    assert!(sim.status.success(), "robot sim failed:\n{said}");
+    let log = node.stop();
+    assert!(log.contains("the person's gesture read (left arm"), "{log}");
+    let read: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("sim/episode-001/camera.json")).unwrap())
+            .unwrap();
+    let num = |k: &str| read[k].as_f64().unwrap_or_else(|| panic!("{k}: {read}"));
+    assert_eq!((&read["arm"], &read["arm_read"]), (&Value::from("Left"), &Value::from("Left")), "{read}");
+    // where they stand and face, as the depth under their hips puts them
+    assert!(num("place_error") < 0.3 && num("facing_error") < 20.0, "{read}");
+    // the arm read points near where GOND's does: the clip starts at rest, whole
+    assert!(num("arm_error_read") < 25.0, "{read}");
+}
+
 /// The first camera frame of val:0 as GesTHOR renders it at 640×480, its person's gesture and
 /// pose: what the Cyclone DDS robot publishes.
 fn write_frames(dir: &Path) {

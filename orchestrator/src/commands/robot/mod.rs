@@ -27,11 +27,12 @@ pub mod names;
 pub mod node;
 pub mod observation;
 pub mod person;
+pub mod reading;
 pub mod sim;
 
 use clap::{Args, Subcommand};
 
-pub use args::{Bus, NodeArgs};
+pub use args::{Bus, NodeArgs, SimArgs};
 
 #[derive(Args, Debug)]
 #[command(args_conflicts_with_subcommands = true)]
@@ -47,7 +48,7 @@ pub enum RobotCmd {
     /// GesTHOR as a ROS 2 robot: a program's room and person, a 640×480 RGB-D camera and
     /// odometry published, `cmd_vel` integrated with the simulator's collisions, each episode
     /// judged by the task's rules and recorded.
-    Sim(sim::SimArgs),
+    Sim(SimArgs),
 }
 
 pub fn run(a: RobotArgs) -> anyhow::Result<()> {

@@ -60,6 +60,8 @@ pub struct Resolved {
     pub goal: String,
     pub decision: String,
     pub gesture: String,
+    /// The person as the node's camera read them (`--gesture camera`).
+    pub person: String,
     pub clock: String,
 }
 
@@ -77,6 +79,7 @@ impl Resolved {
             goal: names.resolve("~/goal"),
             decision: names.resolve("~/decision"),
             gesture: names.resolve("gesthor/gesture"),
+            person: names.resolve("~/person"),
             clock: names.resolve("/clock"),
         }
     }

@@ -28,17 +28,23 @@ pub struct Person {
     /// The last frames, for a wave (ROS time in `t`).
     recent: Vec<LandmarkFrame>,
     intervention: Vec<f32>,
-    /// The person is not in view: the robot should turn to look for them.
-    pub look_around: bool,
+    /// The robot should turn this way (`action::ROTATE_*`) before it watches: nobody is in
+    /// view, or the person is not before the camera.
+    pub look: Option<u8>,
     /// Captures tried this episode.
     tries: u32,
+    /// Between captures the landmark model reads a frame this often at most (s, ROS time),
+    /// and last read one then.
+    wave_period: f64,
+    last_read: f64,
 }
 
 /// Captures that found a person but no gesture, before the episode goes on without one.
 const TRIES: u32 = 2;
 
 impl Person {
-    pub fn start(capture_seconds: f64) -> anyhow::Result<Person> {
+    /// `wave_rate`: frames a second read between captures (0: every frame).
+    pub fn start(capture_seconds: f64, wave_rate: f64) -> anyhow::Result<Person> {
         Ok(Person {
             webcam: Webcam::start()?,
             capture_seconds,
@@ -46,8 +52,10 @@ impl Person {
             referencing: None,
             recent: Vec::new(),
             intervention: worker::gesture::intervention(0).as_flat().to_vec(),
-            look_around: false,
+            look: None,
             tries: 0,
+            wave_period: if wave_rate > 0.0 { 1.0 / wave_rate } else { 0.0 },
+            last_read: f64::NEG_INFINITY,
         })
     }
 
@@ -55,20 +63,21 @@ impl Person {
     pub fn begin(&mut self, now: f64) {
         self.capturing = Some((now, Vec::new()));
         self.referencing = None;
-        self.look_around = false;
+        self.look = None;
         self.tries = 0;
+        self.last_read = f64::NEG_INFINITY;
     }
 
     /// Watches again from `now` (after a turn to look for the person).
     pub fn watch(&mut self, now: f64) {
         self.capturing = Some((now, Vec::new()));
-        self.look_around = false;
+        self.look = None;
     }
 
     /// No person was found: the episode goes on without their gesture, where the robot stands.
     pub fn give_up(&mut self, robot: Pose2) {
         self.capturing = None;
-        self.look_around = false;
+        self.look = None;
         self.referencing = Some((Vec::new(), robot));
     }
 
@@ -79,16 +88,32 @@ impl Person {
     /// Reads one colour frame (and its depth) taken where the robot stood at `robot`.
     pub fn see(&mut self, colour: &Image, depth: &Image, info: &CameraInfo, robot: Pose2) -> anyhow::Result<()> {
         let t = super::dds::seconds(colour.header.stamp);
+        // a wave is read from a few frames a second: the model at every frame would hold up the
+        // control loop (≈ 0.1 s a frame on two cores)
+        if self.capturing.is_none() && (t - self.last_read).abs() < self.wave_period {
+            return Ok(());
+        }
+        self.last_read = t;
         let jpeg = jpeg(colour)?;
         let mut f = self.webcam.read(&jpeg, std::time::Instant::now())?;
         f.t = t as f32;
+        lift(&mut f, depth, info);
         remember(&mut self.recent, f.clone());
         let Some((from, frames)) = &mut self.capturing else { return Ok(()) };
-        if frames.is_empty() && f.pose.is_none() {
-            // nobody in view: look elsewhere rather than watch an empty room
-            self.capturing = None;
-            self.look_around = true;
-            return Ok(());
+        if frames.is_empty() {
+            // nobody in view: look elsewhere rather than watch an empty room; someone off to a
+            // side: turn to them first, for their arms may leave the frame
+            self.look = match (&f.pose, off_axis(&f, info)) {
+                (None, _) => Some(shm_schema::action::ROTATE_LEFT),
+                (Some(_), Some(deg)) if deg.abs() > CENTRED_DEG => {
+                    Some(if deg < 0.0 { shm_schema::action::ROTATE_LEFT } else { shm_schema::action::ROTATE_RIGHT })
+                }
+                _ => None,
+            };
+            if self.look.is_some() {
+                self.capturing = None;
+                return Ok(());
+            }
         }
         let mut f = f;
         f.t = (t - *from) as f32;
@@ -131,6 +156,14 @@ impl Person {
         }
     }
 
+    /// What the capture read, published for those who watch (and judged by `robot sim`): the
+    /// person's gesture (no muscles when none was read) and where they stood.
+    pub fn reading(&self, stamp: f64, odom: &str) -> Option<Gesture> {
+        let (referencing, at) = self.referencing.as_ref()?;
+        let kind = if referencing.is_empty() { gesture_kind::NONE } else { gesture_kind::REFERENCING };
+        Some(message(kind, referencing.clone(), *at, stamp, odom))
+    }
+
     /// The gesture the policy is shown with a frame stamped `stamp`, in `odom`'s frame: the
     /// captured one, or the intervention while the person waves (as `schedule` shows them).
     pub fn gesture(&self, schedule: farm::config::GestureSchedule, stamp: f64, odom: &str) -> Option<Gesture> {
@@ -144,15 +177,19 @@ impl Person {
             gesture_kind::INTERVENTION => self.intervention.clone(),
             _ => Vec::new(),
         };
-        let size = |n: usize| if muscles.is_empty() { 0 } else { n as u16 };
-        Some(Gesture {
-            header: Header::new(super::dds::time(stamp), odom),
-            kind,
-            person: Pose::planar(at.x, at.y, at.yaw),
-            frames: size(GESTURE_FRAMES),
-            dims: size(GESTURE_DIMS),
-            muscles,
-        })
+        Some(message(kind, muscles, *at, stamp, odom))
+    }
+}
+
+fn message(kind: u8, muscles: Vec<f32>, at: Pose2, stamp: f64, odom: &str) -> Gesture {
+    let size = |n: usize| if muscles.is_empty() { 0 } else { n as u16 };
+    Gesture {
+        header: Header::new(super::dds::time(stamp), odom),
+        kind,
+        person: Pose::planar(at.x, at.y, at.yaw),
+        frames: size(GESTURE_FRAMES),
+        dims: size(GESTURE_DIMS),
+        muscles,
     }
 }
 
@@ -178,9 +215,58 @@ fn stands(f: &LandmarkFrame, depth: &Image, info: &CameraInfo, robot: Pose2) -> 
     Some(Pose2 { x: robot.x + ahead * c - left * s, y: robot.y + ahead * s + left * c, yaw: wrap(robot.yaw + facing) })
 }
 
+/// How far off the camera's axis the person may stand when their gesture is watched (degrees;
+/// more than half a turn, so that turning to them does not overshoot).
+const CENTRED_DEG: f64 = 10.0;
+
+/// How far right of the camera's axis the person's hips are (degrees; left is negative).
+fn off_axis(f: &LandmarkFrame, info: &CameraInfo) -> Option<f64> {
+    let img = f.pose_image.as_ref()?;
+    let u = (img.get(HIPS[0])?[0] + img.get(HIPS[1])?[0]) as f64 / 2.0;
+    Some(((u - info.k[2]) / info.k[0]).atan().to_degrees())
+}
+
+/// How far from the hips a measured landmark may lie and still be the person's (m).
+const REACH: f64 = 1.2;
+
+/// The pose's world landmarks measured by the aligned depth: each landmark's pixel lifted
+/// along its ray to the nearest surface within two pixels (a limb before the room behind it),
+/// about the hips' midpoint, in the model's axes (x right, y down, z away). The landmark model
+/// guesses from one image how far an arm reaches toward the camera; the depth measures it. A
+/// landmark whose depth is no part of the person (over [`REACH`] from the hips) keeps the
+/// model's guess.
+fn lift(f: &mut LandmarkFrame, depth: &Image, info: &CameraInfo) {
+    let (Some(img), Some(pose)) = (f.pose_image.as_ref(), f.pose.as_mut()) else { return };
+    if img.len() != pose.len() {
+        return;
+    }
+    let ray = |i: usize, d: f64| {
+        let (u, v) = (img[i][0] as f64, img[i][1] as f64);
+        [(u - info.k[2]) / info.k[0] * d, (v - info.k[5]) / info.k[4] * d, d]
+    };
+    let near = |i: usize, pick: fn(&[f64]) -> f64| {
+        depth_values(depth, img[i][0] as i64, img[i][1] as i64).map(|v| ray(i, pick(&v)))
+    };
+    let median = |v: &[f64]| v[v.len() / 2];
+    let (Some(l), Some(r)) = (near(HIPS[0], median), near(HIPS[1], median)) else { return };
+    let mid: [f64; 3] = std::array::from_fn(|k| (l[k] + r[k]) / 2.0);
+    for (i, p) in pose.iter_mut().enumerate() {
+        let Some(q) = near(i, |v| v[0]) else { continue };
+        let rel: [f64; 3] = std::array::from_fn(|k| q[k] - mid[k]);
+        if rel.iter().map(|x| x * x).sum::<f64>().sqrt() < REACH {
+            (p[0], p[1], p[2]) = (rel[0] as f32, rel[1] as f32, rel[2] as f32);
+        }
+    }
+}
+
 /// Metres at pixel (u, v) of the aligned depth image: the median of the measured values within
 /// two pixels.
 fn depth_near(depth: &Image, u: i64, v: i64) -> Option<f64> {
+    depth_values(depth, u, v).map(|v| v[v.len() / 2])
+}
+
+/// The measured values (m) within two pixels of (u, v), nearest first; none measured: `None`.
+fn depth_values(depth: &Image, u: i64, v: i64) -> Option<Vec<f64>> {
     let (metres, bytes) = super::camera::depth_pixel(depth).ok()?;
     let mut vals = Vec::new();
     for y in (v - 2).max(0)..=(v + 2).min(depth.height as i64 - 1) {
@@ -193,7 +279,7 @@ fn depth_near(depth: &Image, u: i64, v: i64) -> Option<f64> {
         }
     }
     vals.sort_by(f64::total_cmp);
-    vals.get(vals.len() / 2).copied()
+    (!vals.is_empty()).then_some(vals)
 }
 
 /// The colour image as a JPEG for the landmark model.
@@ -259,6 +345,28 @@ mod tests {
         let at = stands(&f, &depth(2000, &[]), &info, robot).unwrap();
         assert!((at.x - 1.0).abs() < 1e-6 && (at.y - 3.0).abs() < 1e-6, "{at:?}");
         assert!((wrap(at.yaw + std::f64::consts::FRAC_PI_2)).abs() < 1e-6, "{at:?}");
+    }
+
+    #[test]
+    fn the_depth_measures_how_far_an_arm_reaches_toward_the_camera() {
+        let info = pinhole(640, 480, 90.0, Header::default());
+        // hips 2 m ahead, a wrist 0.5 m nearer the camera, an elbow over the room 5 m away
+        let mut f = hips((359.5, 239.5), (279.5, 239.5));
+        let img = f.pose_image.as_mut().unwrap();
+        (img[16], img[14]) = ([399.5, 199.5], [100.0, 100.0]);
+        f.pose = Some(vec![[0.0, 0.0, 0.0, 1.0]; 33]);
+        f.pose.as_mut().unwrap()[14] = [0.3, -0.2, -0.1, 1.0];
+        let d = depth(2000, &[(400, 200, 1500), (100, 100, 5000)]);
+        lift(&mut f, &d, &info);
+        let pose = f.pose.unwrap();
+        // the wrist: 0.5 m nearer than the hips, and where its pixel's ray puts it
+        let w = pose[16];
+        assert!((w[2] + 0.5).abs() < 1e-3, "{w:?}");
+        assert!((w[0] - 0.5).abs() < 1e-3 && (w[1] + 0.25).abs() < 1e-3, "{w:?}");
+        // the hips: about their midpoint
+        assert!(pose[23][0] > 0.0 && (pose[23][0] + pose[24][0]).abs() < 1e-3, "{:?}", pose[23]);
+        // no part of the person 3 m behind them: the model's guess stays
+        assert_eq!(pose[14], [0.3, -0.2, -0.1, 1.0]);
     }
 
     #[test]

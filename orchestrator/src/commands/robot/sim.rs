@@ -11,72 +11,31 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
-use clap::Args;
 use ros2_client::dds::{Node, Publisher, Subscription};
 
 use farm::config::RunConfig;
+use farm::files::write_atomic;
 use farm::metrics::{EpisodeResult, Trajectory, TrajectoryStep, scores};
 use farm::stepper::PayloadBuf;
 use shm_schema::{ObsShape, ObsView, action};
 use worker::camera::depth_mm;
 use worker::dataset::{Dataset, Verify, write_subset};
 use worker::env::{EnvPool, PoolSpec, ProgramSource};
+use worker::gesture::Motion;
+use worker::humanoid::Humanoid;
+use worker::program::Program;
 use worker::robot::Action;
 use worker::scene::Split;
 
-use super::args::Bus;
+use super::args::{Bus, SimArgs};
 use super::camera::{PolicyView, Sampling, pinhole};
 use super::dds::{self, drain};
 use super::msgs::{CameraInfo, Clock, Decision, Gesture, Header, Image, Odometry, Pose, Text, Twist};
 use super::names::{self, Names, Resolved};
+use super::reading::Reading;
 use crate::commands::live::record::{EpisodeRecord, Recorder, episode_config};
 use crate::commands::live::wire::{GestureSource, Interventions, Outcome, StepRecord};
 use crate::report::trajectory::write_program_gif;
-
-#[derive(Args, Debug)]
-pub struct SimArgs {
-    /// The model (or run, or checkpoint) whose run config sets the task's rules, the camera's
-    /// vertical field of view and which gestures the person shows.
-    #[arg(long, default_value = "models/both")]
-    pub checkpoint: PathBuf,
-    #[arg(long, default_value = "data/gond")]
-    pub dataset: PathBuf,
-    /// The programs: SPLIT:FIRST-LAST, or SPLIT:INDEX.
-    #[arg(long, default_value = "val:0-9")]
-    pub programs: String,
-    /// Instead of a range: this many programs of the split, spread as `eval --max-programs`
-    /// spreads them (the same programs `eval` runs).
-    #[arg(long, value_name = "N")]
-    pub spread: Option<usize>,
-    /// The camera's image size; its vertical field of view is the policy's.
-    #[arg(long, default_value_t = 640)]
-    pub width: u32,
-    #[arg(long, default_value_t = 480)]
-    pub height: u32,
-    /// Odometry and physics ticks a second, and camera frames a second (simulated time).
-    #[arg(long, default_value_t = 30.0)]
-    pub rate: f64,
-    #[arg(long, default_value_t = 5.0)]
-    pub camera_rate: f64,
-    /// How the person's gesture moves: `steps` (3 frames a decision, as in training and `eval`)
-    /// or `time` (30 frames a second, as a person would: for `--gesture camera`).
-    #[arg(long, default_value = "steps", value_parser = ["steps", "time"])]
-    pub animate: String,
-    /// Pace simulated time to the wall clock.
-    #[arg(long)]
-    pub realtime: bool,
-    /// Draw the first N episodes: `episode-NNN/episode.gif`, the robot's view beside its map.
-    #[arg(long, default_value_t = 0, value_name = "N")]
-    pub gifs: usize,
-    /// How long to wait (s, wall clock) for the node to appear, and to decide anything.
-    #[arg(long, default_value_t = 60.0)]
-    pub wait: f64,
-    #[command(flatten)]
-    pub bus: Bus,
-    /// Where the episodes are recorded (a folder each), with summary.json.
-    #[arg(long, default_value = "runs/robot-sim")]
-    pub out: PathBuf,
-}
 
 /// What the simulator's robot publishes and hears.
 struct Io {
@@ -90,6 +49,7 @@ struct Io {
     goal: Publisher<Text>,
     cmd_vel: Subscription<Twist>,
     decision: Subscription<Decision>,
+    person: Subscription<Gesture>,
     names: Resolved,
 }
 
@@ -109,6 +69,7 @@ impl Io {
             goal: dds::publisher(n, &r.goal, dds::reliable())?,
             cmd_vel: dds::subscription(n, &r.cmd_vel, dds::reliable())?,
             decision: dds::subscription(n, &r.decision, dds::reliable())?,
+            person: dds::subscription(n, &r.person, dds::reliable())?,
             names: r,
             node,
         })
@@ -133,6 +94,12 @@ struct Episode {
     last_heard: Instant,
     /// Where the robot stood at each decision, for the episode's GIF.
     steps: Vec<TrajectoryStep>,
+    /// The program and GOND's clip; the node's reading of the person, and at each decision the
+    /// gesture shown and the one the node gave (`camera.json`, with `--gesture camera`).
+    truth: (Program, Motion),
+    heard: Option<Gesture>,
+    kinds: Vec<(u8, u8, bool)>,
+    camera: bool,
 }
 
 pub struct Sim {
@@ -155,31 +122,10 @@ pub struct Sim {
     began: f64,
 }
 
-/// The programs `--programs`/`--spread` name, in their split.
-fn programs(a: &SimArgs, ds: &Dataset) -> anyhow::Result<(Split, Vec<u64>)> {
-    let bad = || format!("--programs `{}`: SPLIT:FIRST-LAST or SPLIT:INDEX expected (val:0-199)", a.programs);
-    let (split, range) = a.programs.split_once(':').with_context(bad)?;
-    let split = Split::from_name(split).with_context(bad)?;
-    let total = ds.index(split)?.len();
-    let list: Vec<u64> = match (a.spread, range.split_once('-')) {
-        (Some(n), _) => crate::commands::eval::choose_programs(total, Some(n)),
-        (None, Some((f, l))) => (f.parse().with_context(bad)?..=l.parse().with_context(bad)?).collect(),
-        (None, None) => vec![range.parse().with_context(bad)?],
-    };
-    anyhow::ensure!(
-        list.iter().all(|&i| (i as usize) < total),
-        "--programs `{}`: {} holds {total} programs of {}",
-        a.programs,
-        ds.dir.display(),
-        split.name()
-    );
-    Ok((split, list))
-}
-
 pub fn run(a: SimArgs) -> anyhow::Result<()> {
     farm::process::install_termination_handler()?;
     let ds = Dataset::open(&a.dataset, Verify::Quick)?;
-    let (split, list) = programs(&a, &ds)?;
+    let (split, list) = super::args::programs(&a, &ds)?;
     let mut sim = Sim::new(a, split, list.clone())?;
     let mut outcomes = Vec::new();
     for (n, &p) in list.iter().enumerate() {
@@ -262,7 +208,7 @@ impl Sim {
         let env = self.pool.env(0).context("the episode's env")?;
         let dir = self.args.out.join(format!("episode-{number:03}"));
         let (p, motion) = crate::commands::program::dataset_program(ds, split, index as usize)?;
-        write_subset(&dir.join("dataset"), ds, split, &[(p, motion.as_flat().to_vec())])
+        write_subset(&dir.join("dataset"), ds, split, &[(p.clone(), motion.as_flat().to_vec())])
             .with_context(|| format!("writing {}", dir.display()))?;
         let mut cfg = episode_config(&self.cfg, &dir.join("dataset"), split);
         cfg.task.max_stops = 1;
@@ -273,6 +219,10 @@ impl Sim {
             rec: Recorder::new(&dir, &cfg)?,
             last_heard: Instant::now(),
             steps: Vec::new(),
+            truth: (p, motion),
+            heard: None,
+            kinds: Vec::new(),
+            camera: false,
         };
         self.command = (0.0, 0.0);
         self.track = None;
@@ -300,6 +250,13 @@ impl Sim {
                     beside: None,
                     outcome: outcome.clone(),
                 })?;
+                if e.camera {
+                    let (p, motion) = &e.truth;
+                    let intervention = self.pool.env(0).context("the episode's env")?.intervention_index();
+                    let mut r = Reading::new(p, motion, &Humanoid::seeded(p.seed), intervention, e.heard.as_ref());
+                    e.kinds.iter().for_each(|&(shown, given, in_view)| r.decided(shown, given, in_view));
+                    write_atomic(&dir.join("camera.json"), serde_json::to_string_pretty(&r)?.as_bytes())?;
+                }
                 if number <= self.args.gifs {
                     let t = Trajectory { success: outcome.success, steps: e.steps, ..Default::default() };
                     let title = format!("{program} → {target} over ROS 2");
@@ -475,6 +432,8 @@ impl Sim {
     /// The node's decisions since the last tick, judged; the outcome once the episode ended.
     fn hear(&mut self, e: &mut Episode) -> anyhow::Result<Option<Outcome>> {
         let (decisions, _) = drain(&self.io.decision);
+        let (readings, _) = drain(&self.io.person);
+        e.heard = readings.into_iter().rfind(|g| dds::seconds(g.header.stamp) >= self.began).or(e.heard.take());
         for d in decisions {
             if d.action == action::NONE {
                 if d.holding != self.holding && !d.holding.is_empty() {
@@ -502,6 +461,7 @@ impl Sim {
         let a = Action::from_index(d.action).with_context(|| format!("decision {}: action {}", d.step, d.action))?;
         // a Stop is judged on the frame the node saw, taken where it stands: the target's pixels in it
         let seen = if a == Action::Stop || d.done { Some(self.target_pixels_seen()?) } else { None };
+        let in_view = self.pool.ids(0).contains(&worker::geometry::ID_HUMAN);
         let env = self.pool.env_mut(0).context("the episode's env")?;
         if let Some(t) = self.track.take() {
             env.settle(t.action, t.before, t.travelled, t.collided);
@@ -516,6 +476,8 @@ impl Sim {
             value: d.value,
         };
         e.rec.step(&record)?;
+        e.kinds.push((record.shown, d.gesture_kind, in_view));
+        e.camera |= d.gesture_source == "camera";
         let ([x, z, yaw], intervention) = (record.robot, env.intervention_index());
         e.steps.push(TrajectoryStep { x, z, yaw, action: d.action, gesture: record.shown, intervention });
         if let Some(seen) = seen {
@@ -575,7 +537,7 @@ impl Sim {
             "programs": outcomes.iter().map(|(p, o)| serde_json::json!({"program": p, "outcome": o})).collect::<Vec<_>>(),
         });
         let path = self.args.out.join("summary.json");
-        farm::files::write_atomic(&path, serde_json::to_string_pretty(&s)?.as_bytes())?;
+        write_atomic(&path, serde_json::to_string_pretty(&s)?.as_bytes())?;
         say!(
             "{} episodes: SR {sr:.1}, SPL {spl:.1}, DTS {dts:.2} at the first stop ({})",
             outcomes.len(),

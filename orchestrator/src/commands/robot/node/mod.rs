@@ -10,44 +10,25 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
-use ros2_client::dds::{Node, Publisher, Subscription};
 
 use shm_schema::action;
 use worker::robot::Action;
 use worker::scene::Category;
 
+use super::args::NodeArgs;
 use super::camera::{PolicyView, Sampling};
 use super::dds::{self, drain, seconds};
 use super::drive::{Drive, Ended, Limits, Pose2};
-use super::msgs::{CameraInfo, Clock, Decision, Gesture, Header, Image, Odometry, Text, Twist, TwistStamped};
+use super::msgs::{CameraInfo, Decision, Gesture, Header, Image};
 use super::observation::{Facts, Frame, Observation, person_relative};
 use super::person::Person;
-use super::args::NodeArgs;
-use super::names::{self, Names, Resolved};
 use crate::commands::live::policy::{Answer, Checkpoint, Policy};
+
+mod topics;
+use topics::Io;
 
 /// Frames kept while waiting for their pair (colour and depth arrive apart).
 const KEEP: usize = 4;
-
-/// The node's topics, resolved.
-struct Io {
-    node: Node,
-    colour: Subscription<Image>,
-    depth: Subscription<Image>,
-    info: Subscription<CameraInfo>,
-    odom: Subscription<Odometry>,
-    goal: Subscription<Text>,
-    gesture: Subscription<Gesture>,
-    clock: Option<Subscription<Clock>>,
-    cmd: Cmd,
-    decision: Publisher<Decision>,
-    names: Resolved,
-}
-
-enum Cmd {
-    Plain(Publisher<Twist>),
-    Stamped(Publisher<TwistStamped>),
-}
 
 /// The newest of what the topics said, and when (wall clock) each was last heard.
 #[derive(Default)]
@@ -70,7 +51,9 @@ struct Heard {
 
 enum Phase {
     /// Waiting for a frame taken at or after this time (s).
-    Deciding { after: f64 },
+    Deciding {
+        after: f64,
+    },
     Acting,
     /// Turning to look for the person (`--gesture camera`).
     Looking,
@@ -120,7 +103,13 @@ impl Robot {
     pub fn start(args: NodeArgs) -> anyhow::Result<Robot> {
         let ck = Checkpoint::open(&args.checkpoint)?;
         let cfg = &ck.cfg;
-        anyhow::ensure!(cfg.env.width == cfg.env.height, "{}: frames of {}×{}; square ones expected", ck.name, cfg.env.width, cfg.env.height);
+        anyhow::ensure!(
+            cfg.env.width == cfg.env.height,
+            "{}: frames of {}×{}; square ones expected",
+            ck.name,
+            cfg.env.width,
+            cfg.env.height
+        );
         let view = PolicyView { size: cfg.env.width, fov_deg: cfg.env.fov_deg };
         let limits = Limits {
             move_step: cfg.env.move_step as f64,
@@ -132,7 +121,7 @@ impl Robot {
         let needs_person = cfg.run.method.schedule() != farm::config::GestureSchedule::None || cfg.model.person_pose;
         let policy = Policy::start_with(&ck, &ck.config, args.greedy)?;
         let person = match args.gesture.as_str() {
-            "camera" if needs_person => Some(Person::start(args.capture_seconds)?),
+            "camera" if needs_person => Some(Person::start(args.capture_seconds, args.wave_rate)?),
             _ => None,
         };
         let io = Io::open(&args)?;
@@ -200,35 +189,6 @@ impl Robot {
     }
 }
 
-impl Io {
-    fn open(args: &NodeArgs) -> anyhow::Result<Io> {
-        let names = Names::new(&args.bus.namespace, names::NODE, &args.bus.remap)?;
-        let r = Resolved::new(&names);
-        let mut node = dds::node(args.bus.domain, names.namespace(), names::NODE)?;
-        let n = &mut node;
-        let cmd = match args.stamped {
-            true => Cmd::Stamped(dds::publisher(n, &r.cmd_vel, dds::reliable())?),
-            false => Cmd::Plain(dds::publisher(n, &r.cmd_vel, dds::reliable())?),
-        };
-        Ok(Io {
-            colour: dds::subscription(n, &r.colour, dds::sensor())?,
-            depth: dds::subscription(n, &r.depth, dds::sensor())?,
-            info: dds::subscription(n, &r.info, dds::sensor())?,
-            odom: dds::subscription(n, &r.odom, dds::sensor())?,
-            goal: dds::subscription(n, &r.goal, dds::reliable())?,
-            gesture: dds::subscription(n, &r.gesture, dds::sensor())?,
-            clock: match args.bus.use_sim_time {
-                true => Some(dds::subscription(n, &r.clock, dds::sensor())?),
-                false => None,
-            },
-            decision: dds::publisher(n, &r.decision, dds::reliable())?,
-            cmd,
-            names: r,
-            node,
-        })
-    }
-}
-
 impl Robot {
     /// Reads every topic; true when odometry arrived (the control loop runs at its rate).
     fn listen(&mut self) -> bool {
@@ -249,7 +209,10 @@ impl Robot {
         let (infos, e) = drain(&self.io.info);
         note(&self.io.names.info, e);
         if let Some(info) = infos.last() {
-            if h.sampling.as_ref().is_none_or(|s| s.as_ref().map_or(true, |s| (s.width, s.height) != (info.width, info.height))) {
+            if h.sampling
+                .as_ref()
+                .is_none_or(|s| s.as_ref().map_or(true, |s| (s.width, s.height) != (info.width, info.height)))
+            {
                 h.sampling = Some(Sampling::new(info, self.view));
             }
             h.info = Some(info.clone());
@@ -295,7 +258,11 @@ impl Robot {
             h.depth.pop_front();
         }
         let Some(Ok(sampling)) = &h.sampling else { return };
-        let pair = h.colour.iter().rev().find_map(|c| h.depth.iter().find(|d| d.header.stamp == c.header.stamp).map(|d| (c, d)));
+        let pair = h
+            .colour
+            .iter()
+            .rev()
+            .find_map(|c| h.depth.iter().find(|d| d.header.stamp == c.header.stamp).map(|d| (c, d)));
         let Some((c, d)) = pair else { return };
         let stamp = seconds(c.header.stamp);
         if h.frame.as_ref().is_some_and(|f| f.stamp >= stamp) {
@@ -337,7 +304,12 @@ impl Robot {
             Some(Ok(_)) => {}
         }
         if silent(h.frame_at) {
-            return Some(format!("no colour image with its depth on {} and {} for {:.1} s", n.colour, n.depth, limit.as_secs_f64()));
+            return Some(format!(
+                "no colour image with its depth on {} and {} for {:.1} s",
+                n.colour,
+                n.depth,
+                limit.as_secs_f64()
+            ));
         }
         if let Some(p) = &h.frame_problem {
             return Some(p.clone());
@@ -355,16 +327,18 @@ impl Robot {
         if !self.needs_person || self.episode.is_none() {
             return None;
         }
-        if self.person.as_ref().is_some_and(|p| p.capturing() || p.look_around) {
+        if self.person.as_ref().is_some_and(|p| p.capturing() || p.look.is_some()) {
             // watching for the person's gesture is waiting, not a fault
             return None;
         }
         let odom_frame = h.odom.as_ref().map(|o| o.2.as_str()).unwrap_or("");
         match &h.gesture {
             None => Some(format!("no gesture on {}", n.gesture)),
-            Some(g) if self.now() - seconds(g.header.stamp) > self.args.max_age.max(1.0) => {
-                Some(format!("the newest gesture on {} is {:.2} s old", n.gesture, self.now() - seconds(g.header.stamp)))
-            }
+            Some(g) if self.now() - seconds(g.header.stamp) > self.args.max_age.max(1.0) => Some(format!(
+                "the newest gesture on {} is {:.2} s old",
+                n.gesture,
+                self.now() - seconds(g.header.stamp)
+            )),
             Some(g) if g.header.frame_id != odom_frame => Some(format!(
                 "gesture: the person's pose is in frame `{}`; odometry's frame `{odom_frame}` expected",
                 g.header.frame_id
@@ -396,7 +370,14 @@ impl Robot {
         }
         // a frame taken after the goal: none seen before it
         let after = self.heard.frame.as_ref().map_or(self.now(), |f| self.now().max(f.stamp + 1e-6));
-        self.episode = Some(Episode { number: self.episodes, turns: 0, target, step: 0, last_action: action::NONE, phase: Phase::Deciding { after } });
+        self.episode = Some(Episode {
+            number: self.episodes,
+            turns: 0,
+            target,
+            step: 0,
+            last_action: action::NONE,
+            phase: Phase::Deciding { after },
+        });
         say!("episode {}: to the {name}", self.episodes);
     }
 
@@ -421,7 +402,13 @@ impl Robot {
     /// One turn of the loop with good input: the action under way moves on odometry; a frame
     /// taken after it ended gets the policy's next decision.
     fn advance(&mut self, odom: bool) -> anyhow::Result<()> {
-        let Some(e) = &mut self.episode else { return Ok(()) };
+        let Some(e) = &mut self.episode else {
+            // between episodes the base is held still, as it is while holding
+            if odom {
+                self.publish_twist(0.0, 0.0);
+            }
+            return Ok(());
+        };
         let (pose, t, _) = self.heard.odom.clone().context("checked: odometry was heard")?;
         match e.phase {
             Phase::Acting if odom => match self.drive.command(pose, t) {
@@ -447,19 +434,20 @@ impl Robot {
                 if odom {
                     self.publish_twist(0.0, 0.0);
                 }
-                if let Some(p) = self.person.as_mut().filter(|p| p.look_around) {
+                if let Some((p, turn)) = self.person.as_mut().and_then(|p| p.look.map(|turn| (p, turn))) {
                     let e = self.episode.as_mut().expect("under way");
                     if e.turns < LOOK_TURNS {
                         e.turns += 1;
                         e.phase = Phase::Looking;
-                        self.drive.start(action::ROTATE_LEFT, pose, t);
+                        self.drive.start(turn, pose, t);
                         return Ok(());
                     }
                     say!("episode {}: nobody in view all around: on without the person's gesture", e.number);
                     p.give_up(pose);
                 }
                 let fresh = self.heard.frame.as_ref().is_some_and(|f| f.stamp >= after);
-                let seen = !self.needs_person || self.heard.gesture.as_ref().is_some_and(|g| seconds(g.header.stamp) >= after);
+                let seen =
+                    !self.needs_person || self.heard.gesture.as_ref().is_some_and(|g| seconds(g.header.stamp) >= after);
                 if fresh && seen {
                     self.decide(pose)?;
                 }
@@ -487,11 +475,20 @@ impl Robot {
         e.step += 1;
         e.last_action = a.action;
         let done = a.action == action::STOP || e.step >= self.max_steps;
+        let first = e.step == 1;
         let t = self.now();
         self.publish_decision(Some(&a), done, "");
+        if first {
+            self.publish_reading();
+        }
         let e = self.episode.as_mut().expect("an episode is under way");
         if done {
-            say!("episode {} ended after {} steps ({})", e.number, e.step, Action::from_index(a.action).map_or("?", |a| a.name()));
+            say!(
+                "episode {} ended after {} steps ({})",
+                e.number,
+                e.step,
+                Action::from_index(a.action).map_or("?", |a| a.name())
+            );
             self.episode = None;
             self.publish_twist(0.0, 0.0);
         } else {
@@ -501,16 +498,19 @@ impl Robot {
         Ok(())
     }
 
-    fn publish_twist(&mut self, v: f64, w: f64) {
-        let twist = Twist::planar(v, w);
-        let sent = match &self.io.cmd {
-            Cmd::Plain(p) => p.publish(twist).map_err(|e| format!("{e:?}")),
-            Cmd::Stamped(p) => {
-                let header = Header::new(dds::time(self.now()), "base_link");
-                p.publish(TwistStamped { header, twist }).map_err(|e| format!("{e:?}"))
+    /// What the camera read of the person this episode, on `~/person` (with the first decision:
+    /// the capture is over by then).
+    fn publish_reading(&self) {
+        let odom = self.heard.odom.as_ref().map_or("", |o| o.2.as_str());
+        if let Some(g) = self.person.as_ref().and_then(|p| p.reading(self.now(), odom)) {
+            if let Err(e) = self.io.person.publish(g) {
+                say!("{}: {e:?}", self.io.names.person);
             }
-        };
-        if let Err(e) = sent {
+        }
+    }
+
+    fn publish_twist(&mut self, v: f64, w: f64) {
+        if let Err(e) = self.io.cmd.publish(v, w, self.now()) {
             say!("{}: {e}", self.io.names.cmd_vel);
         }
         if v == 0.0 && w == 0.0 {
