@@ -8,8 +8,8 @@
 //!   camera/color/image_raw ──────────────┐
 //!   camera/aligned_depth_to_color/… ─────┤                       ┌─► cmd_vel
 //!   camera/color/camera_info ────────────┼─► orchestrator robot ─┤
-//!   odom ────────────────────────────────┤   (learner act)       └─► gesthor_robot/decision
-//!   gesthor/gesture ─────────────────────┤
+//!   odom ────────────────────────────────┤   (learner act)       ├─► gesthor_robot/decision
+//!   gesthor/gesture ─────────────────────┤                       └─► gesthor_robot/person
 //!   gesthor_robot/goal ("Television") ───┘
 //! ```
 
