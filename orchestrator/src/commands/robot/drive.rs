@@ -77,6 +77,10 @@ impl Drive {
         self.under = None;
     }
 
+    pub fn limits(&self) -> &Limits {
+        &self.limits
+    }
+
     pub fn busy(&self) -> bool {
         self.under.is_some()
     }

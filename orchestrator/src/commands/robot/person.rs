@@ -81,6 +81,11 @@ impl Person {
         self.referencing = Some((Vec::new(), robot));
     }
 
+    /// The person's gesture was read this episode, or given up on.
+    pub fn watched(&self) -> bool {
+        self.referencing.is_some()
+    }
+
     pub fn capturing(&self) -> bool {
         self.capturing.is_some()
     }

@@ -18,7 +18,7 @@ use worker::scene::Category;
 use super::args::NodeArgs;
 use super::camera::{PolicyView, Sampling};
 use super::dds::{self, drain, seconds};
-use super::drive::{Drive, Ended, Limits, Pose2};
+use super::drive::{Drive, Ended, Limits, Pose2, wrap};
 use super::msgs::{CameraInfo, Decision, Gesture, Header, Image};
 use super::observation::{Facts, Frame, Observation, person_relative};
 use super::person::Person;
@@ -64,8 +64,9 @@ const LOOK_TURNS: u32 = 24;
 
 struct Episode {
     number: u32,
-    /// Turns taken looking for the person.
+    /// Turns taken looking for the person, and the heading it began with (rad, odometry).
     turns: u32,
+    heading: f64,
     target: u32,
     step: u32,
     last_action: u8,
@@ -373,6 +374,7 @@ impl Robot {
         self.episode = Some(Episode {
             number: self.episodes,
             turns: 0,
+            heading: at.yaw,
             target,
             step: 0,
             last_action: action::NONE,
@@ -445,6 +447,9 @@ impl Robot {
                     say!("episode {}: nobody in view all around: on without the person's gesture", e.number);
                     p.give_up(pose);
                 }
+                if self.turn_back(pose, t) {
+                    return Ok(());
+                }
                 let fresh = self.heard.frame.as_ref().is_some_and(|f| f.stamp >= after);
                 let seen =
                     !self.needs_person || self.heard.gesture.as_ref().is_some_and(|g| seconds(g.header.stamp) >= after);
@@ -454,6 +459,23 @@ impl Robot {
             }
         }
         Ok(())
+    }
+
+    /// Before its first decision the robot turns back, 15° at a time, to the heading it began
+    /// the episode with: it turned to find and face the person, and the policy starts where it
+    /// would have without them. True while it turns.
+    fn turn_back(&mut self, pose: Pose2, t: f64) -> bool {
+        let Some(e) = self.episode.as_mut().filter(|e| e.step == 0) else { return false };
+        if self.person.as_ref().is_none_or(|p| !p.watched()) {
+            return false;
+        }
+        let off = wrap(e.heading - pose.yaw);
+        if off.abs() < (self.drive.limits().turn_deg / 2.0).to_radians() {
+            return false;
+        }
+        e.phase = Phase::Acting;
+        self.drive.start(if off > 0.0 { action::ROTATE_LEFT } else { action::ROTATE_RIGHT }, pose, t);
+        true
     }
 
     /// The policy's decision on the newest frame, published and started.
