@@ -102,7 +102,10 @@ impl Person {
         let jpeg = jpeg(colour)?;
         let mut f = self.webcam.read(&jpeg, std::time::Instant::now())?;
         f.t = t as f32;
-        lift(&mut f, depth, info);
+        let hips = hips(&f, depth, info);
+        if let Some(h) = hips {
+            lift(&mut f, h, depth, info);
+        }
         remember(&mut self.recent, f.clone());
         let Some((from, frames)) = &mut self.capturing else { return Ok(()) };
         if frames.is_empty() {
@@ -122,7 +125,7 @@ impl Person {
         }
         let mut f = f;
         f.t = (t - *from) as f32;
-        let stood = stands(&f, depth, info, robot);
+        let stood = hips.map(|h| stands(h, robot));
         frames.push(f);
         if t - *from < self.capture_seconds {
             return Ok(());
@@ -198,26 +201,34 @@ fn message(kind: u8, muscles: Vec<f32>, at: Pose2, stamp: f64, odom: &str) -> Ge
     }
 }
 
-/// Where the person stands and faces in the odometry frame, from one frame's landmarks: each
-/// hip where the aligned depth puts it along its pixel's ray (the median of a small window that
-/// measured it), the person between them, facing square to the line from their right hip to
-/// their left.
-fn stands(f: &LandmarkFrame, depth: &Image, info: &CameraInfo, robot: Pose2) -> Option<Pose2> {
+/// The hips in the optical frame (left, right), each where the aligned depth puts it along its
+/// pixel's ray: the median of the values measured within two pixels.
+type Hips = ([f64; 3], [f64; 3]);
+
+fn hips(f: &LandmarkFrame, depth: &Image, info: &CameraInfo) -> Option<Hips> {
     let img = f.pose_image.as_ref()?;
-    // a hip in the optical frame (x right, z ahead; y is not needed)
-    let hip = |i: usize| -> Option<(f64, f64)> {
-        let (u, v) = (img[i][0] as f64, img[i][1] as f64);
-        let d = depth_near(depth, u as i64, v as i64)?;
-        Some(((u - info.k[2]) / info.k[0] * d, d))
-    };
-    let (l, r) = (hip(HIPS[0])?, hip(HIPS[1])?);
-    let (x, z) = ((l.0 + r.0) / 2.0, (l.1 + r.1) / 2.0);
+    let median = |v: &[f64]| v[v.len() / 2];
+    Some((optical(*img.get(HIPS[0])?, depth, info, median)?, optical(*img.get(HIPS[1])?, depth, info, median)?))
+}
+
+/// A landmark's point in the optical frame (x right, y down, z ahead; m): its pixel lifted along
+/// its ray to the depth `pick` takes from those measured within two pixels (nearest first).
+fn optical(px: [f32; 2], depth: &Image, info: &CameraInfo, pick: fn(&[f64]) -> f64) -> Option<[f64; 3]> {
+    let (u, v) = (px[0] as f64, px[1] as f64);
+    let d = pick(&depth_values(depth, u as i64, v as i64)?);
+    Some([(u - info.k[2]) / info.k[0] * d, (v - info.k[5]) / info.k[4] * d, d])
+}
+
+/// Where the person stands and faces in the odometry frame: between their hips, facing square
+/// to the line from their right hip to their left.
+fn stands((l, r): Hips, robot: Pose2) -> Pose2 {
+    let (x, z) = ((l[0] + r[0]) / 2.0, (l[2] + r[2]) / 2.0);
     // their left (lx, lz); they face (lz, −lx), which is (ahead, left) = (−lx, −lz) for the robot
-    let (lx, lz) = (l.0 - r.0, l.1 - r.1);
+    let (lx, lz) = (l[0] - r[0], l[2] - r[2]);
     let facing = (-lz).atan2(-lx);
     let (ahead, left) = (z, -x);
     let (s, c) = robot.yaw.sin_cos();
-    Some(Pose2 { x: robot.x + ahead * c - left * s, y: robot.y + ahead * s + left * c, yaw: wrap(robot.yaw + facing) })
+    Pose2 { x: robot.x + ahead * c - left * s, y: robot.y + ahead * s + left * c, yaw: wrap(robot.yaw + facing) }
 }
 
 /// How far off the camera's axis the person may stand when their gesture is watched (degrees;
@@ -240,34 +251,19 @@ const REACH: f64 = 1.2;
 /// guesses from one image how far an arm reaches toward the camera; the depth measures it. A
 /// landmark whose depth is no part of the person (over [`REACH`] from the hips) keeps the
 /// model's guess.
-fn lift(f: &mut LandmarkFrame, depth: &Image, info: &CameraInfo) {
+fn lift(f: &mut LandmarkFrame, (l, r): Hips, depth: &Image, info: &CameraInfo) {
     let (Some(img), Some(pose)) = (f.pose_image.as_ref(), f.pose.as_mut()) else { return };
     if img.len() != pose.len() {
         return;
     }
-    let ray = |i: usize, d: f64| {
-        let (u, v) = (img[i][0] as f64, img[i][1] as f64);
-        [(u - info.k[2]) / info.k[0] * d, (v - info.k[5]) / info.k[4] * d, d]
-    };
-    let near = |i: usize, pick: fn(&[f64]) -> f64| {
-        depth_values(depth, img[i][0] as i64, img[i][1] as i64).map(|v| ray(i, pick(&v)))
-    };
-    let median = |v: &[f64]| v[v.len() / 2];
-    let (Some(l), Some(r)) = (near(HIPS[0], median), near(HIPS[1], median)) else { return };
     let mid: [f64; 3] = std::array::from_fn(|k| (l[k] + r[k]) / 2.0);
-    for (i, p) in pose.iter_mut().enumerate() {
-        let Some(q) = near(i, |v| v[0]) else { continue };
+    for (px, p) in img.iter().zip(pose.iter_mut()) {
+        let Some(q) = optical(*px, depth, info, |v| v[0]) else { continue };
         let rel: [f64; 3] = std::array::from_fn(|k| q[k] - mid[k]);
         if rel.iter().map(|x| x * x).sum::<f64>().sqrt() < REACH {
             (p[0], p[1], p[2]) = (rel[0] as f32, rel[1] as f32, rel[2] as f32);
         }
     }
-}
-
-/// Metres at pixel (u, v) of the aligned depth image: the median of the measured values within
-/// two pixels.
-fn depth_near(depth: &Image, u: i64, v: i64) -> Option<f64> {
-    depth_values(depth, u, v).map(|v| v[v.len() / 2])
 }
 
 /// The measured values (m) within two pixels of (u, v), nearest first; none measured: `None`.
@@ -331,7 +327,7 @@ mod tests {
         }
     }
 
-    fn hips(left: (f32, f32), right: (f32, f32)) -> LandmarkFrame {
+    fn hips_at(left: (f32, f32), right: (f32, f32)) -> LandmarkFrame {
         let mut img = vec![[0.0; 2]; 33];
         (img[HIPS[0]], img[HIPS[1]]) = ([left.0, left.1], [right.0, right.1]);
         LandmarkFrame { pose_image: Some(img), ..Default::default() }
@@ -341,13 +337,13 @@ mod tests {
     fn a_person_facing_the_robot_stands_where_the_depth_says_and_faces_it() {
         let info = pinhole(640, 480, 90.0, Header::default());
         // 2 m ahead, square to the camera: their left hip on the image's right
-        let f = hips((359.5, 239.5), (279.5, 239.5));
-        let at = stands(&f, &depth(2000, &[]), &info, Pose2::default()).unwrap();
+        let f = hips_at((359.5, 239.5), (279.5, 239.5));
+        let at = stands(hips(&f, &depth(2000, &[]), &info).unwrap(), Pose2::default());
         assert!((at.x - 2.0).abs() < 1e-6 && at.y.abs() < 1e-6, "{at:?}");
         assert!((wrap(at.yaw - std::f64::consts::PI)).abs() < 1e-6, "{at:?}");
         // the robot elsewhere: the same person seen from (1, 1) facing +y stands at (1, 3)
         let robot = Pose2 { x: 1.0, y: 1.0, yaw: std::f64::consts::FRAC_PI_2 };
-        let at = stands(&f, &depth(2000, &[]), &info, robot).unwrap();
+        let at = stands(hips(&f, &depth(2000, &[]), &info).unwrap(), robot);
         assert!((at.x - 1.0).abs() < 1e-6 && (at.y - 3.0).abs() < 1e-6, "{at:?}");
         assert!((wrap(at.yaw + std::f64::consts::FRAC_PI_2)).abs() < 1e-6, "{at:?}");
     }
@@ -356,13 +352,14 @@ mod tests {
     fn the_depth_measures_how_far_an_arm_reaches_toward_the_camera() {
         let info = pinhole(640, 480, 90.0, Header::default());
         // hips 2 m ahead, a wrist 0.5 m nearer the camera, an elbow over the room 5 m away
-        let mut f = hips((359.5, 239.5), (279.5, 239.5));
+        let mut f = hips_at((359.5, 239.5), (279.5, 239.5));
         let img = f.pose_image.as_mut().unwrap();
         (img[16], img[14]) = ([399.5, 199.5], [100.0, 100.0]);
         f.pose = Some(vec![[0.0, 0.0, 0.0, 1.0]; 33]);
         f.pose.as_mut().unwrap()[14] = [0.3, -0.2, -0.1, 1.0];
         let d = depth(2000, &[(400, 200, 1500), (100, 100, 5000)]);
-        lift(&mut f, &d, &info);
+        let h = hips(&f, &d, &info).unwrap();
+        lift(&mut f, h, &d, &info);
         let pose = f.pose.unwrap();
         // the wrist: 0.5 m nearer than the hips, and where its pixel's ray puts it
         let w = pose[16];
@@ -378,12 +375,12 @@ mod tests {
     fn a_person_turned_to_their_right_has_their_left_hip_nearer() {
         let info = pinhole(640, 480, 90.0, Header::default());
         // facing the camera, turned to their right: their left hip nearer
-        let f = hips((400.0, 239.5), (240.0, 239.5));
+        let f = hips_at((400.0, 239.5), (240.0, 239.5));
         let d = depth(2000, &[(400, 240, 1850), (240, 240, 2150)]);
-        let at = stands(&f, &d, &info, Pose2::default()).unwrap();
+        let at = stands(hips(&f, &d, &info).unwrap(), Pose2::default());
         // they face the robot, turned toward its left
         assert!(at.yaw > std::f64::consts::FRAC_PI_2 && at.yaw < std::f64::consts::PI, "{:.1}°", at.yaw.to_degrees());
         // no depth under a hip: no place
-        assert!(stands(&f, &depth(0, &[]), &info, Pose2::default()).is_none());
+        assert!(hips(&f, &depth(0, &[]), &info).is_none());
     }
 }
