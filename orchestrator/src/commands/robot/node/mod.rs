@@ -64,8 +64,9 @@ const LOOK_TURNS: u32 = 24;
 
 struct Episode {
     number: u32,
-    /// Turns taken looking for the person, and the heading it began with (rad, odometry).
+    /// Turns taken looking for the person.
     turns: u32,
+    /// The heading it began with (rad, odometry), turned back to before the first decision.
     heading: f64,
     target: u32,
     step: u32,
