@@ -123,7 +123,6 @@ impl Person {
                 return Ok(());
             }
         }
-        let mut f = f;
         f.t = (t - *from) as f32;
         let stood = hips.map(|h| stands(h, robot));
         frames.push(f);
