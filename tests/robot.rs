@@ -84,7 +84,7 @@ fn check_path(steps: &[Value], episode: &Path) {
 }
 
 #[test]
-fn the_node_drives_gesthors_robot_closed_loop_and_each_episode_is_judged() {
+fn the_node_drives_gesthors_robot_closed_loop_each_episode_is_judged_and_a_stopped_run_goes_on() {
     let _s = serial();
     let out = tempfile::tempdir().unwrap();
     let d = domain(0);
@@ -119,8 +119,37 @@ fn the_node_drives_gesthors_robot_closed_loop_and_each_episode_is_judged() {
         let gif = std::fs::read(dir.join("episode.gif")).ok();
         assert_eq!(gif.as_ref().map(|g| g.starts_with(b"GIF89a")), (n == 1).then_some(true), "{}", dir.display());
     }
+    // a run stopped in its third episode goes on from there with the same command
+    let first = std::fs::read(out.path().join("sim/episode-001/steps.jsonl")).unwrap();
+    std::fs::remove_file(out.path().join("sim/episode-003/episode.json")).unwrap();
+    std::fs::remove_file(out.path().join("sim/summary.json")).unwrap();
+    let again = |programs: &str| {
+        Command::new(bin("orchestrator"))
+            .args(["robot", "sim", "--checkpoint"])
+            .arg(repo_root().join("models/both"))
+            .arg("--dataset")
+            .arg(default_dataset())
+            .args(["--programs", programs, "--domain", &d, "--out"])
+            .arg(out.path().join("sim"))
+            .output()
+            .unwrap()
+    };
+    let sim = again("val:0-2");
+    let said = String::from_utf8_lossy(&sim.stderr);
+    assert!(sim.status.success(), "robot sim failed on going on:\n{said}");
+    assert!(said.contains("2 of 3 episodes already recorded"), "{said}");
+    assert!(said.contains("val:2: ") && !said.contains("val:0: "), "{said}");
+    let summary: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.path().join("sim/summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["episodes"], 3, "{summary}");
+    assert_eq!(std::fs::read(out.path().join("sim/episode-001/steps.jsonl")).unwrap(), first);
+    // other programs into the same folder: one clear error, nothing overwritten
+    let sim = again("val:1-2");
+    let said = String::from_utf8_lossy(&sim.stderr);
+    assert!(!sim.status.success() && said.contains("give another --out"), "{said}");
+    assert_eq!(std::fs::read(out.path().join("sim/episode-001/steps.jsonl")).unwrap(), first);
     let log = node.stop();
-    assert!(log.contains("episode 3 ended"), "{log}");
+    assert!(log.contains("episode 4 ended"), "{log}");
 }
 
 #[test]

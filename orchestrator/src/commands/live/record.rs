@@ -43,6 +43,15 @@ pub struct EpisodeRecord {
     pub outcome: Outcome,
 }
 
+impl EpisodeRecord {
+    /// A finished episode's record, from `dir/episode.json` (written last, when it ended).
+    pub fn load(dir: &Path) -> anyhow::Result<EpisodeRecord> {
+        let path = dir.join("episode.json");
+        let text = std::fs::read_to_string(&path).with_context(|| format!("{}: no episode.json", dir.display()))?;
+        serde_json::from_str(&text).with_context(|| format!("{}", path.display()))
+    }
+}
+
 /// Where an episode's files go, and the steps file being written.
 pub struct Recorder {
     pub dir: PathBuf,
@@ -137,11 +146,7 @@ pub struct Replayed {
 /// compares every observation's robot pose and gesture with the record.
 pub fn replay(dir: &Path) -> anyhow::Result<Replayed> {
     let cfg = RunConfig::load(&dir.join("config.toml"))?;
-    let episode: EpisodeRecord = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("episode.json"))
-            .with_context(|| format!("{}: no episode.json", dir.display()))?,
-    )
-    .with_context(|| format!("{}/episode.json", dir.display()))?;
+    let episode = EpisodeRecord::load(dir)?;
     let steps: Vec<StepRecord> = farm::files::read_jsonl(&dir.join("steps.jsonl"))?;
     anyhow::ensure!(!steps.is_empty(), "{}/steps.jsonl: no steps", dir.display());
     let person = episode.interventions == Interventions::Person;

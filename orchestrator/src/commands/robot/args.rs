@@ -118,7 +118,8 @@ pub struct SimArgs {
     pub wait: f64,
     #[command(flatten)]
     pub bus: Bus,
-    /// Where the episodes are recorded (a folder each), with summary.json.
+    /// Where the episodes are recorded (a folder each), with summary.json. A run of the same
+    /// programs that stopped goes on from its first unfinished episode.
     #[arg(long, default_value = "runs/robot-sim")]
     pub out: PathBuf,
 }

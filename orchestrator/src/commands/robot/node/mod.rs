@@ -6,7 +6,6 @@
 //! An episode starts with a goal (`~/goal`, a target category such as `Television`) and ends at
 //! the policy's first Stop or at the step limit.
 
-use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
@@ -16,38 +15,18 @@ use worker::robot::Action;
 use worker::scene::Category;
 
 use super::args::NodeArgs;
-use super::camera::{PolicyView, Sampling};
-use super::dds::{self, drain, seconds};
+use super::camera::PolicyView;
+use super::dds::{self, seconds};
 use super::drive::{Drive, Ended, Limits, Pose2, wrap};
-use super::msgs::{CameraInfo, Decision, Gesture, Header, Image};
-use super::observation::{Facts, Frame, Observation, person_relative};
+use super::msgs::{Decision, Header};
+use super::observation::{Facts, Observation, person_relative};
 use super::person::Person;
 use crate::commands::live::policy::{Answer, Checkpoint, Policy};
 
+mod heard;
 mod topics;
+use heard::{Heard, Watch};
 use topics::Io;
-
-/// Frames kept while waiting for their pair (colour and depth arrive apart).
-const KEEP: usize = 4;
-
-/// The newest of what the topics said, and when (wall clock) each was last heard.
-#[derive(Default)]
-struct Heard {
-    info: Option<CameraInfo>,
-    sampling: Option<Result<Sampling, String>>,
-    colour: VecDeque<Image>,
-    depth: VecDeque<Image>,
-    frame: Option<Frame>,
-    /// The newest colour or depth image could not be read: why.
-    frame_problem: Option<String>,
-    odom: Option<(Pose2, f64, String)>,
-    gesture: Option<Gesture>,
-    clock: Option<f64>,
-    odom_at: Option<Instant>,
-    frame_at: Option<Instant>,
-    /// A message of the wrong type on one of the topics, and when.
-    garbled: Option<(String, Instant)>,
-}
 
 enum Phase {
     /// Waiting for a frame taken at or after this time (s).
@@ -194,159 +173,39 @@ impl Robot {
 impl Robot {
     /// Reads every topic; true when odometry arrived (the control loop runs at its rate).
     fn listen(&mut self) -> bool {
-        let h = &mut self.heard;
-        let mut garbled = Vec::new();
-        let mut note = |what: &str, e: Option<String>| {
-            if let Some(e) = e {
-                garbled.push(format!("{what}: a message that is not of its type ({e})"));
-            }
-        };
-        if let Some(c) = &self.io.clock {
-            let (m, e) = drain(c);
-            note(&self.io.names.clock, e);
-            if let Some(c) = m.last() {
-                h.clock = Some(seconds(c.clock));
-            }
-        }
-        let (infos, e) = drain(&self.io.info);
-        note(&self.io.names.info, e);
-        if let Some(info) = infos.last() {
-            if h.sampling
-                .as_ref()
-                .is_none_or(|s| s.as_ref().map_or(true, |s| (s.width, s.height) != (info.width, info.height)))
-            {
-                h.sampling = Some(Sampling::new(info, self.view));
-            }
-            h.info = Some(info.clone());
-        }
-        let (odoms, e) = drain(&self.io.odom);
-        note(&self.io.names.odom, e);
-        let odom = !odoms.is_empty();
-        if let Some(o) = odoms.last() {
-            let (x, y, yaw) = o.pose.pose.to_planar();
-            h.odom = Some((Pose2 { x, y, yaw }, seconds(o.header.stamp), o.header.frame_id.clone()));
-            h.odom_at = Some(Instant::now());
-        }
-        let (goals, e) = drain(&self.io.goal);
-        note(&self.io.names.goal, e);
-        let (gestures, e) = drain(&self.io.gesture);
-        note(&self.io.names.gesture, e);
-        if let Some(g) = gestures.into_iter().last().filter(|_| self.person.is_none()) {
-            h.gesture = Some(g);
-        }
-        let (colour, e) = drain(&self.io.colour);
-        note(&self.io.names.colour, e);
-        let (depth, e) = drain(&self.io.depth);
-        note(&self.io.names.depth, e);
-        h.colour.extend(colour);
-        h.depth.extend(depth);
-        if let Some(g) = garbled.into_iter().next() {
-            h.garbled = Some((g, Instant::now()));
-        }
-        self.pair_frames();
+        let (odom, goals) = self.heard.listen(&self.io, self.view, self.person.is_none());
+        let schedule = self.schedule;
+        self.heard.pair_frames(self.view, self.person.as_mut().map(|p| (p, schedule)));
         for g in goals {
             self.begin(&g.data);
         }
         odom
     }
 
-    /// Samples the newest colour image that has its depth (same stamp) to the policy's view.
-    fn pair_frames(&mut self) {
-        let h = &mut self.heard;
-        while h.colour.len() > KEEP {
-            h.colour.pop_front();
-        }
-        while h.depth.len() > KEEP {
-            h.depth.pop_front();
-        }
-        let Some(Ok(sampling)) = &h.sampling else { return };
-        let pair = h
-            .colour
-            .iter()
-            .rev()
-            .find_map(|c| h.depth.iter().find(|d| d.header.stamp == c.header.stamp).map(|d| (c, d)));
-        let Some((c, d)) = pair else { return };
-        let stamp = seconds(c.header.stamp);
-        if h.frame.as_ref().is_some_and(|f| f.stamp >= stamp) {
-            return;
-        }
-        h.frame_at = Some(Instant::now());
-        match Frame::sample(sampling, c, d, self.view.size) {
-            Ok(f) => {
-                h.frame = Some(f);
-                h.frame_problem = None;
-                if let Some(p) = &mut self.person {
-                    let (info, odom) = (h.info.as_ref().expect("camera_info came"), h.odom.as_ref());
-                    let (at, frame_id) = odom.map_or((Pose2::default(), ""), |o| (o.0, o.2.as_str()));
-                    match p.see(c, d, info, at) {
-                        Ok(()) => h.gesture = p.gesture(self.schedule, stamp, frame_id),
-                        Err(e) => h.frame_problem = Some(format!("the landmark model: {e:#}")),
-                    }
-                }
-            }
-            Err(e) => h.frame_problem = Some(e),
-        }
-        h.colour.retain(|x| seconds(x.header.stamp) > stamp);
-        h.depth.retain(|x| seconds(x.header.stamp) > stamp);
-    }
-
     /// Why the robot must hold still now, if it must.
     fn problem(&self) -> Option<String> {
-        let (h, n, limit) = (&self.heard, &self.io.names, Duration::from_secs_f64(self.args.input_timeout));
-        let silent = |at: Option<Instant>| at.is_none_or(|t| t.elapsed() > limit);
-        if let Some((g, _)) = h.garbled.as_ref().filter(|(_, at)| !silent(Some(*at))) {
-            return Some(g.clone());
-        }
-        if silent(h.odom_at) {
-            return Some(format!("no odometry on {} for {:.1} s", n.odom, limit.as_secs_f64()));
-        }
-        match &h.sampling {
-            None => return Some(format!("no camera_info on {}", n.info)),
-            Some(Err(e)) => return Some(format!("{}: {e}", n.info)),
-            Some(Ok(_)) => {}
-        }
-        if silent(h.frame_at) {
-            return Some(format!(
-                "no colour image with its depth on {} and {} for {:.1} s",
-                n.colour,
-                n.depth,
-                limit.as_secs_f64()
-            ));
-        }
-        if let Some(p) = &h.frame_problem {
-            return Some(p.clone());
-        }
-        let age = self.now() - h.frame.as_ref().map_or(f64::NEG_INFINITY, |f| f.stamp);
-        if self.episode.is_some() && age > self.args.max_age {
-            return Some(format!("the newest camera frame is {age:.2} s old (limit {} s)", self.args.max_age));
-        }
-        self.person_problem()
+        let w = Watch {
+            timeout: Duration::from_secs_f64(self.args.input_timeout),
+            max_age: self.args.max_age,
+            now: self.now(),
+            episode: self.episode.is_some(),
+        };
+        let names = &self.io.names;
+        self.heard.problem(names, &w).or_else(|| self.person_problem(&w))
     }
 
-    /// The gesture topic's problem, when the policy reads the person and an episode runs.
-    fn person_problem(&self) -> Option<String> {
-        let (h, n) = (&self.heard, &self.io.names);
+    /// The gesture's problem, when the policy reads the person and an episode runs.
+    fn person_problem(&self, w: &Watch) -> Option<String> {
         if !self.needs_person || self.episode.is_none() {
             return None;
         }
-        if self.person.as_ref().is_some_and(|p| p.capturing() || p.look.is_some()) {
-            // watching for the person's gesture is waiting, not a fault
+        let read = |p: &Person| p.watched() && self.heard.gesture.is_none();
+        if self.person.as_ref().is_some_and(|p| p.capturing() || p.look.is_some() || read(p)) {
+            // watching for the person's gesture is waiting, not a fault; nor is a gesture read
+            // (or given up on) that the next frame publishes
             return None;
         }
-        let odom_frame = h.odom.as_ref().map(|o| o.2.as_str()).unwrap_or("");
-        match &h.gesture {
-            None => Some(format!("no gesture on {}", n.gesture)),
-            Some(g) if self.now() - seconds(g.header.stamp) > self.args.max_age.max(1.0) => Some(format!(
-                "the newest gesture on {} is {:.2} s old",
-                n.gesture,
-                self.now() - seconds(g.header.stamp)
-            )),
-            Some(g) if g.header.frame_id != odom_frame => Some(format!(
-                "gesture: the person's pose is in frame `{}`; odometry's frame `{odom_frame}` expected",
-                g.header.frame_id
-            )),
-            Some(_) => None,
-        }
+        self.heard.gesture_problem(&self.io.names, w)
     }
 }
 

@@ -11,7 +11,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
-use ros2_client::dds::{Node, Publisher, Subscription};
+use ros2_client::dds::Publisher;
 
 use farm::config::RunConfig;
 use farm::files::write_atomic;
@@ -27,54 +27,19 @@ use worker::program::Program;
 use worker::robot::Action;
 use worker::scene::Split;
 
-use super::args::{Bus, SimArgs};
+use super::args::SimArgs;
 use super::camera::{PolicyView, Sampling, pinhole};
 use super::dds::{self, drain};
-use super::msgs::{CameraInfo, Clock, Decision, Gesture, Header, Image, Odometry, Pose, Text, Twist};
-use super::names::{self, Names, Resolved};
+use super::msgs::{Clock, Decision, Gesture, Header, Image, Odometry, Pose, Text, Twist};
 use super::reading::Reading;
 use crate::commands::live::record::{EpisodeRecord, Recorder, episode_config};
 use crate::commands::live::wire::{GestureSource, Interventions, Outcome, StepRecord};
 use crate::report::trajectory::write_program_gif;
 
-/// What the simulator's robot publishes and hears.
-struct Io {
-    node: Node,
-    colour: Publisher<Image>,
-    depth: Publisher<Image>,
-    info: Publisher<CameraInfo>,
-    odom: Publisher<Odometry>,
-    clock: Publisher<Clock>,
-    gesture: Publisher<Gesture>,
-    goal: Publisher<Text>,
-    cmd_vel: Subscription<Twist>,
-    decision: Subscription<Decision>,
-    person: Subscription<Gesture>,
-    names: Resolved,
-}
-
-impl Io {
-    fn open(bus: &Bus) -> anyhow::Result<Io> {
-        let names = Names::new(&bus.namespace, names::NODE, &bus.remap)?;
-        let r = Resolved::new(&names);
-        let mut node = dds::node(bus.domain, names.namespace(), "gesthor_sim")?;
-        let n = &mut node;
-        Ok(Io {
-            colour: dds::publisher(n, &r.colour, dds::reliable())?,
-            depth: dds::publisher(n, &r.depth, dds::reliable())?,
-            info: dds::publisher(n, &r.info, dds::reliable())?,
-            odom: dds::publisher(n, &r.odom, dds::reliable())?,
-            clock: dds::publisher(n, &r.clock, dds::reliable())?,
-            gesture: dds::publisher(n, &r.gesture, dds::reliable())?,
-            goal: dds::publisher(n, &r.goal, dds::reliable())?,
-            cmd_vel: dds::subscription(n, &r.cmd_vel, dds::reliable())?,
-            decision: dds::subscription(n, &r.decision, dds::reliable())?,
-            person: dds::subscription(n, &r.person, dds::reliable())?,
-            names: r,
-            node,
-        })
-    }
-}
+mod episodes;
+mod io;
+use episodes::{episode_dir, recorded, summary};
+use io::Io;
 
 /// The action under way, as the simulator judges it once the next decision comes.
 struct Track {
@@ -125,26 +90,33 @@ pub struct Sim {
 pub fn run(a: SimArgs) -> anyhow::Result<()> {
     farm::process::install_termination_handler()?;
     let ds = Dataset::open(&a.dataset, Verify::Quick)?;
-    let (split, list) = super::args::programs(&a, &ds)?;
-    let mut sim = Sim::new(a, split, list.clone())?;
-    let mut outcomes = Vec::new();
-    for (n, &p) in list.iter().enumerate() {
-        if farm::process::stop_requested() {
-            break;
-        }
-        let program = format!("{}:{p}", split.name());
-        let outcome = sim.episode(&ds, split, p, n + 1)?;
-        say!(
-            "{program}: {} after {} steps (SPL {:.2}) [{}/{}]",
-            if outcome.success { "success" } else { "failure" },
-            outcome.steps,
-            outcome.spl,
-            n + 1,
-            list.len()
-        );
-        outcomes.push((program, outcome));
+    let (split, list) = crate::commands::robot::args::programs(&a, &ds)?;
+    let (checkpoint, _) = crate::commands::eval::locate(&a.checkpoint)?;
+    let mut outcomes = recorded(&a.out, split, &list, &checkpoint)?;
+    let (done, out) = (outcomes.len(), a.out.clone());
+    if done > 0 {
+        say!("{done} of {} episodes already recorded in {}: on from the next", list.len(), out.display());
     }
-    sim.summary(&outcomes)
+    if done < list.len() {
+        let mut sim = Sim::new(a, split, list[done..].to_vec())?;
+        for (n, &p) in list.iter().enumerate().skip(done) {
+            if farm::process::stop_requested() {
+                break;
+            }
+            let program = format!("{}:{p}", split.name());
+            let outcome = sim.episode(&ds, split, p, n + 1, n == done)?;
+            say!(
+                "{program}: {} after {} steps (SPL {:.2}) [{}/{}]",
+                if outcome.success { "success" } else { "failure" },
+                outcome.steps,
+                outcome.spl,
+                n + 1,
+                list.len()
+            );
+            outcomes.push((program, outcome));
+        }
+    }
+    summary(&out, &checkpoint, &outcomes)
 }
 
 impl Sim {
@@ -195,18 +167,26 @@ impl Sim {
     }
 
     /// One program, from its start to the node's Stop (or the step limit).
-    fn episode(&mut self, ds: &Dataset, split: Split, index: u64, number: usize) -> anyhow::Result<Outcome> {
+    /// `first`: the first this process runs (the node may not have appeared yet).
+    fn episode(
+        &mut self,
+        ds: &Dataset,
+        split: Split,
+        index: u64,
+        number: usize,
+        first: bool,
+    ) -> anyhow::Result<Outcome> {
         let program = &format!("{}:{index}", split.name());
-        let started = match number {
-            1 => {
+        let started = match first {
+            true => {
                 self.pool.reset(self.buf.bytes_mut())?;
                 true
             }
-            _ => self.pool.next_episode(0)?,
+            false => self.pool.next_episode(0)?,
         };
         anyhow::ensure!(started, "{program}: the simulator has no program left");
         let env = self.pool.env(0).context("the episode's env")?;
-        let dir = self.args.out.join(format!("episode-{number:03}"));
+        let dir = episode_dir(&self.args.out, number);
         let (p, motion) = crate::commands::program::dataset_program(ds, split, index as usize)?;
         write_subset(&dir.join("dataset"), ds, split, &[(p.clone(), motion.as_flat().to_vec())])
             .with_context(|| format!("writing {}", dir.display()))?;
@@ -229,7 +209,7 @@ impl Sim {
         self.began = self.t;
         self.tick(true)?;
         self.apply((0.0, 0.0))?;
-        if number == 1 {
+        if first {
             self.await_node()?;
         }
         self.io
@@ -242,14 +222,6 @@ impl Sim {
             let ended = self.hear(&mut e)?;
             self.apply(command)?;
             if let Some(outcome) = ended {
-                e.rec.finish(&EpisodeRecord {
-                    program: e.program.clone(),
-                    checkpoint: self.checkpoint.clone(),
-                    gesture: GestureSource::Program,
-                    interventions: Interventions::Rule,
-                    beside: None,
-                    outcome: outcome.clone(),
-                })?;
                 if e.camera {
                     let (p, motion) = &e.truth;
                     let intervention = self.pool.env(0).context("the episode's env")?.intervention_index();
@@ -262,6 +234,15 @@ impl Sim {
                     let title = format!("{program} → {target} over ROS 2");
                     write_program_gif(&cfg, &dir.join("dataset"), split, &t, &title, &dir.join("episode.gif"))?;
                 }
+                // episode.json last: it marks the episode done for a run that goes on
+                e.rec.finish(&EpisodeRecord {
+                    program: e.program.clone(),
+                    checkpoint: self.checkpoint.clone(),
+                    gesture: GestureSource::Program,
+                    interventions: Interventions::Rule,
+                    beside: None,
+                    outcome: outcome.clone(),
+                })?;
                 return Ok(outcome);
             }
             anyhow::ensure!(
@@ -522,27 +503,5 @@ impl Sim {
             dts: first.dts,
             success_any_stop: result.success,
         })
-    }
-
-    /// summary.json: SR, SPL and DTS at the first stop over the episodes, as `eval` gives them.
-    fn summary(&self, outcomes: &[(String, Outcome)]) -> anyhow::Result<()> {
-        let n = outcomes.len().max(1) as f64;
-        let sr = outcomes.iter().filter(|(_, o)| o.success).count() as f64 / n * 100.0;
-        let spl = outcomes.iter().map(|(_, o)| o.spl).sum::<f64>() / n * 100.0;
-        let dts = outcomes.iter().map(|(_, o)| o.dts).sum::<f64>() / n;
-        let s = serde_json::json!({
-            "checkpoint": self.checkpoint,
-            "episodes": outcomes.len(),
-            "sr": sr, "spl": spl, "dts": dts,
-            "programs": outcomes.iter().map(|(p, o)| serde_json::json!({"program": p, "outcome": o})).collect::<Vec<_>>(),
-        });
-        let path = self.args.out.join("summary.json");
-        write_atomic(&path, serde_json::to_string_pretty(&s)?.as_bytes())?;
-        say!(
-            "{} episodes: SR {sr:.1}, SPL {spl:.1}, DTS {dts:.2} at the first stop ({})",
-            outcomes.len(),
-            path.display()
-        );
-        Ok(())
     }
 }
