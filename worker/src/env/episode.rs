@@ -12,7 +12,7 @@ use crate::camera::{Camera, Intrinsics};
 use crate::dataset::build::RoomContext;
 use crate::geometry::{Part, xz};
 use crate::gesture::{self, Motion};
-use crate::humanoid::Humanoid;
+use crate::humanoid::{Humanoid, SkeletonPose};
 use crate::nav::{Goal, NavGrid, expert_action};
 use crate::physics::Physics;
 use crate::program::Program;
@@ -183,14 +183,18 @@ impl Env {
 
     /// The person's parts this frame: performing what the robot perceives, standing otherwise.
     pub fn person_parts(&self) -> Vec<Part> {
+        self.humanoid.parts(&self.person_pose())
+    }
+
+    /// The person's skeleton this frame, in the world.
+    pub fn person_pose(&self) -> SkeletonPose {
         let motion = match self.gesture_kind() {
             gesture_kind::INTERVENTION => &*self.intervention.1,
             _ => &self.referencing,
         };
         let f = if self.gesture_kind() == gesture_kind::NONE { 0 } else { self.frame % gesture::FRAMES };
         let p = &self.program;
-        let pose = self.humanoid.pose(motion.frame(f), Point3::from(p.human_pos), p.human_yaw);
-        self.humanoid.parts(&pose)
+        self.humanoid.pose(motion.frame(f), Point3::from(p.human_pos), p.human_yaw)
     }
 
     /// Poses the person at frame `f` of the gesture they perform (`robot sim` animates them in

@@ -52,11 +52,13 @@ pub struct NodeArgs {
     /// A topic silent this long (s, wall clock) is lost: odometry, the camera.
     #[arg(long, default_value_t = 1.0)]
     pub input_timeout: f64,
-    /// Where the person's gesture comes from: `topic` (gesthor/gesture: a tracker, or the
-    /// simulator's truth) or `camera` (the landmark model on the robot's colour frames).
-    #[arg(long, default_value = "topic", value_parser = ["topic", "camera"])]
+    /// Where the person's gesture comes from: `topic` (gesthor/gesture: the simulator's truth,
+    /// or a node that reads people), `camera` (the landmark model on the robot's colour frames)
+    /// or `skeleton` (REP-155's /humans/bodies/<id>/skeleton2d from a body tracker, measured by
+    /// the aligned depth).
+    #[arg(long, default_value = "topic", value_parser = ["topic", "camera", "skeleton"])]
     pub gesture: String,
-    /// With `--gesture camera`: how long the person's gesture is watched at an episode's start
+    /// With `--gesture camera` or `skeleton`: how long the person's gesture is watched at an episode's start
     /// (s, ROS time): two of GOND's 3.3 s gestures, so that one is seen whole whenever the
     /// person began it.
     #[arg(long, default_value_t = 7.0)]

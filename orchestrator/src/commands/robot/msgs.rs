@@ -1,5 +1,6 @@
 //! The ROS 2 messages the robot speaks, as serde structs in their CDR field order: ROS's own
-//! (`sensor_msgs`, `nav_msgs`, `geometry_msgs`, `rosgraph_msgs`) and the two of `gesthor_msgs`
+//! (`sensor_msgs`, `nav_msgs`, `geometry_msgs`, `rosgraph_msgs`), REP-155's bodies (`hri_msgs`)
+//! and the two of `gesthor_msgs`
 //! (`docs/ros/gesthor_msgs/msg/*.msg`, for nodes that want to read them).
 
 use ros2_client::builtin_interfaces::Time;
@@ -246,6 +247,32 @@ pub struct Decision {
     pub holding: String,
 }
 ros_type!(Decision, "gesthor_msgs", "Decision");
+
+/// `hri_msgs/NormalizedPointOfInterest2D`: a point of the image (x right, y down, each in
+/// [0, 1] of its width and height) and how sure the tracker is of it (0: not found).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct NormalizedPoint {
+    pub x: f32,
+    pub y: f32,
+    pub c: f32,
+}
+
+/// `hri_msgs/Skeleton2D` (REP-155): a body's 18 keypoints in OpenPose's COCO order, stamped as
+/// the image they were found in. A fixed array: no length on the wire.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Skeleton2D {
+    pub header: Header,
+    pub skeleton: [NormalizedPoint; 18],
+}
+ros_type!(Skeleton2D, "hri_msgs", "Skeleton2D");
+
+/// `hri_msgs/IdsList`: the bodies a tracker follows in the image of the header's stamp.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct IdsList {
+    pub header: Header,
+    pub ids: Vec<String>,
+}
+ros_type!(IdsList, "hri_msgs", "IdsList");
 
 impl Default for Header {
     fn default() -> Self {

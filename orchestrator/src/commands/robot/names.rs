@@ -63,6 +63,10 @@ pub struct Resolved {
     /// The person as the node's camera read them (`--gesture camera`).
     pub person: String,
     pub clock: String,
+    /// REP-155's bodies (`--gesture skeleton`): those a tracker follows, and where each one's
+    /// topics are (`BODIES/<id>/skeleton2d`; remapping `/humans/bodies` moves them all).
+    pub tracked: String,
+    pub bodies: String,
 }
 
 /// The node's name: its goal and decision topics are its own (`~/goal`).
@@ -81,7 +85,14 @@ impl Resolved {
             gesture: names.resolve("gesthor/gesture"),
             person: names.resolve("~/person"),
             clock: names.resolve("/clock"),
+            tracked: names.resolve("/humans/bodies/tracked"),
+            bodies: names.resolve("/humans/bodies"),
         }
+    }
+
+    /// A body's keypoints (REP-155).
+    pub fn skeleton(&self, id: &str) -> String {
+        format!("{}/{id}/skeleton2d", self.bodies)
     }
 }
 

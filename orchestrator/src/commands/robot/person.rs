@@ -4,13 +4,17 @@
 //! fits a video; where the person stands is read from the aligned depth under their hips, and
 //! which way they face from the line of their hips. A wave calls the intervention, as on the
 //! live page.
+//!
+//! With `--gesture skeleton` a tracker finds the person instead (REP-155's `skeleton2d`: 18
+//! keypoints in the image); the aligned depth measures each keypoint in 3-D, and the capture
+//! reads them as it reads the landmark model's.
 
 use shm_schema::{GESTURE_DIMS, GESTURE_FRAMES, gesture_kind};
 use worker::gesture::capture::LandmarkFrame;
 use worker::humanoid::Humanoid;
 
 use super::drive::{Pose2, wrap};
-use super::msgs::{CameraInfo, Gesture, Header, Image, Pose};
+use super::msgs::{CameraInfo, Gesture, Header, Image, Pose, Skeleton2D};
 use crate::commands::live::gesture::muscles;
 use crate::commands::live::webcam::{Webcam, remember, waving};
 
@@ -19,7 +23,8 @@ const HIPS: [usize; 2] = [23, 24];
 
 /// What the camera has told of the person.
 pub struct Person {
-    webcam: Webcam,
+    /// The landmark model, where it reads the colour frames (not with a tracker's skeletons).
+    webcam: Option<Webcam>,
     capture_seconds: f64,
     /// The capture under way: from when (ROS time), and its frames.
     capturing: Option<(f64, Vec<LandmarkFrame>)>,
@@ -43,10 +48,11 @@ pub struct Person {
 const TRIES: u32 = 2;
 
 impl Person {
-    /// `wave_rate`: frames a second read between captures (0: every frame).
-    pub fn start(capture_seconds: f64, wave_rate: f64) -> anyhow::Result<Person> {
+    /// `wave_rate`: frames a second read between captures (0: every frame); `model`: the
+    /// landmark model reads the colour frames (else a tracker's skeletons come to `see_skeleton`).
+    pub fn start(capture_seconds: f64, wave_rate: f64, model: bool) -> anyhow::Result<Person> {
         Ok(Person {
-            webcam: Webcam::start()?,
+            webcam: if model { Some(Webcam::start()?) } else { None },
             capture_seconds,
             capturing: None,
             referencing: None,
@@ -86,6 +92,11 @@ impl Person {
         self.referencing.is_some()
     }
 
+    /// The landmark model reads the colour frames (not a tracker's skeletons).
+    pub fn reads_frames(&self) -> bool {
+        self.webcam.is_some()
+    }
+
     pub fn capturing(&self) -> bool {
         self.capturing.is_some()
     }
@@ -93,21 +104,59 @@ impl Person {
     /// Reads one colour frame (and its depth) taken where the robot stood at `robot`.
     pub fn see(&mut self, colour: &Image, depth: &Image, info: &CameraInfo, robot: Pose2) -> anyhow::Result<()> {
         let t = super::dds::seconds(colour.header.stamp);
-        // a wave is read from a few frames a second: the model at every frame would hold up the
-        // control loop (≈ 0.1 s a frame on two cores)
-        if self.capturing.is_none() && (t - self.last_read).abs() < self.wave_period {
+        if self.resting(t) {
             return Ok(());
         }
-        self.last_read = t;
         let jpeg = jpeg(colour)?;
-        let mut f = self.webcam.read(&jpeg, std::time::Instant::now())?;
-        f.t = t as f32;
+        let webcam = self.webcam.as_mut().ok_or_else(|| anyhow::anyhow!("no landmark model: a tracker's skeletons"))?;
+        let mut f = webcam.read(&jpeg, std::time::Instant::now())?;
         let hips = hips(&f, depth, info);
         if let Some(h) = hips {
             lift(&mut f, h, depth, info);
         }
+        self.look_at(f, t, hips, info, robot);
+        Ok(())
+    }
+
+    /// Reads a tracker's skeleton of the person (`None`: it tracked nobody) in the frame whose
+    /// aligned depth is `depth`. A keypoint the depth does not place on the person is not seen.
+    pub fn see_skeleton(&mut self, body: Option<&Skeleton2D>, depth: &Image, info: &CameraInfo, robot: Pose2) {
+        let t = super::dds::seconds(depth.header.stamp);
+        if self.resting(t) {
+            return;
+        }
+        let mut f = body.map_or_else(LandmarkFrame::default, |b| landmarks(b, info));
+        let hips = hips(&f, depth, info);
+        match hips {
+            Some(h) => {
+                let measured = lift(&mut f, h, depth, info);
+                for (p, m) in f.pose.iter_mut().flatten().zip(measured) {
+                    p[3] = if m { p[3] } else { 0.0 };
+                }
+            }
+            // hips unseen or unmeasured: nobody the capture can read
+            None => f = LandmarkFrame::default(),
+        }
+        self.look_at(f, t, hips, info, robot);
+    }
+
+    /// Between captures a frame is read only every `wave_period` (for a wave).
+    fn resting(&mut self, t: f64) -> bool {
+        // a wave is read from a few frames a second: the model at every frame would hold up the
+        // control loop (≈ 0.1 s a frame on two cores)
+        if self.capturing.is_none() && (t - self.last_read).abs() < self.wave_period {
+            return true;
+        }
+        self.last_read = t;
+        false
+    }
+
+    /// One frame's landmarks of the person (measured in 3-D where the hips were): kept for a
+    /// wave, and watched for the gesture while a capture is under way.
+    fn look_at(&mut self, mut f: LandmarkFrame, t: f64, hips: Option<Hips>, info: &CameraInfo, robot: Pose2) {
+        f.t = t as f32;
         remember(&mut self.recent, f.clone());
-        let Some((from, frames)) = &mut self.capturing else { return Ok(()) };
+        let Some((from, frames)) = &mut self.capturing else { return };
         if frames.is_empty() {
             // nobody in view: look elsewhere rather than watch an empty room; someone off to a
             // side: turn to them first, for their arms may leave the frame
@@ -120,14 +169,14 @@ impl Person {
             };
             if self.look.is_some() {
                 self.capturing = None;
-                return Ok(());
+                return;
             }
         }
         f.t = (t - *from) as f32;
         let stood = hips.map(|h| stands(h, robot));
         frames.push(f);
         if t - *from < self.capture_seconds {
-            return Ok(());
+            return;
         }
         let (_, frames) = self.capturing.take().expect("under way");
         match (muscles(Humanoid::seeded(0).skeleton(), &frames), stood) {
@@ -150,7 +199,6 @@ impl Person {
                 robot,
             ),
         }
-        Ok(())
     }
 
     /// A capture that found no gesture starts again, then the episode goes on without one.
@@ -214,6 +262,10 @@ fn hips(f: &LandmarkFrame, depth: &Image, info: &CameraInfo) -> Option<Hips> {
 /// its ray to the depth `pick` takes from those measured within two pixels (nearest first).
 fn optical(px: [f32; 2], depth: &Image, info: &CameraInfo, pick: fn(&[f64]) -> f64) -> Option<[f64; 3]> {
     let (u, v) = (px[0] as f64, px[1] as f64);
+    // off the image (a landmark guessed beyond its edge, a keypoint not found): not measured
+    if !(u >= 0.0 && v >= 0.0 && u < depth.width as f64 && v < depth.height as f64) {
+        return None;
+    }
     let d = pick(&depth_values(depth, u as i64, v as i64)?);
     Some([(u - info.k[2]) / info.k[0] * d, (v - info.k[5]) / info.k[4] * d, d])
 }
@@ -249,20 +301,60 @@ const REACH: f64 = 1.2;
 /// about the hips' midpoint, in the model's axes (x right, y down, z away). The landmark model
 /// guesses from one image how far an arm reaches toward the camera; the depth measures it. A
 /// landmark whose depth is no part of the person (over [`REACH`] from the hips) keeps the
-/// model's guess.
-fn lift(f: &mut LandmarkFrame, (l, r): Hips, depth: &Image, info: &CameraInfo) {
-    let (Some(img), Some(pose)) = (f.pose_image.as_ref(), f.pose.as_mut()) else { return };
+/// model's guess. Which landmarks were measured.
+fn lift(f: &mut LandmarkFrame, (l, r): Hips, depth: &Image, info: &CameraInfo) -> Vec<bool> {
+    let (Some(img), Some(pose)) = (f.pose_image.as_ref(), f.pose.as_mut()) else { return Vec::new() };
     if img.len() != pose.len() {
-        return;
+        return vec![false; pose.len()];
     }
     let mid: [f64; 3] = std::array::from_fn(|k| (l[k] + r[k]) / 2.0);
-    for (px, p) in img.iter().zip(pose.iter_mut()) {
+    let mut measured = vec![false; pose.len()];
+    for ((px, p), m) in img.iter().zip(pose.iter_mut()).zip(measured.iter_mut()) {
         let Some(q) = optical(*px, depth, info, |v| v[0]) else { continue };
         let rel: [f64; 3] = std::array::from_fn(|k| q[k] - mid[k]);
         if rel.iter().map(|x| x * x).sum::<f64>().sqrt() < REACH {
             (p[0], p[1], p[2]) = (rel[0] as f32, rel[1] as f32, rel[2] as f32);
+            *m = true;
         }
     }
+    measured
+}
+
+/// MediaPipe's pose landmark for each of REP-155's 18 keypoints (OpenPose's COCO order): nose,
+/// neck (none), right shoulder, elbow, wrist, left shoulder, elbow, wrist, right hip, knee,
+/// ankle, left hip, knee, ankle, left eye, right eye, left ear, right ear.
+const COCO: [Option<usize>; 18] = [
+    Some(0),
+    None,
+    Some(12),
+    Some(14),
+    Some(16),
+    Some(11),
+    Some(13),
+    Some(15),
+    Some(24),
+    Some(26),
+    Some(28),
+    Some(23),
+    Some(25),
+    Some(27),
+    Some(2),
+    Some(5),
+    Some(7),
+    Some(8),
+];
+
+/// A tracker's keypoints as the landmark model's 33: each found one at its pixel, its
+/// confidence as the visibility, its 3-D place yet to be measured; the rest off the image.
+fn landmarks(b: &Skeleton2D, info: &CameraInfo) -> LandmarkFrame {
+    let mut img = vec![[-1.0f32; 2]; worker::gesture::capture::POSE_LANDMARKS];
+    let mut pose = vec![[0.0f32; 4]; img.len()];
+    for (k, mp) in b.skeleton.iter().zip(COCO) {
+        let Some(i) = mp.filter(|_| k.c > 0.0 && k.x.is_finite() && k.y.is_finite()) else { continue };
+        img[i] = [k.x * info.width as f32, k.y * info.height as f32];
+        pose[i][3] = k.c;
+    }
+    LandmarkFrame { pose: Some(pose), pose_image: Some(img), ..Default::default() }
 }
 
 /// The measured values (m) within two pixels of (u, v), nearest first; none measured: `None`.

@@ -15,8 +15,10 @@ use crate::commands::robot::observation::Frame;
 use crate::commands::robot::person::Person;
 use farm::config::GestureSchedule;
 
-/// Frames kept while waiting for their pair (colour and depth arrive apart).
+/// Frames kept while waiting for their pair (colour and depth arrive apart), and depth images
+/// kept after it for a tracker's skeletons, which come later (`--gesture skeleton`).
 const KEEP: usize = 4;
+const KEEP_DEPTH: usize = 16;
 
 /// The newest of what the topics said, and when (wall clock) each was last heard.
 #[derive(Default)]
@@ -25,6 +27,7 @@ pub(super) struct Heard {
     pub(super) sampling: Option<Result<Sampling, String>>,
     pub(super) colour: VecDeque<Image>,
     pub(super) depth: VecDeque<Image>,
+    pub(super) paired_depth: VecDeque<Image>,
     pub(super) frame: Option<Frame>,
     /// The newest colour or depth image could not be read: why.
     pub(super) frame_problem: Option<String>,
@@ -132,7 +135,7 @@ impl Heard {
                 if let Some((p, schedule)) = person {
                     let (info, odom) = (h.info.as_ref().expect("camera_info came"), h.odom.as_ref());
                     let (at, frame_id) = odom.map_or((Pose2::default(), ""), |o| (o.0, o.2.as_str()));
-                    match p.see(c, d, info, at) {
+                    match p.reads_frames().then(|| p.see(c, d, info, at)).unwrap_or(Ok(())) {
                         Ok(()) => h.gesture = p.gesture(schedule, stamp, frame_id),
                         Err(e) => h.frame_problem = Some(format!("the landmark model: {e:#}")),
                     }
@@ -141,7 +144,17 @@ impl Heard {
             Err(e) => h.frame_problem = Some(e),
         }
         h.colour.retain(|x| seconds(x.header.stamp) > stamp);
-        h.depth.retain(|x| seconds(x.header.stamp) > stamp);
+        while h.depth.front().is_some_and(|x| seconds(x.header.stamp) <= stamp) {
+            h.paired_depth.extend(h.depth.pop_front());
+        }
+        while h.paired_depth.len() > KEEP_DEPTH {
+            h.paired_depth.pop_front();
+        }
+    }
+
+    /// The depth image stamped `stamp`, if it came and is still kept.
+    pub(super) fn depth_at(&self, stamp: f64) -> Option<&Image> {
+        self.paired_depth.iter().chain(&self.depth).find(|d| seconds(d.header.stamp) == stamp)
     }
 
     /// Why the robot must hold still now, if its inputs say so (the gesture aside).

@@ -23,8 +23,10 @@ use super::observation::{Facts, Observation, person_relative};
 use super::person::Person;
 use crate::commands::live::policy::{Answer, Checkpoint, Policy};
 
+mod bodies;
 mod heard;
 mod topics;
+use bodies::Bodies;
 use heard::{Heard, Watch};
 use topics::Io;
 
@@ -61,8 +63,10 @@ pub struct Robot {
     /// The policy reads the person (a gesture, their pose): wait for them on the gesture topic.
     needs_person: bool,
     schedule: farm::config::GestureSchedule,
-    /// `--gesture camera`: the person read from the colour frames.
+    /// `--gesture camera` or `skeleton`: the person read from the colour frames, or from a
+    /// tracker's bodies.
     person: Option<Person>,
+    bodies: Option<Bodies>,
     policy: Policy,
     obs: Observation,
     heard: Heard,
@@ -102,10 +106,16 @@ impl Robot {
         let needs_person = cfg.run.method.schedule() != farm::config::GestureSchedule::None || cfg.model.person_pose;
         let policy = Policy::start_with(&ck, &ck.config, args.greedy)?;
         let person = match args.gesture.as_str() {
-            "camera" if needs_person => Some(Person::start(args.capture_seconds, args.wave_rate)?),
+            "camera" | "skeleton" if needs_person => {
+                Some(Person::start(args.capture_seconds, args.wave_rate, args.gesture == "camera")?)
+            }
             _ => None,
         };
-        let io = Io::open(&args)?;
+        let mut io = Io::open(&args)?;
+        let bodies = match person.as_ref().is_some_and(|p| !p.reads_frames()) {
+            true => Some(Bodies::open(&mut io.node, &io.names)?),
+            false => None,
+        };
         say!(
             "{} on ROS 2 domain {} as {}: colour {}, depth {}, odometry {}, commands {}, goals {}",
             ck.name,
@@ -124,6 +134,7 @@ impl Robot {
             needs_person,
             schedule: cfg.run.method.schedule(),
             person,
+            bodies,
             policy,
             obs: Observation::new(view.size),
             heard: Heard::default(),
@@ -141,7 +152,7 @@ impl Robot {
             self.begin(&t);
         }
         while !farm::process::stop_requested() {
-            let odom = self.listen();
+            let odom = self.listen()?;
             match self.problem() {
                 Some(p) => self.hold(p, odom),
                 None => {
@@ -172,14 +183,32 @@ impl Robot {
 
 impl Robot {
     /// Reads every topic; true when odometry arrived (the control loop runs at its rate).
-    fn listen(&mut self) -> bool {
+    fn listen(&mut self) -> anyhow::Result<bool> {
         let (odom, goals) = self.heard.listen(&self.io, self.view, self.person.is_none());
+        if let Some(b) = &mut self.bodies {
+            if let Some(g) = b.listen(&mut self.io.node, &self.io.names)? {
+                self.heard.garbled = Some((format!("a message that is not of its type ({g})"), Instant::now()));
+            }
+            self.read_bodies();
+        }
         let schedule = self.schedule;
         self.heard.pair_frames(self.view, self.person.as_mut().map(|p| (p, schedule)));
         for g in goals {
             self.begin(&g.data);
         }
-        odom
+        Ok(odom)
+    }
+
+    /// The person sees each image the tracker is done with, measured by its aligned depth.
+    fn read_bodies(&mut self) {
+        let (Some(b), Some(p), h) = (&mut self.bodies, &mut self.person, &self.heard) else { return };
+        let Some(info) = &h.info else { return };
+        let at = h.odom.as_ref().map_or(Pose2::default(), |o| o.0);
+        for (stamp, body) in b.ready() {
+            if let Some(depth) = h.depth_at(stamp) {
+                p.see_skeleton(body.as_ref(), depth, info, at);
+            }
+        }
     }
 
     /// Why the robot must hold still now, if it must.

@@ -4,7 +4,9 @@ use ros2_client::dds::{Node, Publisher, Subscription};
 
 use crate::commands::robot::args::Bus;
 use crate::commands::robot::dds;
-use crate::commands::robot::msgs::{CameraInfo, Clock, Decision, Gesture, Image, Odometry, Text, Twist};
+use crate::commands::robot::msgs::{
+    CameraInfo, Clock, Decision, Gesture, IdsList, Image, Odometry, Skeleton2D, Text, Twist,
+};
 use crate::commands::robot::names::{self, Names, Resolved};
 
 /// What the simulator's robot publishes and hears.
@@ -17,6 +19,9 @@ pub(super) struct Io {
     pub(super) clock: Publisher<Clock>,
     pub(super) gesture: Publisher<Gesture>,
     pub(super) goal: Publisher<Text>,
+    /// The tracker's bodies (REP-155): the person's id, and their keypoints.
+    pub(super) tracked: Publisher<IdsList>,
+    pub(super) skeleton: Publisher<Skeleton2D>,
     pub(super) cmd_vel: Subscription<Twist>,
     pub(super) decision: Subscription<Decision>,
     pub(super) person: Subscription<Gesture>,
@@ -37,6 +42,8 @@ impl Io {
             clock: dds::publisher(n, &r.clock, dds::reliable())?,
             gesture: dds::publisher(n, &r.gesture, dds::reliable())?,
             goal: dds::publisher(n, &r.goal, dds::reliable())?,
+            tracked: dds::publisher(n, &r.tracked, dds::reliable())?,
+            skeleton: dds::publisher(n, &r.skeleton(super::tracker::BODY), dds::reliable())?,
             cmd_vel: dds::subscription(n, &r.cmd_vel, dds::reliable())?,
             decision: dds::subscription(n, &r.decision, dds::reliable())?,
             person: dds::subscription(n, &r.person, dds::reliable())?,

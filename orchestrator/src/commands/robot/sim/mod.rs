@@ -18,7 +18,7 @@ use farm::files::write_atomic;
 use farm::metrics::{EpisodeResult, Trajectory, TrajectoryStep, scores};
 use farm::stepper::PayloadBuf;
 use shm_schema::{ObsShape, ObsView, action};
-use worker::camera::depth_mm;
+use worker::camera::{Intrinsics, depth_mm};
 use worker::dataset::{Dataset, Verify, write_subset};
 use worker::env::{EnvPool, PoolSpec, ProgramSource};
 use worker::gesture::Motion;
@@ -30,7 +30,7 @@ use worker::scene::Split;
 use super::args::SimArgs;
 use super::camera::{PolicyView, Sampling, pinhole};
 use super::dds::{self, drain};
-use super::msgs::{Clock, Decision, Gesture, Header, Image, Odometry, Pose, Text, Twist};
+use super::msgs::{Clock, Decision, Gesture, Header, IdsList, Image, Odometry, Pose, Skeleton2D, Text, Twist};
 use super::reading::Reading;
 use crate::commands::live::record::{EpisodeRecord, Recorder, episode_config};
 use crate::commands::live::wire::{GestureSource, Interventions, Outcome, StepRecord};
@@ -38,6 +38,7 @@ use crate::report::trajectory::write_program_gif;
 
 mod episodes;
 mod io;
+mod tracker;
 use episodes::{episode_dir, recorded, summary};
 use io::Io;
 
@@ -385,13 +386,28 @@ impl Sim {
             step: w * 2,
             data: view.depth(0).iter().flat_map(mm).collect(),
         };
-        let info = pinhole(w, h, self.cfg.env.fov_deg as f64, header);
+        let info = pinhole(w, h, self.cfg.env.fov_deg as f64, header.clone());
         let gesture = self.gesture()?;
+        let body = self.body(&view, header.clone())?;
         let n = &self.io.names;
         publish(&self.io.info, info, &n.info)?;
         publish(&self.io.depth, depth, &n.depth)?;
         publish(&self.io.gesture, gesture, &n.gesture)?;
-        publish(&self.io.colour, colour, &n.colour)
+        publish(&self.io.colour, colour, &n.colour)?;
+        // the tracker's: after the image it read
+        if let Some(b) = &body {
+            publish(&self.io.skeleton, b.clone(), &n.skeleton(tracker::BODY))?;
+        }
+        let ids = body.map(|_| tracker::BODY.to_string()).into_iter().collect();
+        publish(&self.io.tracked, IdsList { header, ids }, &n.tracked)
+    }
+
+    /// The person's keypoints as a body tracker would find them in the frame, if it would.
+    fn body(&self, view: &ObsView<'_>, header: Header) -> anyhow::Result<Option<Skeleton2D>> {
+        let env = self.pool.env(0).context("the episode's env")?;
+        let k = Intrinsics { width: self.args.width, height: self.args.height, fov_deg: self.cfg.env.fov_deg };
+        let found = tracker::body(&env.person_pose(), &env.camera(), &k, view.depth(0));
+        Ok(found.map(|skeleton| Skeleton2D { header, skeleton }))
     }
 
     /// The gesture the person shows now (the program's, or the intervention by the angle rule),
@@ -458,7 +474,7 @@ impl Sim {
         };
         e.rec.step(&record)?;
         e.kinds.push((record.shown, d.gesture_kind, in_view));
-        e.camera |= d.gesture_source == "camera";
+        e.camera |= d.gesture_source == "camera" || d.gesture_source == "skeleton";
         let ([x, z, yaw], intervention) = (record.robot, env.intervention_index());
         e.steps.push(TrajectoryStep { x, z, yaw, action: d.action, gesture: record.shown, intervention });
         if let Some(seen) = seen {
