@@ -463,6 +463,27 @@ mod tests {
     }
 
     #[test]
+    fn a_trackers_keypoints_are_the_landmark_models_and_only_the_measured_are_seen() {
+        let info = pinhole(640, 480, 90.0, Header::default());
+        let mut b = Skeleton2D { header: Header::default(), skeleton: Default::default() };
+        let at = |x: f32, y: f32| crate::commands::robot::msgs::NormalizedPoint { x: x / 640.0, y: y / 480.0, c: 0.9 };
+        // COCO's left hip (11), right hip (8), left wrist (7); the right wrist (4) not found
+        (b.skeleton[11], b.skeleton[8], b.skeleton[7]) = (at(359.5, 239.5), at(279.5, 239.5), at(399.5, 199.5));
+        let mut f = landmarks(&b, &info);
+        let img = f.pose_image.clone().unwrap();
+        assert_eq!((img[23], img[24], img[15]), ([359.5, 239.5], [279.5, 239.5], [399.5, 199.5]));
+        assert_eq!(f.pose.as_ref().unwrap()[15][3], 0.9);
+        // not found: off the image, never measured there
+        assert!(img[16][0] < 0.0 && f.pose.as_ref().unwrap()[16][3] == 0.0);
+        let d = depth(2000, &[(400, 200, 1500)]);
+        let h = hips(&f, &d, &info).unwrap();
+        let measured = lift(&mut f, h, &d, &info);
+        assert!(measured[15] && measured[23] && !measured[16], "{measured:?}");
+        // the wrist: 0.5 m nearer the camera than the hips
+        assert!((f.pose.unwrap()[15][2] + 0.5).abs() < 1e-3);
+    }
+
+    #[test]
     fn a_person_turned_to_their_right_has_their_left_hip_nearer() {
         let info = pinhole(640, 480, 90.0, Header::default());
         // facing the camera, turned to their right: their left hip nearer
