@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
-"""What the robot's camera loses: a `robot sim` run against a node on `--gesture camera`,
+"""What the robot's camera loses: a `robot sim` run against a node on `--gesture camera` (or
+`skeleton`, with `--label skeleton`),
 broken down by what the camera read of the person (each episode's camera.json), beside the
 same programs with the true gesture (an `eval` run's normal/episodes.jsonl, or a `robot sim`
 run). Prints Markdown tables (docs/robot.md).
 
-    python3 scripts/robot_camera_report.py CAMERA_RUN --truth EVAL_OR_SIM_RUN
+    python3 scripts/robot_camera_report.py CAMERA_RUN --truth EVAL_OR_SIM_RUN [--label skeleton]
 """
 
 import argparse
@@ -23,7 +24,7 @@ def camera_episodes(run):
             continue  # under way
         e = json.loads(ep.read_text())
         if not cam.is_file():
-            sys.exit(f"{cam}: missing (was the node on --gesture camera?)")
+            sys.exit(f"{cam}: missing (was the node on --gesture camera or skeleton?)")
         out[int(e["program"].split(":")[1])] = (e["success"], e["spl"], json.loads(cam.read_text()))
     return out
 
@@ -65,6 +66,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("camera_run")
     ap.add_argument("--truth", required=True, help="an eval run (normal/episodes.jsonl) or a robot sim run")
+    ap.add_argument("--label", default="camera", help="how the node read the person, for the table's columns")
     a = ap.parse_args()
     cam, truth = camera_episodes(a.camera_run), truth_episodes(a.truth)
     if not cam:
@@ -87,7 +89,7 @@ def main():
         ("person facing the robot (within 45°)", [p for p in every if c[p]["turned"] < 45]),
         ("person turned 45° or more away", [p for p in every if c[p]["turned"] >= 45]),
     ]
-    print("| episodes | n | SR 1 camera (%) | SPL 1 camera (%) | SR 1 true gesture (%) | lost (points) |")
+    print(f"| episodes | n | SR 1 {a.label} (%) | SPL 1 {a.label} (%) | SR 1 true gesture (%) | lost (points) |")
     print("|---|---:|---:|---:|---:|---:|")
     for name, programs in groups:
         print(row(name, programs, cam, truth))
