@@ -58,9 +58,9 @@ pub struct NodeArgs {
     /// the aligned depth).
     #[arg(long, default_value = "topic", value_parser = ["topic", "camera", "skeleton"])]
     pub gesture: String,
-    /// With `--gesture camera` or `skeleton`: how long the person's gesture is watched at an episode's start
-    /// (s, ROS time): two of GOND's 3.3 s gestures, so that one is seen whole whenever the
-    /// person began it.
+    /// With `--gesture camera` or `skeleton`: how long the person's gesture is watched at an
+    /// episode's start (s, ROS time): two of GOND's 3.3 s gestures, so that one is seen whole
+    /// whenever the person began it.
     #[arg(long, default_value_t = 7.0)]
     pub capture_seconds: f64,
     /// With `--gesture camera`: frames a second the landmark model reads between captures, for
