@@ -115,7 +115,7 @@ pub struct SimArgs {
     /// Draw the first N episodes: `episode-NNN/episode.gif`, the robot's view beside its map.
     #[arg(long, default_value_t = 0, value_name = "N")]
     pub gifs: usize,
-    /// How long to wait (s, wall clock) for the node to appear, and to decide anything.
+    /// How long to wait (s, wall clock) for the node to appear, and for it to answer a tick.
     #[arg(long, default_value_t = 60.0)]
     pub wait: f64,
     #[command(flatten)]

@@ -42,6 +42,10 @@ mod tracker;
 use episodes::{episode_dir, recorded, summary};
 use io::Io;
 
+/// Simulated seconds the node may go without deciding: its look around for the person (24
+/// turns), two captures of 7 s and the turn back take well under a minute.
+const UNDECIDED_S: f64 = 120.0;
+
 /// The action under way, as the simulator judges it once the next decision comes.
 struct Track {
     action: Action,
@@ -57,7 +61,9 @@ struct Episode {
     /// The node's number for it (from its first decision).
     node_episode: Option<u32>,
     rec: Recorder,
-    last_heard: Instant,
+    /// When the node last answered a tick (wall clock), and last decided (simulated time).
+    last_answer: Instant,
+    last_decision: f64,
     /// Where the robot stood at each decision, for the episode's GIF.
     steps: Vec<TrajectoryStep>,
     /// The program and GOND's clip; the node's reading of the person, and at each decision the
@@ -198,7 +204,8 @@ impl Sim {
             program: program.to_string(),
             node_episode: None,
             rec: Recorder::new(&dir, &cfg)?,
-            last_heard: Instant::now(),
+            last_answer: Instant::now(),
+            last_decision: self.t,
             steps: Vec::new(),
             truth: (p, motion),
             heard: None,
@@ -220,8 +227,11 @@ impl Sim {
         loop {
             // the node decides before it drives: its decision is judged where the robot stood
             let command = self.tick(false)?;
+            if command.is_some() {
+                e.last_answer = Instant::now();
+            }
             let ended = self.hear(&mut e)?;
-            self.apply(command)?;
+            self.apply(command.unwrap_or((0.0, 0.0)))?;
             if let Some(outcome) = ended {
                 if e.camera {
                     let (p, motion) = &e.truth;
@@ -246,14 +256,28 @@ impl Sim {
                 })?;
                 return Ok(outcome);
             }
-            anyhow::ensure!(
-                e.last_heard.elapsed().as_secs_f64() < self.args.wait,
-                "{program}: the robot node decided nothing for {:.0} s (is `orchestrator robot` running on domain {}?)",
-                self.args.wait,
-                self.args.bus.domain
-            );
-            anyhow::ensure!(!farm::process::stop_requested(), "stopped by a signal");
+            self.still_running(&e)?;
         }
+    }
+
+    /// The node still answers and decides, and no signal came.
+    fn still_running(&self, e: &Episode) -> anyhow::Result<()> {
+        // a silent node by the wall clock; a node that answers but never decides by simulated
+        // time, so that a loaded machine does not end an episode a fast one would finish
+        anyhow::ensure!(
+            e.last_answer.elapsed().as_secs_f64() < self.args.wait,
+            "{}: the robot node answered nothing for {:.0} s (is `orchestrator robot` running on domain {}?)",
+            e.program,
+            self.args.wait,
+            self.args.bus.domain
+        );
+        anyhow::ensure!(
+            self.t - e.last_decision < UNDECIDED_S,
+            "{}: the robot node decided nothing for {UNDECIDED_S} s of simulated time",
+            e.program
+        );
+        anyhow::ensure!(!farm::process::stop_requested(), "stopped by a signal");
+        Ok(())
     }
 
     /// Waits for the node's goal subscription (samples sent before it would be lost), the
@@ -282,8 +306,8 @@ impl Sim {
 
 impl Sim {
     /// One tick of simulated time: the clock and odometry, a camera frame when one is due (or
-    /// `frame`); the node's command for the tick.
-    fn tick(&mut self, frame: bool) -> anyhow::Result<(f64, f64)> {
+    /// `frame`); the node's command for the tick, if it answered.
+    fn tick(&mut self, frame: bool) -> anyhow::Result<Option<(f64, f64)>> {
         let dt = 1.0 / self.args.rate;
         self.t += dt;
         let stamp = dds::time(self.t);
@@ -294,7 +318,7 @@ impl Sim {
             self.next_frame = self.t + 1.0 / self.args.camera_rate;
         }
         let wall = Instant::now();
-        let command = self.answer().unwrap_or((0.0, 0.0));
+        let command = self.answer();
         if self.args.realtime {
             std::thread::sleep(Duration::from_secs_f64(dt).saturating_sub(wall.elapsed()));
         }
@@ -444,7 +468,7 @@ impl Sim {
                 Some(n) if n == d.episode => {}
                 _ => continue,
             }
-            e.last_heard = Instant::now();
+            e.last_decision = self.t;
             if let Some(outcome) = self.judge(e, &d)? {
                 return Ok(Some(outcome));
             }
