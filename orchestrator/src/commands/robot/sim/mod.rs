@@ -67,7 +67,8 @@ struct Episode {
     /// Where the robot stood at each decision, for the episode's GIF.
     steps: Vec<TrajectoryStep>,
     /// The program and GOND's clip; the node's reading of the person, and at each decision the
-    /// gesture shown and the one the node gave (`camera.json`, with `--gesture camera`).
+    /// gesture shown and the one the node gave (`camera.json`, with `--gesture camera` or
+    /// `skeleton`).
     truth: (Program, Motion),
     heard: Option<Gesture>,
     kinds: Vec<(u8, u8, bool)>,
