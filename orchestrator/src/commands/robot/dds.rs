@@ -71,6 +71,12 @@ pub fn drain<M: Message + DeserializeOwned + 'static>(sub: &Subscription<M>) -> 
     }
 }
 
+/// The one line that says a topic carried a message of another type (a writer of another type
+/// under the same name), `e` the decoder's complaint.
+pub fn not_of_its_type(topic: &str, e: &str) -> String {
+    format!("{topic}: a message that is not of its type ({e})")
+}
+
 /// ROS time in seconds.
 pub fn seconds(t: ros2_client::builtin_interfaces::Time) -> f64 {
     t.to_nanos() as f64 * 1e-9

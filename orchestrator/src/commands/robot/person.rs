@@ -131,7 +131,9 @@ impl Person {
             Some(h) => {
                 let measured = lift(&mut f, h, depth, info);
                 for (p, m) in f.pose.iter_mut().flatten().zip(measured) {
-                    p[3] = if m { p[3] } else { 0.0 };
+                    if !m {
+                        p[3] = 0.0;
+                    }
                 }
             }
             // hips unseen or unmeasured: nobody the capture can read

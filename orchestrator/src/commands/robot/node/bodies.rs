@@ -39,10 +39,10 @@ impl Bodies {
     }
 
     /// Reads the tracker: a new body's keypoints are subscribed to, a body no longer tracked
-    /// is let go. A message of the wrong type: why, with its topic.
+    /// is let go. A message of the wrong type: the line that says so.
     pub fn listen(&mut self, node: &mut Node, names: &Resolved) -> anyhow::Result<Option<String>> {
         let (lists, mut garbled) = drain(&self.tracked);
-        garbled = garbled.map(|e| format!("{}: {e}", names.tracked));
+        garbled = garbled.map(|e| dds::not_of_its_type(&names.tracked, &e));
         if let Some(now) = lists.last() {
             self.skeletons.retain(|(id, _)| now.ids.contains(id));
             for id in &now.ids {
@@ -55,7 +55,7 @@ impl Bodies {
         self.lists.extend(lists);
         for (id, sub) in &self.skeletons {
             let (heard, e) = drain(sub);
-            garbled = garbled.or(e.map(|e| format!("{}: {e}", names.skeleton(id))));
+            garbled = garbled.or(e.map(|e| dds::not_of_its_type(&names.skeleton(id), &e)));
             self.heard.extend(heard.into_iter().map(|s| (id.clone(), s)));
         }
         while self.lists.len() > KEEP {

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use super::topics::Io;
 use crate::commands::robot::camera::PolicyView;
 use crate::commands::robot::camera::Sampling;
-use crate::commands::robot::dds::{drain, seconds};
+use crate::commands::robot::dds::{self, drain, seconds};
 use crate::commands::robot::drive::Pose2;
 use crate::commands::robot::msgs::{CameraInfo, Gesture, Image, Text};
 use crate::commands::robot::names::Resolved;
@@ -58,7 +58,7 @@ impl Heard {
         let mut garbled = Vec::new();
         let mut note = |what: &str, e: Option<String>| {
             if let Some(e) = e {
-                garbled.push(format!("{what}: a message that is not of its type ({e})"));
+                garbled.push(dds::not_of_its_type(what, &e));
             }
         };
         if let Some(c) = &io.clock {
@@ -135,7 +135,9 @@ impl Heard {
                 if let Some((p, schedule)) = person {
                     let (info, odom) = (h.info.as_ref().expect("camera_info came"), h.odom.as_ref());
                     let (at, frame_id) = odom.map_or((Pose2::default(), ""), |o| (o.0, o.2.as_str()));
-                    match p.reads_frames().then(|| p.see(c, d, info, at)).unwrap_or(Ok(())) {
+                    // a tracker's skeletons are seen as they come (`read_bodies`), not with the frame
+                    let seen = if p.reads_frames() { p.see(c, d, info, at) } else { Ok(()) };
+                    match seen {
                         Ok(()) => h.gesture = p.gesture(schedule, stamp, frame_id),
                         Err(e) => h.frame_problem = Some(format!("the landmark model: {e:#}")),
                     }

@@ -187,7 +187,7 @@ impl Robot {
         let (odom, goals) = self.heard.listen(&self.io, self.view, self.person.is_none());
         if let Some(b) = &mut self.bodies {
             if let Some(g) = b.listen(&mut self.io.node, &self.io.names)? {
-                self.heard.garbled = Some((format!("a message that is not of its type ({g})"), Instant::now()));
+                self.heard.garbled = Some((g, Instant::now()));
             }
             self.read_bodies();
         }

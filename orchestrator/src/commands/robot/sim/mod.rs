@@ -99,14 +99,15 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
     farm::process::install_termination_handler()?;
     let ds = Dataset::open(&a.dataset, Verify::Quick)?;
     let (split, list) = crate::commands::robot::args::programs(&a, &ds)?;
-    let (checkpoint, _) = crate::commands::eval::locate(&a.checkpoint)?;
+    let located = crate::commands::eval::locate(&a.checkpoint)?;
+    let checkpoint = located.0.clone();
     let mut outcomes = recorded(&a.out, split, &list, &checkpoint)?;
     let (done, out) = (outcomes.len(), a.out.clone());
     if done > 0 {
         say!("{done} of {} episodes already recorded in {}: on from the next", list.len(), out.display());
     }
     if done < list.len() {
-        let mut sim = Sim::new(a, split, list[done..].to_vec())?;
+        let mut sim = Sim::new(a, located, split, list[done..].to_vec())?;
         for (n, &p) in list.iter().enumerate().skip(done) {
             if farm::process::stop_requested() {
                 break;
@@ -128,8 +129,8 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
 }
 
 impl Sim {
-    fn new(args: SimArgs, split: Split, list: Vec<u64>) -> anyhow::Result<Sim> {
-        let (checkpoint, run) = crate::commands::eval::locate(&args.checkpoint)?;
+    /// `(checkpoint, run)`: the checkpoint `--checkpoint` names, and its run's folder.
+    fn new(args: SimArgs, (checkpoint, run): (PathBuf, PathBuf), split: Split, list: Vec<u64>) -> anyhow::Result<Sim> {
         let mut cfg = RunConfig::load(&run.join("config.toml"))
             .with_context(|| format!("--checkpoint {}: its run's config", args.checkpoint.display()))?;
         cfg = episode_config(&cfg, &args.dataset, split);
