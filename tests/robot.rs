@@ -262,6 +262,9 @@ fn cyclone_dds_drives_the_node_which_holds_still_on_bad_and_stale_input() {
     // the camera gone: the same
     assert!(held("no_camera", "no colour image"), "{seen}\n{log}");
     assert_eq!(phase("no_camera", "moving_after_hold"), 0, "{seen}");
+    // a gesture of another gesthor_msgs (its type's name, other fields): the same, naming the topic
+    assert!(held("garbled", "/gesthor/gesture: a message that is not of its type"), "{seen}\n{log}");
+    assert_eq!(phase("garbled", "moving_after_hold"), 0, "{seen}");
     // good again: it decides afresh and drives on
     assert!(phase("good_again", "decisions") >= 1 && phase("good_again", "moving_commands") > 0, "{seen}\n{log}");
     assert!(log.contains("holding still: colour image: encoding `mono8`"), "{log}");

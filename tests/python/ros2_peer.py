@@ -5,7 +5,8 @@ test of `orchestrator robot`: ROS 2's topic names (`rt/...`) and types
 It publishes a recorded camera frame (colour rgb8 and 16UC1 depth, 640x480, with camera_info),
 odometry at 30 Hz integrating the node's cmd_vel, and the person's gesture; sends a goal; and
 goes through phases: good input (the node must drive), an image of another encoding, no camera,
-then good input again. It prints one JSON line of what it saw in each phase.
+a gesture that is not of its type, then good input again. It prints one JSON line of what it
+saw in each phase.
 
     python3 ros2_peer.py --domain 42 --frames DIR --seconds 6
 """
@@ -160,6 +161,13 @@ class Gesture(IdlStruct, typename="gesthor_msgs::msg::dds_::Gesture_"):
 
 @dataclass
 @final
+class NotAGesture(IdlStruct, typename="gesthor_msgs::msg::dds_::Gesture_"):
+    """Gesture's type name over a header alone: a robot built with other gesthor_msgs."""
+    header: Header
+
+
+@dataclass
+@final
 class Decision(IdlStruct, typename="gesthor_msgs::msg::dds_::Decision_"):
     header: Header
     episode: uint32
@@ -202,6 +210,7 @@ def main():
     info_w = writer("rt/camera/color/camera_info", CameraInfo)
     odom_w = writer("rt/odom", Odometry)
     gesture_w = writer("rt/gesthor/gesture", Gesture)
+    not_a_gesture_w = writer("rt/gesthor/gesture", NotAGesture)
     goal_w = writer("rt/gesthor_robot/goal", String)
     cmd_r = DataReader(dp, Topic(dp, "rt/cmd_vel", Twist), qos=reliable)
     decision_r = DataReader(dp, Topic(dp, "rt/gesthor_robot/decision", Decision), qos=reliable)
@@ -210,7 +219,7 @@ def main():
     cx, cy = (w - 1) / 2, (h - 1) / 2
     x = y = yaw = 0.0
     v = wz = 0.0
-    phases = ["good", "mono8", "no_camera", "good_again"]
+    phases = ["good", "mono8", "no_camera", "garbled", "good_again"]
     # per phase: decisions taken, commands heard, why the node held still, and moving commands
     # heard after it said it holds (there must be none)
     seen = {p: {"decisions": 0, "moving_commands": 0, "zero_commands": 0, "holding": [], "moving_after_hold": 0} for p in phases}
@@ -244,8 +253,12 @@ def main():
                                     p=[f, 0, cx, 0, 0, f, cy, 0, 0, 0, 1, 0], binning_x=0, binning_y=0,
                                     roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)))
             depth_w.write(Image(header=ch, height=h, width=w, encoding="16UC1", is_bigendian=0, step=w * 2, data=depth.view(np.uint8).tobytes()))
-            gesture_w.write(Gesture(header=Header(stamp=stamp(now), frame_id="odom"), kind=1, person=planar(*meta["person"]),
-                                    frames=100, dims=95, muscles=muscles.tolist()))
+            gh = Header(stamp=stamp(now), frame_id="odom")
+            if phase == "garbled":
+                not_a_gesture_w.write(NotAGesture(header=gh))
+            else:
+                gesture_w.write(Gesture(header=gh, kind=1, person=planar(*meta["person"]), frames=100, dims=95,
+                                        muscles=muscles.tolist()))
             if phase == "mono8":
                 colour_w.write(Image(header=ch, height=h, width=w, encoding="mono8", is_bigendian=0, step=w, data=rgb[::3].tobytes()))
             else:
