@@ -90,7 +90,13 @@ impl PolicyNet {
         let rgb = (spec.rgb && !spec.fused()).then(|| visual("rgb", 3));
         let depth = (spec.depth && !spec.fused()).then(|| visual("depth", 1));
         let gesture = spec.gesture.then(|| {
-            GestureNet::new(&(&root / "gesture"), spec.gesture_network, GESTURE_DIMS as i64, spec.gesture_pose_dims(), h)
+            GestureNet::new(
+                &(&root / "gesture"),
+                spec.gesture_network,
+                GESTURE_DIMS as i64,
+                spec.gesture_pose_dims(),
+                h,
+            )
         });
         let target =
             spec.semantic.then(|| nn::embedding(&root / "target", TARGET_CATEGORIES as i64, h, Default::default()));

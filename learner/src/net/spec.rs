@@ -86,7 +86,9 @@ impl NetSpec {
         match (self.gesture_network, self.gesture_reads_pose()) {
             (GestureNetwork::Flat, _) => "gesture".into(),
             (GestureNetwork::FlatAndTurned, false) => "gesture read flat and per frame".into(),
-            (GestureNetwork::FlatAndTurned, true) => "gesture read flat and per frame turned by the person's pose".into(),
+            (GestureNetwork::FlatAndTurned, true) => {
+                "gesture read flat and per frame turned by the person's pose".into()
+            }
         }
     }
 

@@ -75,6 +75,11 @@ pub(crate) fn parse_ref(s: &str) -> Option<(Split, usize)> {
     Some((Split::from_name(split)?, i.parse().ok()?))
 }
 
+/// A program as `parse_ref` reads it: `val:17`.
+pub(crate) fn program_ref(split: Split, i: u64) -> String {
+    format!("{}:{i}", split.name())
+}
+
 /// A program and its motion, from the dataset.
 pub(crate) fn dataset_program(ds: &Dataset, split: Split, i: usize) -> anyhow::Result<(Program, Motion)> {
     let file = ds.require(split)?;

@@ -7,6 +7,7 @@ use worker::scene::Split;
 
 use crate::commands::live::record::EpisodeRecord;
 use crate::commands::live::wire::Outcome;
+use crate::commands::program::program_ref;
 
 pub(super) fn episode_dir(out: &Path, number: usize) -> PathBuf {
     out.join(format!("episode-{number:03}"))
@@ -27,7 +28,7 @@ pub(super) fn recorded(
             break;
         }
         let r = EpisodeRecord::load(&dir)?;
-        let program = format!("{}:{p}", split.name());
+        let program = program_ref(split, p);
         anyhow::ensure!(
             r.program == program && r.checkpoint == checkpoint,
             "{}: {} by {} is recorded there, not {program} by {}: give another --out, or remove it",

@@ -34,6 +34,7 @@ use super::msgs::{Clock, Decision, Gesture, Header, IdsList, Image, Odometry, Po
 use super::reading::Reading;
 use crate::commands::live::record::{EpisodeRecord, Recorder, episode_config};
 use crate::commands::live::wire::{GestureSource, Interventions, Outcome, StepRecord};
+use crate::commands::program::program_ref;
 use crate::report::trajectory::write_program_gif;
 
 mod episodes;
@@ -112,7 +113,7 @@ pub fn run(a: SimArgs) -> anyhow::Result<()> {
             if farm::process::stop_requested() {
                 break;
             }
-            let program = format!("{}:{p}", split.name());
+            let program = program_ref(split, p);
             let outcome = sim.episode(&ds, split, p, n + 1, n == done)?;
             say!(
                 "{program}: {} after {} steps (SPL {:.2}) [{}/{}]",
@@ -185,7 +186,7 @@ impl Sim {
         number: usize,
         first: bool,
     ) -> anyhow::Result<Outcome> {
-        let program = &format!("{}:{index}", split.name());
+        let program = &program_ref(split, index);
         let started = match first {
             true => {
                 self.pool.reset(self.buf.bytes_mut())?;
