@@ -5,7 +5,9 @@ broken down by what the camera read of the person (each episode's camera.json), 
 same programs with the true gesture (an `eval` run's normal/episodes.jsonl, or a `robot sim`
 run). Prints Markdown tables (docs/robot.md).
 
-    python3 scripts/robot_camera_report.py CAMERA_RUN --truth EVAL_OR_SIM_RUN [--label skeleton]
+    python3 scripts/robot_camera_report.py CAMERA_RUN... --truth EVAL_OR_SIM_RUN [--label skeleton]
+
+Several CAMERA_RUNs (pairs of node and simulator that shared the programs) read as one.
 """
 
 import argparse
@@ -15,17 +17,20 @@ import sys
 from pathlib import Path
 
 
-def camera_episodes(run):
-    """Per program index: (success at the first stop, SPL, camera.json)."""
+def camera_episodes(runs):
+    """Per program index: (success at the first stop, SPL, DTS, camera.json)."""
     out = {}
-    for d in sorted(Path(run).glob("episode-*")):
+    for d in sorted(e for run in runs for e in Path(run).glob("episode-*")):
         ep, cam = d / "episode.json", d / "camera.json"
         if not ep.is_file():
             continue  # under way
         e = json.loads(ep.read_text())
         if not cam.is_file():
             sys.exit(f"{cam}: missing (was the node on --gesture camera or skeleton?)")
-        out[int(e["program"].split(":")[1])] = (e["success"], e["spl"], json.loads(cam.read_text()))
+        p = int(e["program"].split(":")[1])
+        if p in out:
+            sys.exit(f"{d}: {e['program']} is recorded twice")
+        out[p] = (e["success"], e["spl"], e["dts"], json.loads(cam.read_text()))
     return out
 
 
@@ -64,14 +69,14 @@ def row(name, programs, cam, truth):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("camera_run")
+    ap.add_argument("camera_runs", nargs="+", metavar="camera_run")
     ap.add_argument("--truth", required=True, help="an eval run (normal/episodes.jsonl) or a robot sim run")
     ap.add_argument("--label", default="camera", help="how the node read the person, for the table's columns")
     a = ap.parse_args()
-    cam, truth = camera_episodes(a.camera_run), truth_episodes(a.truth)
+    cam, truth = camera_episodes(a.camera_runs), truth_episodes(a.truth)
     if not cam:
-        sys.exit(f"{a.camera_run}: no finished episodes")
-    c = {p: v[2] for p, v in cam.items()}
+        sys.exit(f"{' '.join(a.camera_runs)}: no finished episodes")
+    c = {p: v[3] for p, v in cam.items()}
     every = sorted(cam)
     read = [p for p in every if c[p]["read"]]
     right = [p for p in read if c[p]["arm_read"] == c[p]["arm"]]
@@ -89,6 +94,12 @@ def main():
         ("person facing the robot (within 45°)", [p for p in every if c[p]["turned"] < 45]),
         ("person turned 45° or more away", [p for p in every if c[p]["turned"] >= 45]),
     ]
+    n = len(every)
+    print(
+        f"{n} episodes: SR {pct(sum(cam[p][0] for p in every), n)}, SPL {pct(sum(cam[p][1] for p in every), n)}, "
+        f"DTS {statistics.mean(cam[p][2] for p in every):.3f} (the row of the first table)"
+    )
+    print()
     print(f"| episodes | n | SR 1 {a.label} (%) | SPL 1 {a.label} (%) | SR 1 true gesture (%) | lost (points) |")
     print("|---|---:|---:|---:|---:|---:|")
     for name, programs in groups:
