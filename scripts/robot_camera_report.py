@@ -120,7 +120,7 @@ def main():
         shown, seen, got = (sum(c[p][k] for p in ps) for k in ("waves", "waves_in_view", "waves_read"))
         print(f"| {name} | {shown} | {seen} | {got} | {pct(got, seen)} |")
     false = sum(c[p]["false_waves"] for p in every)
-    print(f"\nA wave read where none was shown: {false} decisions.")
+    print(f"\nA wave read where none was shown: {false} decision{'' if false == 1 else 's'}.")
 
 
 if __name__ == "__main__":
